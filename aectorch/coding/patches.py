@@ -1,0 +1,350 @@
+"""Foveal two-scale patch extraction: the input stage of the binocular sparse coder.
+
+Two grey images (a stereo pair, or two successive frames of the dominant eye) are each cropped
+around their centre, reduced with a Gaussian pyramid, and cut into 10 x 10 patches. The two
+monocular halves of a patch are each made zero-mean and unit-norm and then concatenated, first
+image first, into one binocular vector of length 200. See ``docs/sensory-coding.md`` for why the
+coarse scale is the 128 px crop reduced by 8 and the fine scale the 80 px crop reduced by 2.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+__all__ = [
+    "Scale",
+    "COARSE",
+    "FINE",
+    "as_scale",
+    "pyramid_down",
+    "extract_patches",
+    "FovealPatches",
+]
+
+# Burt & Adelson's 5-tap binomial kernel, the one OpenCV's pyrDown uses. The taps are dyadic
+# rationals, so they are exact in every float dtype.
+_BINOMIAL_5 = (1.0 / 16, 4.0 / 16, 6.0 / 16, 4.0 / 16, 1.0 / 16)
+
+# A flat half only becomes exactly flat after the pyramid and the mean up to rounding, which is a
+# few ulps of the pixel values, i.e. ~1e-7 in float32 -- far above an absolute eps of 1e-8. The
+# flat test therefore adds a rounding allowance of this many machine epsilons per unit of
+# sqrt(patch pixels) * max|pixel| (1e-5 for a float32 half of values near 1; 2e-14 in float64).
+_ROUNDING_ULPS = 8.0
+
+
+@dataclass(frozen=True)
+class Scale:
+    """One foveal scale: a central square crop, a pyramid reduction and a patch grid.
+
+    Args:
+        name: label used in logs and configs (``"coarse"``, ``"fine"``).
+        crop: side of the central square crop in pixels of the full image.
+        downsample: Gaussian-pyramid reduction factor, a power of two (1 = no reduction).
+        patch_size: side of a square monocular patch in pixels of the reduced crop.
+        stride: step between neighbouring patches in pixels of the reduced crop (keyword-only,
+            no default).
+
+    Example:
+        >>> s = Scale("coarse", crop=128, downsample=8, stride=1)
+        >>> s.grid, s.num_patches, s.dim
+        (7, 49, 200)
+    """
+
+    name: str
+    crop: int
+    downsample: int
+    patch_size: int = 10
+    stride: int = field(kw_only=True)
+
+    def __post_init__(self) -> None:
+        for name in ("crop", "downsample", "patch_size", "stride"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"Scale.{name} must be a positive int, got {value!r}")
+        if self.downsample & (self.downsample - 1):
+            raise ValueError(
+                f"Scale.downsample must be a power of two (Gaussian pyramid), got {self.downsample}"
+            )
+        if self.crop % self.downsample:
+            raise ValueError(
+                f"Scale.crop={self.crop} must be divisible by Scale.downsample={self.downsample}"
+            )
+        side = self.crop // self.downsample
+        if self.downsample > 1 and side < 2:
+            # the last pyramid level reads a 2*side image and reflect-101 padding needs >= 3 px
+            raise ValueError(
+                f"Scale.crop={self.crop} is too small for Scale.downsample={self.downsample}: "
+                f"the reduced crop must be at least 2 px, got {side}"
+            )
+        if self.patch_size > side:
+            raise ValueError(
+                f"Scale.patch_size={self.patch_size} does not fit in the reduced crop "
+                f"{side}x{side} (crop {self.crop} / downsample {self.downsample})"
+            )
+
+    @property
+    def levels(self) -> int:
+        """Number of pyramid reductions, log2(downsample)."""
+        return self.downsample.bit_length() - 1
+
+    @property
+    def side(self) -> int:
+        """Side of the reduced crop in pixels, crop // downsample."""
+        return self.crop // self.downsample
+
+    @property
+    def grid(self) -> int:
+        """Patches per side of the grid."""
+        return (self.side - self.patch_size) // self.stride + 1
+
+    @property
+    def num_patches(self) -> int:
+        """Patches per image pair, grid**2."""
+        return self.grid**2
+
+    @property
+    def dim(self) -> int:
+        """Length of a binocular patch vector, 2 * patch_size**2."""
+        return 2 * self.patch_size**2
+
+
+COARSE = Scale("coarse", crop=128, downsample=8, stride=1)
+"""Parafoveal scale: 128 px crop reduced by 8 to 16 x 16, 10 x 10 patches at stride 1, 49 patches."""
+
+FINE = Scale("fine", crop=80, downsample=2, stride=4)
+"""Foveal scale: 80 px crop reduced by 2 to 40 x 40, 10 x 10 patches at stride 4, 64 patches."""
+
+_NAMED_SCALES = {"coarse": COARSE, "fine": FINE}
+
+
+def as_scale(scale: Scale | str) -> Scale:
+    """Return ``scale`` itself, or the named default scale for ``"coarse"`` / ``"fine"``.
+
+    Args:
+        scale: a :class:`Scale`, or one of the strings ``"coarse"`` and ``"fine"``.
+
+    Returns:
+        The :class:`Scale`.
+
+    Example:
+        >>> as_scale("fine") is FINE
+        True
+    """
+    if isinstance(scale, Scale):
+        return scale
+    if isinstance(scale, str):
+        try:
+            return _NAMED_SCALES[scale]
+        except KeyError:
+            raise ValueError(
+                f"scale must be a Scale or one of {sorted(_NAMED_SCALES)}, got {scale!r}"
+            ) from None
+    raise TypeError(f"scale must be a Scale or a str, got {type(scale).__name__}")
+
+
+def _check_image(images: Tensor, name: str) -> None:
+    if not isinstance(images, Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(images).__name__}")
+    if images.dim() != 3:
+        raise ValueError(
+            f"{name} must have shape [B, H, W] (rank 3), got shape {tuple(images.shape)}"
+        )
+    if not images.is_floating_point():
+        raise TypeError(
+            f"{name} has dtype {images.dtype}: expected a floating-point image in [0, 1]; "
+            "convert uint8 with x.float() / 255"
+        )
+
+
+def _check_finite(images: Tensor, name: str) -> None:
+    # One pass over the data and a host sync: optional, and never traced by torch.compile.
+    if torch.compiler.is_compiling():
+        return
+    if not bool(torch.isfinite(images).all()):
+        raise ValueError(f"{name} contains non-finite values (NaN or inf)")
+
+
+def _pyramid_down(x: Tensor, levels: int) -> Tensor:
+    """Reduce a ``[N, 1, H, W]`` tensor ``levels`` times; no checks."""
+    taps = torch.tensor(_BINOMIAL_5, dtype=x.dtype, device=x.device)
+    k_row = taps.view(1, 1, 1, 5)
+    k_col = taps.view(1, 1, 5, 1)
+    for _ in range(levels):
+        # Keeping every second pixel is folded into the convolutions (stride 2 along the filtered
+        # axis): the output pixel j sits on input pixel 2j, so only even indices are computed.
+        x = F.conv2d(F.pad(x, (2, 2, 0, 0), mode="reflect"), k_row, stride=(1, 2))
+        x = F.conv2d(F.pad(x, (0, 0, 2, 2), mode="reflect"), k_col, stride=(2, 1))
+    return x
+
+
+def pyramid_down(images: Tensor, levels: int) -> Tensor:
+    """Gaussian-pyramid reduce ``images`` ``levels`` times (Burt & Adelson, like ``cv2.pyrDown``).
+
+    Each level blurs with the separable binomial kernel [1, 4, 6, 4, 1] / 16 along both axes,
+    with reflect-101 borders (``... c b | a b c ... | ... b c``, no edge pixel repeated), and keeps
+    the pixels with even row and column indices, so a side n becomes ceil(n / 2).
+
+    Args:
+        images: grey images, any floating dtype, any device.
+        levels: number of reductions (0 returns ``images`` unchanged).
+
+    Returns:
+        The reduced images, same dtype and device as ``images``.
+
+    Shape:
+        - images: :math:`(B, H, W)`, every intermediate side at least 3 px.
+        - output: :math:`(B, H', W')` with ``H' = ceil(H / 2**levels)``, likewise ``W'``.
+
+    Example:
+        >>> x = torch.rand(2, 240, 320)
+        >>> pyramid_down(x, 3).shape
+        torch.Size([2, 30, 40])
+        >>> torch.allclose(pyramid_down(torch.full((1, 8, 8), 0.5), 2), torch.full((1, 2, 2), 0.5))
+        True
+    """
+    _check_image(images, "images")
+    if isinstance(levels, bool) or not isinstance(levels, int) or levels < 0:
+        raise ValueError(f"levels must be an int >= 0, got {levels!r}")
+    h, w = images.shape[-2:]
+    for level in range(levels):
+        if h < 3 or w < 3:
+            raise ValueError(
+                f"images of shape {tuple(images.shape)} are too small for {levels} pyramid levels: "
+                f"level {level} would read a {h}x{w} image, reflect-101 borders need >= 3 px"
+            )
+        h, w = (h + 1) // 2, (w + 1) // 2
+    if levels == 0:
+        return images
+    return _pyramid_down(images.unsqueeze(1), levels).squeeze(1)
+
+
+def extract_patches(
+    first: Tensor,
+    second: Tensor,
+    scale: Scale | str,
+    *,
+    eps: float = 1e-8,
+    check_finite: bool = True,
+) -> Tensor:
+    """Cut normalised binocular patches from the centre of two grey images at one foveal scale.
+
+    Both images are cropped to the central ``scale.crop`` square (offset ``(H - crop) // 2`` rows
+    and ``(W - crop) // 2`` columns: when the difference is odd the crop sits half a pixel up and
+    left of the true centre), reduced by ``scale.downsample`` with :func:`pyramid_down`, and cut
+    into ``patch_size x patch_size`` patches at ``scale.stride``. Patches are ordered row-major over
+    the grid and pixels row-major within a patch. Each monocular half is made zero-mean and
+    unit-L2-norm; a flat half (centred norm at most ``eps`` plus a dtype rounding allowance of
+    ``8 * finfo.eps * sqrt(patch_size**2) * max|half|``) becomes all zeros, never NaN. The
+    halves are concatenated with ``first``'s half first.
+
+    Args:
+        first: first images (dominant eye, or the frame before the body shift), floats in [0, 1].
+        second: second images (other eye, or the frame after the shift), same shape as ``first``.
+        scale: a :class:`Scale`, or ``"coarse"`` / ``"fine"``.
+        eps: absolute floor of the centred norm below which a half counts as flat.
+        check_finite: raise on NaN/inf in the inputs. This costs a pass over the data and a host
+            sync; pass ``False`` on hot paths. Skipped automatically inside ``torch.compile``.
+
+    Returns:
+        Binocular patch vectors, same dtype and device as the inputs. A textured patch has
+        squared norm 2 (1 per half).
+
+    Shape:
+        - first, second: :math:`(B, H, W)` with ``H, W >= scale.crop``.
+        - output: :math:`(B, N, 2 P^2)` with ``N = scale.num_patches`` and ``P = scale.patch_size``.
+
+    Example:
+        >>> first, second = torch.rand(3, 240, 320), torch.rand(3, 240, 320)
+        >>> extract_patches(first, second, "coarse").shape
+        torch.Size([3, 49, 200])
+        >>> x = extract_patches(first, second, FINE)
+        >>> x.shape
+        torch.Size([3, 64, 200])
+        >>> torch.allclose(x.square().sum(-1), torch.full((3, 64), 2.0))
+        True
+    """
+    scale = as_scale(scale)
+    _check_image(first, "first")
+    _check_image(second, "second")
+    if first.shape != second.shape:
+        raise ValueError(
+            f"first and second must have the same shape, got {tuple(first.shape)} "
+            f"and {tuple(second.shape)}"
+        )
+    if first.dtype != second.dtype or first.device != second.device:
+        raise TypeError(
+            f"first and second must share dtype and device, got {first.dtype} on {first.device} "
+            f"and {second.dtype} on {second.device}"
+        )
+    b, h, w = first.shape
+    crop = scale.crop
+    if h < crop or w < crop:
+        raise ValueError(
+            f"first and second of shape {tuple(first.shape)} are smaller than the "
+            f"{crop}x{crop} crop of scale {scale.name!r}"
+        )
+    if check_finite:
+        _check_finite(first, "first")
+        _check_finite(second, "second")
+
+    top, left = (h - crop) // 2, (w - crop) // 2
+    # One pyramid call for both eyes: [B, 2, crop, crop] viewed as 2B single-channel images.
+    pair = torch.stack((first, second), dim=1)[:, :, top : top + crop, left : left + crop]
+    reduced = _pyramid_down(pair.reshape(2 * b, 1, crop, crop), scale.levels)
+
+    p, stride, g = scale.patch_size, scale.stride, scale.grid
+    # [2B, 1, side, side] -> [2B, 1, g, g, p, p]: grid row, grid column, pixel row, pixel column.
+    tiles = reduced.unfold(2, p, stride).unfold(3, p, stride)
+    halves = tiles.reshape(b, 2, g * g, p * p)
+
+    centred = halves - halves.mean(dim=-1, keepdim=True)
+    norm = torch.linalg.vector_norm(centred, dim=-1, keepdim=True)
+    rounding = _ROUNDING_ULPS * torch.finfo(halves.dtype).eps * (p * p) ** 0.5
+    flat = norm <= eps + rounding * halves.abs().amax(dim=-1, keepdim=True)
+    # Divide by 1 where flat so neither the value nor its gradient ever sees 0 / 0.
+    unit = centred / torch.where(flat, torch.ones_like(norm), norm)
+    unit = torch.where(flat, torch.zeros_like(unit), unit)
+
+    # [B, 2, N, P^2] -> [B, N, 2, P^2] -> [B, N, 2 P^2]: first image's half first.
+    return unit.transpose(1, 2).reshape(b, g * g, 2 * p * p)
+
+
+class FovealPatches(nn.Module):
+    """Module form of :func:`extract_patches` for one fixed scale (no parameters).
+
+    Args:
+        scale: a :class:`Scale`, or ``"coarse"`` / ``"fine"``.
+        eps: see :func:`extract_patches`.
+        check_finite: see :func:`extract_patches`.
+
+    Shape:
+        - first, second: :math:`(B, H, W)`.
+        - output: :math:`(B, N, 2 P^2)`.
+
+    Example:
+        >>> coarse = FovealPatches("coarse")
+        >>> coarse(torch.rand(1, 240, 320), torch.rand(1, 240, 320)).shape
+        torch.Size([1, 49, 200])
+    """
+
+    def __init__(self, scale: Scale | str, *, eps: float = 1e-8, check_finite: bool = True):
+        super().__init__()
+        self.scale = as_scale(scale)
+        self.eps = eps
+        self.check_finite = check_finite
+
+    def forward(self, first: Tensor, second: Tensor) -> Tensor:
+        return extract_patches(
+            first, second, self.scale, eps=self.eps, check_finite=self.check_finite
+        )
+
+    def extra_repr(self) -> str:
+        s = self.scale
+        return (
+            f"scale={s.name!r}, crop={s.crop}, downsample={s.downsample}, "
+            f"patch_size={s.patch_size}, stride={s.stride}, num_patches={s.num_patches}"
+        )
