@@ -1,0 +1,31 @@
+"""Sensory coding: foveal patches, batched OMP / MP, learnable dictionaries, binocular encoders."""
+
+from aectorch.coding.dictionary import (
+    DictionaryOutput,
+    SparseDictionary,
+    pooled_activity,
+    reconstruction_error,
+)
+from aectorch.coding.encoder import BinocularEncoder, EncoderOutput
+from aectorch.coding.patches import COARSE, FINE, FovealPatches, Scale, extract_patches, pyramid_down
+from aectorch.coding.pursuit import gram_matrix, matching_pursuit, omp
+from aectorch.coding.sparse_code import SparseCode
+
+__all__ = [
+    "BinocularEncoder",
+    "COARSE",
+    "DictionaryOutput",
+    "EncoderOutput",
+    "FINE",
+    "FovealPatches",
+    "Scale",
+    "SparseCode",
+    "SparseDictionary",
+    "extract_patches",
+    "gram_matrix",
+    "matching_pursuit",
+    "omp",
+    "pooled_activity",
+    "pyramid_down",
+    "reconstruction_error",
+]

@@ -1,0 +1,204 @@
+"""`SparseDictionary`: a learnable over-complete dictionary with a greedy sparse coder.
+
+The paper's sensory coding model (sec. 2.2): signals are coded with k atoms, the
+normalised reconstruction error of eq. (4) is the cost, and the atoms follow its
+gradient with the support and coefficients held fixed, then are renormalised.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+from torch import nn
+
+from aectorch.coding.pursuit import gram_matrix, matching_pursuit, omp
+from aectorch.coding.sparse_code import SparseCode
+
+__all__ = ["SparseDictionary", "DictionaryOutput", "pooled_activity", "reconstruction_error"]
+
+_ALGORITHMS = {"omp": omp, "mp": matching_pursuit}
+
+
+class DictionaryOutput(NamedTuple):
+    """What `SparseDictionary.forward` returns.
+
+    Attributes:
+        code: the sparse code, `indices`/`coefficients` `[..., k]` (constants for autograd).
+        reconstruction: ``D a`` per signal, `[..., P]`, differentiable w.r.t. the atoms.
+        error: eq. (4) term per signal, ``||x - D a||^2 / ||x||^2``, `[...]`
+            (0 for a zero signal), differentiable w.r.t. the atoms.
+    """
+
+    code: SparseCode
+    reconstruction: torch.Tensor
+    error: torch.Tensor
+
+
+def reconstruction_error(signals: torch.Tensor, reconstruction: torch.Tensor) -> torch.Tensor:
+    """Normalised squared reconstruction error per signal, the summand of eq. (4).
+
+    ``||x - x_hat||^2 / ||x||^2``, defined as 0 when ``x`` is zero (then the code,
+    and so ``x_hat``, is zero as well): never NaN, also in the backward pass.
+
+    Shape:
+        signals, reconstruction: `[..., P]`; returns `[...]`.
+    """
+    energy = signals.square().sum(-1)
+    residual = (signals - reconstruction).square().sum(-1)
+    return residual / energy.clamp_min(torch.finfo(energy.dtype).tiny)
+
+
+def pooled_activity(code: SparseCode, num_atoms: int, *, reduction: str = "sum") -> torch.Tensor:
+    """Pooled activity of each atom over the patches of one image pair, eq. (3).
+
+    ``f_n = sum_i a_{i,n}^2`` over the patches i. Repeated atoms of plain MP are
+    summed within a patch before squaring.
+
+    Args:
+        code: codes of patches, `indices`/`coefficients` of shape `[..., n_patches, k]`.
+        num_atoms: dictionary size N.
+        reduction: ``"sum"`` (eq. 3, default) or ``"mean"`` over patches (the
+            convention of some earlier AEC models; it only rescales by 1/n_patches).
+
+    Returns:
+        Features `[..., N]`.
+
+    Example:
+        >>> import torch
+        >>> from aectorch.coding import SparseCode, pooled_activity
+        >>> code = SparseCode(torch.tensor([[[0, 2], [2, 1]]]), torch.tensor([[[1.0, 2.0], [3.0, 0.5]]]))
+        >>> pooled_activity(code, 3)
+        tensor([[ 1.0000,  0.2500, 13.0000]])
+    """
+    if reduction not in ("sum", "mean"):
+        raise ValueError(f"reduction must be 'sum' or 'mean', got {reduction!r}")
+    if code.indices.ndim < 2:
+        raise ValueError(
+            f"code must have shape [..., n_patches, k], got indices of shape {tuple(code.indices.shape)}"
+        )
+    power = code.to_dense(num_atoms).square()
+    return power.sum(-2) if reduction == "sum" else power.mean(-2)
+
+
+class SparseDictionary(nn.Module):
+    """A learnable dictionary of unit-norm atoms and its greedy sparse coder.
+
+    Args:
+        num_atoms: number of atoms N (the paper: 288).
+        dim: signal length P (the paper: 200, two 10x10 half-patches).
+        sparsity: non-zero coefficients per signal k (the paper: 10).
+        algorithm: ``"omp"`` (orthogonal matching pursuit) or ``"mp"`` (the
+            paper's plain matching pursuit).
+        generator: optional `torch.Generator` for the random initial atoms
+            (white noise, then unit-normalised, as in the AEC lineage).
+        dtype, device: of the atoms (default: torch's defaults).
+
+    Shape:
+        forward: signals `[..., P]` -> `DictionaryOutput` with code `[..., k]`,
+        reconstruction `[..., P]` and error `[...]`.
+
+    Example:
+        >>> import torch
+        >>> from aectorch.coding import SparseDictionary
+        >>> d = SparseDictionary(num_atoms=288, dim=200, sparsity=10,
+        ...                      generator=torch.Generator().manual_seed(0))
+        >>> out = d(torch.randn(4, 49, 200))
+        >>> out.error.shape
+        torch.Size([4, 49])
+        >>> out.error.mean().backward()   # the paper's gradient, on d.atoms.grad
+        >>> d.atoms.grad.shape
+        torch.Size([200, 288])
+    """
+
+    def __init__(
+        self,
+        num_atoms: int = 288,
+        dim: int = 200,
+        sparsity: int = 10,
+        algorithm: str = "omp",
+        *,
+        generator: torch.Generator | None = None,
+        dtype: torch.dtype | None = None,
+        device: torch.device | str | None = None,
+    ) -> None:
+        super().__init__()
+        for name, value in (("num_atoms", num_atoms), ("dim", dim), ("sparsity", sparsity)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive int, got {value!r}")
+        if sparsity > min(num_atoms, dim):
+            raise ValueError(
+                f"sparsity={sparsity} must not exceed min(num_atoms={num_atoms}, dim={dim})"
+            )
+        if algorithm not in _ALGORITHMS:
+            raise ValueError(f"algorithm must be one of {sorted(_ALGORITHMS)}, got {algorithm!r}")
+        self.num_atoms = num_atoms
+        self.dim = dim
+        self.sparsity = sparsity
+        self.algorithm = algorithm
+        atoms = torch.randn(dim, num_atoms, generator=generator, dtype=dtype, device="cpu")
+        self.atoms = nn.Parameter(atoms.to(device) if device is not None else atoms)
+        self.renormalize_()
+
+    def extra_repr(self) -> str:
+        return (
+            f"num_atoms={self.num_atoms}, dim={self.dim}, sparsity={self.sparsity}, "
+            f"algorithm={self.algorithm!r}"
+        )
+
+    @torch.no_grad()
+    def renormalize_(self) -> "SparseDictionary":
+        """Scale every atom back to unit L2 norm, in place (a zero atom stays zero)."""
+        norms = self.atoms.norm(dim=0, keepdim=True)
+        self.atoms.div_(norms.clamp_min(torch.finfo(norms.dtype).tiny))
+        return self
+
+    def encode(self, signals: torch.Tensor, *, check: bool = True) -> SparseCode:
+        """The sparse code of `signals` `[..., P]` (no gradient)."""
+        coder = _ALGORITHMS[self.algorithm]
+        atoms = self.atoms.detach()
+        return coder(signals, atoms, self.sparsity, gram=gram_matrix(atoms), check=check)
+
+    def forward(self, signals: torch.Tensor, *, check: bool = True) -> DictionaryOutput:
+        """Code `signals` and reconstruct them with the current atoms (see class doc)."""
+        code = self.encode(signals, check=check)
+        reconstruction = code.reconstruct(self.atoms)
+        return DictionaryOutput(code, reconstruction, reconstruction_error(signals, reconstruction))
+
+    def pooled_activity(self, code: SparseCode, *, reduction: str = "sum") -> torch.Tensor:
+        """Eq. (3) for codes `[..., n_patches, k]` of this dictionary -> `[..., N]`."""
+        return pooled_activity(code, self.num_atoms, reduction=reduction)
+
+    @torch.no_grad()
+    def gradient(self, signals: torch.Tensor, output: DictionaryOutput) -> torch.Tensor:
+        """Closed-form gradient of ``output.error.mean()`` with respect to the atoms.
+
+        ``-(2 / M) sum_i r_i a_i^T / ||x_i||^2`` over the M signals, with residuals
+        ``r_i = x_i - D a_i`` and the code held fixed: exactly what autograd gives
+        for ``output.error.mean().backward()``, without building a graph.
+
+        Returns:
+            `[P, N]`, like `atoms`.
+        """
+        x = signals.reshape(-1, self.dim)
+        residual = x - output.reconstruction.detach().reshape(-1, self.dim)
+        energy = x.square().sum(-1, keepdim=True).clamp_min(torch.finfo(x.dtype).tiny)
+        dense = output.code.to_dense(self.num_atoms).reshape(-1, self.num_atoms)
+        return (residual / energy).t() @ dense * (-2.0 / x.shape[0])
+
+    @torch.no_grad()
+    def learn_(self, signals: torch.Tensor, output: DictionaryOutput, lr: float) -> torch.Tensor:
+        """One gradient-descent step on the mean eq. (4) error, then renormalise.
+
+        ``D <- normalise(D - lr * grad)``. For textured binocular patches
+        (``||x||^2 = 2``) this is the AEC rule ``D <- D + lr * R A^T / M``.
+
+        Returns:
+            The gradient that was applied, `[P, N]`.
+        """
+        if not lr >= 0:
+            raise ValueError(f"lr must be a non-negative float, got {lr!r}")
+        grad = self.gradient(signals, output)
+        self.atoms.sub_(grad, alpha=lr)
+        self.renormalize_()
+        return grad
