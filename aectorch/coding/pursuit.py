@@ -16,10 +16,10 @@ Implementation notes (why the code looks the way it does):
   ``embedding_bag`` over rows of G, which never materialises ``[M, k, N]``.
 * The small per-signal state (``Linv``, ``y``, indices) is stored batch-last,
   ``[k, k, M]``, so its tiny reductions run along contiguous, vectorised memory.
-* ``argmax |alpha|`` is computed with ``amax`` over a packed key: the exact
-  float32 magnitude widened to float64, whose 29 spare mantissa bits hold the
-  reversed atom index. It returns exactly ``torch.argmax`` (first index on ties)
-  and is several times faster on CPU, where ``argmax`` is not vectorised.
+* ``argmax |alpha|`` is computed with ``amax`` over a packed key (magnitude bits
+  with the reversed atom index in the low bits), because on CPU ``argmax`` is not
+  vectorised and costs several times more than ``amax``. The result is exactly
+  ``torch.argmax``'s (first index on ties); see `_select`.
 * On CPU, signals are processed in blocks of ``block_size`` rows so that the
   ``[block, N]`` working set stays in the L2 cache; this is tiling, not a loop
   over signals. Under ``torch.compile`` and on CUDA the whole batch is one block.
@@ -103,31 +103,64 @@ def _validate(
             )
 
 
-def _argmax_abs(alpha: torch.Tensor) -> torch.Tensor:
-    """``alpha.abs().argmax(-1)`` for `[M, N]`, exact, ties to the first index."""
+def _reversed_index(num_atoms: int, mask: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    return mask - torch.arange(num_atoms, device=device, dtype=dtype)
+
+
+def _select(alpha: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Index and value of the largest ``|alpha|`` per row of `[M, N]`.
+
+    Exactly ``alpha.abs().argmax(-1)`` (first index on ties), and ``alpha`` there.
+    """
     num_atoms = alpha.shape[-1]
-    if alpha.dtype != torch.float32 or num_atoms >= 2**_INDEX_BITS or alpha.is_cuda:
-        return alpha.abs().argmax(-1)
+    if alpha.dtype != torch.float32 or alpha.is_cuda or num_atoms >= 2**_INDEX_BITS:
+        lam = alpha.abs().argmax(-1)
+    elif torch.compiler.is_compiling():
+        lam = _argmax_abs_float64_key(alpha)
+    else:
+        lam = _argmax_abs_int32_key(alpha)
+    return lam, alpha.gather(-1, lam[:, None])[:, 0]
+
+
+def _argmax_abs_float64_key(alpha: torch.Tensor) -> torch.Tensor:
     # float32 -> float64 is exact and leaves the low 29 mantissa bits zero. Positive
     # doubles order like their int64 bit patterns, so OR-ing the reversed index into
     # those bits makes amax pick the largest magnitude, then the smallest index.
-    key = alpha.abs().to(torch.float64).view(torch.int64)
     mask = 2**_INDEX_BITS - 1
-    reversed_index = mask - torch.arange(num_atoms, device=alpha.device, dtype=torch.int64)
-    best = key.bitwise_or_(reversed_index).amax(-1)
+    key = alpha.abs().to(torch.float64).view(torch.int64)
+    best = key.bitwise_or_(_reversed_index(alpha.shape[-1], mask, torch.int64, alpha.device)).amax(-1)
     return mask - best.bitwise_and(mask)
+
+
+def _argmax_abs_int32_key(alpha: torch.Tensor) -> torch.Tensor:
+    # Half the memory traffic of the float64 key: the reversed index replaces the
+    # low mantissa bits of |alpha| itself. That rounds magnitudes to 23 - bits
+    # mantissa bits, so a candidate is checked against the exact maximum, and the
+    # rare rows where rounding decided (two magnitudes within ~1e-4 relative) are
+    # recomputed exactly.
+    num_atoms = alpha.shape[-1]
+    mask = (1 << max(1, (num_atoms - 1).bit_length())) - 1
+    key = alpha.view(torch.int32).bitwise_and(0x7FFFFFFF ^ mask)
+    key.bitwise_or_(_reversed_index(num_atoms, mask, torch.int32, alpha.device))
+    lam = (mask - key.amax(-1).bitwise_and_(mask)).long()
+    # (aminmax is not vectorised along the last dimension on CPU; amax/amin are)
+    best = torch.maximum(alpha.amax(-1), alpha.amin(-1).neg_())
+    wrong = alpha.gather(-1, lam[:, None])[:, 0].abs() != best
+    if bool(wrong.any()):
+        rows = wrong.nonzero()[:, 0]
+        lam[rows] = alpha[rows].abs().argmax(-1)
+    return lam
 
 
 def _mp_block(x: torch.Tensor, dictionary: torch.Tensor, gram: torch.Tensor, k: int) -> SparseCode:
     alpha = x @ dictionary  # [M, N]
     indices, coefficients = [], []
     for i in range(k):
-        lam = _argmax_abs(alpha)
-        c = alpha.gather(1, lam[:, None])
+        lam, c = _select(alpha)
         if i < k - 1:
-            alpha.addcmul_(gram.index_select(0, lam), c, value=-1.0)
+            alpha.addcmul_(gram.index_select(0, lam), c[:, None], value=-1.0)
         indices.append(lam)
-        coefficients.append(c[:, 0])
+        coefficients.append(c)
     return SparseCode(torch.stack(indices, 1), torch.stack(coefficients, 1))
 
 
@@ -142,14 +175,13 @@ def _omp_block(x: torch.Tensor, dictionary: torch.Tensor, gram: torch.Tensor, k:
     chosen: list[torch.Tensor] = []
     done = torch.zeros(m, dtype=torch.bool, device=x.device)
     for i in range(k):
-        lam = _argmax_abs(alpha)
-        a = alpha.gather(1, lam[:, None])[:, 0]
+        lam, a = _select(alpha)
         if i == 0:
             lkk = diag[lam]
             ok = ~done
         else:
             prev = torch.stack(chosen)  # [i, M]
-            g = gram[prev, lam.expand(i, m)]  # G[I_j, lam]
+            g = gram.view(-1).take(prev * gram.shape[0] + lam)  # G[I_j, lam]
             w = (linv[:i, :i] * g[None]).sum(1)  # w = Linv g: [i, M]
             lkk = diag[lam] - (w * w).sum(0)
             ok = ~done & ~(prev == lam).any(0) & (lkk > eps)
