@@ -165,47 +165,43 @@ def _mp_block(x: torch.Tensor, dictionary: torch.Tensor, gram: torch.Tensor, k: 
 
 
 def _omp_block(x: torch.Tensor, dictionary: torch.Tensor, gram: torch.Tensor, k: int) -> SparseCode:
-    m = x.shape[0]
+    m, n = x.shape[0], gram.shape[0]
     eps = torch.finfo(x.dtype).eps
-    alpha0 = x @ dictionary  # [M, N] correlations of the signals with the atoms
-    alpha = alpha0.clone()  # correlations of the residuals with the atoms
-    diag = gram.diagonal()
-    linv = x.new_zeros(k, k, m)  # inverse Cholesky factor, batch-last
-    y = x.new_zeros(k, m)  # coordinates along the orthonormalised atoms
-    chosen: list[torch.Tensor] = []
-    done = torch.zeros(m, dtype=torch.bool, device=x.device)
+    alpha = x @ dictionary  # [M, N] correlations of the residuals with the atoms
+    diag, flat_gram = gram.diagonal(), gram.reshape(-1)
+    linv = x.new_zeros(k, k, m)  # inverse Cholesky factor of G[I, I], batch-last
+    y = x.new_zeros(k, m)  # coordinates along the orthonormalised chosen atoms
+    support = torch.zeros(m, k, dtype=torch.long, device=x.device)
+    offsets = torch.zeros(k, m, dtype=torch.long, device=x.device)  # I_j * N
+    live = x.new_ones(m)  # 1 until the pursuit of that signal stops
     for i in range(k):
         lam, a = _select(alpha)
         if i == 0:
             lkk = diag[lam]
-            ok = ~done
         else:
-            prev = torch.stack(chosen)  # [i, M]
-            g = gram.view(-1).take(prev * gram.shape[0] + lam)  # G[I_j, lam]
-            w = (linv[:i, :i] * g[None]).sum(1)  # w = Linv g: [i, M]
-            lkk = diag[lam] - (w * w).sum(0)
-            ok = ~done & ~(prev == lam).any(0) & (lkk > eps)
-        # Stop rules of scikit-learn's _gram_omp: atom chosen twice, residual
-        # correlation below eps, or an atom dependent on the chosen ones.
-        ok = ok & (a * a >= eps)
-        done = ~ok
-        inv = torch.where(ok, lkk, torch.ones_like(lkk)).rsqrt()
-        lam = torch.where(ok, lam, torch.zeros_like(lam))
+            g = flat_gram.take(offsets[:i] + lam)  # G[I_j, lam]: [i, M]
+            w = (linv[:i, :i] * g).sum(1)  # Linv G[I, lam]
+            lkk = diag[lam] - w.square().sum(0)  # squared norm of lam's new direction
+        # scikit-learn's stops: residual correlation below eps, or an atom dependent
+        # on the chosen ones. (A chosen atom's correlation is zeroed below, so it is
+        # chosen again only when every correlation is 0, which the first rule stops.)
+        live = live * ((a * a >= eps) & (lkk > eps))
+        inv = torch.where(live > 0, lkk, torch.ones_like(lkk)).rsqrt()  # 1 / L_ii
+        scale = inv * live
+        lam = lam * live.long()
         if i > 0:
-            row = -(linv[:i, :i] * w[:, None]).sum(0) * inv  # -(w^T Linv) / L_ii
-            linv[i, :i] = torch.where(ok, row, torch.zeros_like(row))
+            linv[i, :i] = (linv[:i, :i] * w[:, None]).sum(0) * -scale  # -(w^T Linv) / L_ii
         linv[i, i] = inv
-        chosen.append(lam)
-        support = torch.stack(chosen, 1)  # [M, i+1]
-        weights = linv[i, : i + 1].t()  # [M, i+1]
-        yi = (weights * alpha0.gather(1, support)).sum(1)
-        yi = torch.where(ok, yi, torch.zeros_like(yi))
-        y[i] = yi
+        support[:, i] = lam
+        offsets[i] = lam * n
+        y[i] = a * scale  # q_i . x = q_i . r_{i-1} = alpha[lam] / L_ii
         if i < k - 1:
-            u = F.embedding_bag(support, gram, per_sample_weights=weights.contiguous(), mode="sum")
-            alpha.addcmul_(u, yi[:, None], value=-1.0)
+            weights = linv[i, : i + 1].t().contiguous()
+            u = F.embedding_bag(support[:, : i + 1], gram, per_sample_weights=weights, mode="sum")
+            alpha.addcmul_(u, y[i][:, None], value=-1.0)  # alpha -= (D^T q_i) y_i
+            alpha.scatter_(1, lam[:, None], 0.0)  # exact in arithmetic; no rounding residue
     gamma = (linv * y[:, None, :]).sum(0)  # Linv^T y: [k, M]
-    return SparseCode(torch.stack(chosen, 1), gamma.t().contiguous())
+    return SparseCode(support, gamma.t().contiguous())
 
 
 def _run(
