@@ -28,7 +28,7 @@ Implementation notes (why the code looks the way it does):
 from __future__ import annotations
 
 import math
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -107,7 +107,29 @@ def _reversed_index(num_atoms: int, mask: int, dtype: torch.dtype, device: torch
     return mask - torch.arange(num_atoms, device=device, dtype=dtype)
 
 
-def _select(alpha: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+class _Workspace(NamedTuple):
+    """Reused `[block, N]` buffers of the eager CPU path.
+
+    Fresh tensors of this size come from ``mmap`` and are page-faulted in on every
+    step; reusing them is worth about a third of the run time on CPU.
+    """
+
+    alpha: torch.Tensor  # correlations, the signals' dtype
+    rows: torch.Tensor  # gathered Gram rows (MP)
+    key: torch.Tensor  # int32 argmax keys (float32 only)
+
+    @staticmethod
+    def make(rows: int, num_atoms: int, dtype: torch.dtype, device: torch.device) -> "_Workspace":
+        def empty(dt: torch.dtype) -> torch.Tensor:
+            return torch.empty(rows, num_atoms, dtype=dt, device=device)
+
+        return _Workspace(empty(dtype), empty(dtype), empty(torch.int32))
+
+    def view(self, m: int) -> "_Workspace":
+        return _Workspace(self.alpha[:m], self.rows[:m], self.key[:m])
+
+
+def _select(alpha: torch.Tensor, ws: _Workspace | None) -> tuple[torch.Tensor, torch.Tensor]:
     """Index and value of the largest ``|alpha|`` per row of `[M, N]`.
 
     Exactly ``alpha.abs().argmax(-1)`` (first index on ties), and ``alpha`` there.
@@ -115,24 +137,25 @@ def _select(alpha: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     num_atoms = alpha.shape[-1]
     if alpha.dtype != torch.float32 or alpha.is_cuda or num_atoms >= 2**_INDEX_BITS:
         lam = alpha.abs().argmax(-1)
-    elif torch.compiler.is_compiling():
+    elif ws is None:
         lam = _argmax_abs_float64_key(alpha)
     else:
-        lam = _argmax_abs_int32_key(alpha)
+        lam = _argmax_abs_int32_key(alpha, ws.key)
     return lam, alpha.gather(-1, lam[:, None])[:, 0]
 
 
 def _argmax_abs_float64_key(alpha: torch.Tensor) -> torch.Tensor:
-    # float32 -> float64 is exact and leaves the low 29 mantissa bits zero. Positive
-    # doubles order like their int64 bit patterns, so OR-ing the reversed index into
-    # those bits makes amax pick the largest magnitude, then the smallest index.
+    # Branch-free, for torch.compile. float32 -> float64 is exact and leaves the low
+    # 29 mantissa bits zero. Positive doubles order like their int64 bit patterns,
+    # so OR-ing the reversed index into those bits makes amax pick the largest
+    # magnitude, then the smallest index.
     mask = 2**_INDEX_BITS - 1
     key = alpha.abs().to(torch.float64).view(torch.int64)
     best = key.bitwise_or_(_reversed_index(alpha.shape[-1], mask, torch.int64, alpha.device)).amax(-1)
     return mask - best.bitwise_and(mask)
 
 
-def _argmax_abs_int32_key(alpha: torch.Tensor) -> torch.Tensor:
+def _argmax_abs_int32_key(alpha: torch.Tensor, key: torch.Tensor) -> torch.Tensor:
     # Half the memory traffic of the float64 key: the reversed index replaces the
     # low mantissa bits of |alpha| itself. That rounds magnitudes to 23 - bits
     # mantissa bits, so a candidate is checked against the exact maximum, and the
@@ -140,34 +163,42 @@ def _argmax_abs_int32_key(alpha: torch.Tensor) -> torch.Tensor:
     # recomputed exactly.
     num_atoms = alpha.shape[-1]
     mask = (1 << max(1, (num_atoms - 1).bit_length())) - 1
-    key = alpha.view(torch.int32).bitwise_and(0x7FFFFFFF ^ mask)
+    torch.bitwise_and(alpha.view(torch.int32), 0x7FFFFFFF ^ mask, out=key)
     key.bitwise_or_(_reversed_index(num_atoms, mask, torch.int32, alpha.device))
     lam = (mask - key.amax(-1).bitwise_and_(mask)).long()
-    # (aminmax is not vectorised along the last dimension on CPU; amax/amin are)
+    # (aminmax and vector_norm(inf) are not vectorised along rows on CPU; amax/amin are)
     best = torch.maximum(alpha.amax(-1), alpha.amin(-1).neg_())
-    wrong = alpha.gather(-1, lam[:, None])[:, 0].abs() != best
-    if bool(wrong.any()):
-        rows = wrong.nonzero()[:, 0]
+    rows = (alpha.gather(-1, lam[:, None])[:, 0].abs_() != best).nonzero()[:, 0]
+    if rows.numel() > 0:
         lam[rows] = alpha[rows].abs().argmax(-1)
     return lam
 
 
-def _mp_block(x: torch.Tensor, dictionary: torch.Tensor, gram: torch.Tensor, k: int) -> SparseCode:
-    alpha = x @ dictionary  # [M, N]
+def _correlations(x: torch.Tensor, dictionary: torch.Tensor, ws: _Workspace | None) -> torch.Tensor:
+    return x @ dictionary if ws is None else torch.mm(x, dictionary, out=ws.alpha)
+
+
+def _mp_block(
+    x: torch.Tensor, dictionary: torch.Tensor, gram: torch.Tensor, k: int, ws: _Workspace | None = None
+) -> SparseCode:
+    alpha = _correlations(x, dictionary, ws)  # [M, N]
     indices, coefficients = [], []
     for i in range(k):
-        lam, c = _select(alpha)
+        lam, c = _select(alpha, ws)
         if i < k - 1:
-            alpha.addcmul_(gram.index_select(0, lam), c[:, None], value=-1.0)
+            rows = gram.index_select(0, lam) if ws is None else torch.index_select(gram, 0, lam, out=ws.rows)
+            alpha.addcmul_(rows, c[:, None], value=-1.0)
         indices.append(lam)
         coefficients.append(c)
     return SparseCode(torch.stack(indices, 1), torch.stack(coefficients, 1))
 
 
-def _omp_block(x: torch.Tensor, dictionary: torch.Tensor, gram: torch.Tensor, k: int) -> SparseCode:
+def _omp_block(
+    x: torch.Tensor, dictionary: torch.Tensor, gram: torch.Tensor, k: int, ws: _Workspace | None = None
+) -> SparseCode:
     m, n = x.shape[0], gram.shape[0]
     eps = torch.finfo(x.dtype).eps
-    alpha = x @ dictionary  # [M, N] correlations of the residuals with the atoms
+    alpha = _correlations(x, dictionary, ws)  # [M, N] correlations of the residuals with the atoms
     diag, flat_gram = gram.diagonal(), gram.reshape(-1)
     linv = x.new_zeros(k, k, m)  # inverse Cholesky factor of G[I, I], batch-last
     y = x.new_zeros(k, m)  # coordinates along the orthonormalised chosen atoms
@@ -175,7 +206,7 @@ def _omp_block(x: torch.Tensor, dictionary: torch.Tensor, gram: torch.Tensor, k:
     offsets = torch.zeros(k, m, dtype=torch.long, device=x.device)  # I_j * N
     live = x.new_ones(m)  # 1 until the pursuit of that signal stops
     for i in range(k):
-        lam, a = _select(alpha)
+        lam, a = _select(alpha, ws)
         if i == 0:
             lkk = diag[lam]
         else:
@@ -219,19 +250,16 @@ def _run(
     dictionary = dictionary.detach()
     gram = gram_matrix(dictionary) if gram is None else gram.detach()
     m = x.shape[0]
-    if (
-        block_size is None
-        or m <= block_size
-        or x.is_cuda
-        or torch.compiler.is_compiling()
-    ):
+    if m == 0 or x.is_cuda or torch.compiler.is_compiling():
         code = block_fn(x, dictionary, gram, sparsity)
     else:
+        step = m if block_size is None else max(1, min(block_size, m))
+        ws = _Workspace.make(step, gram.shape[0], x.dtype, x.device)
         parts = [
-            block_fn(x[s : s + block_size], dictionary, gram, sparsity)
-            for s in range(0, m, block_size)
+            block_fn(x[s : s + step], dictionary, gram, sparsity, ws.view(min(step, m - s)))
+            for s in range(0, m, step)
         ]
-        code = SparseCode(
+        code = parts[0] if len(parts) == 1 else SparseCode(
             torch.cat([p.indices for p in parts]), torch.cat([p.coefficients for p in parts])
         )
     return SparseCode(
