@@ -140,7 +140,7 @@ def _select(alpha: torch.Tensor, ws: _Workspace | None) -> tuple[torch.Tensor, t
     elif ws is None:
         lam = _argmax_abs_float64_key(alpha)
     else:
-        lam = _argmax_abs_int32_key(alpha, ws.key)
+        return _argmax_abs_int32_key(alpha, ws.key)
     return lam, alpha.gather(-1, lam[:, None])[:, 0]
 
 
@@ -155,7 +155,7 @@ def _argmax_abs_float64_key(alpha: torch.Tensor) -> torch.Tensor:
     return mask - best.bitwise_and(mask)
 
 
-def _argmax_abs_int32_key(alpha: torch.Tensor, key: torch.Tensor) -> torch.Tensor:
+def _argmax_abs_int32_key(alpha: torch.Tensor, key: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     # Half the memory traffic of the float64 key: the reversed index replaces the
     # low mantissa bits of |alpha| itself. That rounds magnitudes to 23 - bits
     # mantissa bits, so a candidate is checked against the exact maximum, and the
@@ -166,12 +166,14 @@ def _argmax_abs_int32_key(alpha: torch.Tensor, key: torch.Tensor) -> torch.Tenso
     torch.bitwise_and(alpha.view(torch.int32), 0x7FFFFFFF ^ mask, out=key)
     key.bitwise_or_(_reversed_index(num_atoms, mask, torch.int32, alpha.device))
     lam = (mask - key.amax(-1).bitwise_and_(mask)).long()
+    value = alpha.gather(-1, lam[:, None])[:, 0]
     # (aminmax and vector_norm(inf) are not vectorised along rows on CPU; amax/amin are)
     best = torch.maximum(alpha.amax(-1), alpha.amin(-1).neg_())
-    rows = (alpha.gather(-1, lam[:, None])[:, 0].abs_() != best).nonzero()[:, 0]
+    rows = (value.abs() != best).nonzero()[:, 0]
     if rows.numel() > 0:
         lam[rows] = alpha[rows].abs().argmax(-1)
-    return lam
+        value[rows] = alpha[rows, lam[rows]]
+    return lam, value
 
 
 def _correlations(x: torch.Tensor, dictionary: torch.Tensor, ws: _Workspace | None) -> torch.Tensor:
@@ -205,30 +207,34 @@ def _omp_block(
     support = torch.zeros(m, k, dtype=torch.long, device=x.device)
     offsets = torch.zeros(k, m, dtype=torch.long, device=x.device)  # I_j * N
     live = x.new_ones(m)  # 1 until the pursuit of that signal stops
+    # Views made once: slicing costs a dispatch per step too.
+    triangles = [linv[:i, :i] for i in range(k)]
+    rows = [linv[i, : i + 1] for i in range(k)]
     for i in range(k):
         lam, a = _select(alpha, ws)
         if i == 0:
             lkk = diag[lam]
         else:
             g = flat_gram.take(offsets[:i] + lam)  # G[I_j, lam]: [i, M]
-            w = (linv[:i, :i] * g).sum(1)  # Linv G[I, lam]
+            w = (triangles[i] * g).sum(1)  # Linv G[I, lam]
             lkk = diag[lam] - w.square().sum(0)  # squared norm of lam's new direction
         # scikit-learn's stops: residual correlation below eps, or an atom dependent
         # on the chosen ones. (A chosen atom's correlation is zeroed below, so it is
         # chosen again only when every correlation is 0, which the first rule stops.)
         live = live * ((a * a >= eps) & (lkk > eps))
-        inv = torch.where(live > 0, lkk, torch.ones_like(lkk)).rsqrt()  # 1 / L_ii
+        inv = torch.where(live > 0, lkk, 1.0).rsqrt_()  # 1 / L_ii (1 once stopped)
         scale = inv * live
-        lam = lam * live.long()
+        lam.mul_(live.long())  # index 0 in unused slots
         if i > 0:
-            linv[i, :i] = (linv[:i, :i] * w[:, None]).sum(0) * -scale  # -(w^T Linv) / L_ii
-        linv[i, i] = inv
+            rows[i][:i] = (triangles[i] * w[:, None]).sum(0).mul_(scale).neg_()  # -(w^T Linv) / L_ii
+        rows[i][i] = inv
         support[:, i] = lam
         offsets[i] = lam * n
         y[i] = a * scale  # q_i . x = q_i . r_{i-1} = alpha[lam] / L_ii
         if i < k - 1:
-            weights = linv[i, : i + 1].t().contiguous()
-            u = F.embedding_bag(support[:, : i + 1], gram, per_sample_weights=weights, mode="sum")
+            u = F.embedding_bag(
+                support[:, : i + 1], gram, per_sample_weights=rows[i].t().contiguous(), mode="sum"
+            )
             alpha.addcmul_(u, y[i][:, None], value=-1.0)  # alpha -= (D^T q_i) y_i
             alpha.scatter_(1, lam[:, None], 0.0)  # exact in arithmetic; no rounding residue
     gamma = (linv * y[:, None, :]).sum(0)  # Linv^T y: [k, M]
@@ -253,15 +259,19 @@ def _run(
     if m == 0 or x.is_cuda or torch.compiler.is_compiling():
         code = block_fn(x, dictionary, gram, sparsity)
     else:
-        step = m if block_size is None else max(1, min(block_size, m))
-        ws = _Workspace.make(step, gram.shape[0], x.dtype, x.device)
-        parts = [
-            block_fn(x[s : s + step], dictionary, gram, sparsity, ws.view(min(step, m - s)))
-            for s in range(0, m, step)
-        ]
-        code = parts[0] if len(parts) == 1 else SparseCode(
-            torch.cat([p.indices for p in parts]), torch.cat([p.coefficients for p in parts])
-        )
+        # inference_mode trims the per-op dispatch cost, which dominates small
+        # blocks; the results are cloned out of it so autograd can use them.
+        with torch.inference_mode():
+            step = m if block_size is None else max(1, min(block_size, m))
+            ws = _Workspace.make(step, gram.shape[0], x.dtype, x.device)
+            parts = [
+                block_fn(x[s : s + step], dictionary, gram, sparsity, ws.view(min(step, m - s)))
+                for s in range(0, m, step)
+            ]
+            code = parts[0] if len(parts) == 1 else SparseCode(
+                torch.cat([p.indices for p in parts]), torch.cat([p.coefficients for p in parts])
+            )
+        code = SparseCode(code.indices.clone(), code.coefficients.clone())
     return SparseCode(
         code.indices.reshape(*lead, sparsity), code.coefficients.reshape(*lead, sparsity)
     )
