@@ -111,6 +111,51 @@ def sklearn_omp(dictionary: np.ndarray, gram: np.ndarray, signals: np.ndarray) -
         return orthogonal_mp_gram(gram, dictionary.T @ signals.T, n_nonzero_coefs=K).T
 
 
+def breakdown(repeats: int, block: int) -> list[dict]:
+    """Median time of each stage of one pursuit step on a `[block, N]` tile, one thread.
+
+    The evidence for where eager time goes: a step is a handful of passes over the
+    tile plus a few dozen small ops, each paying torch's dispatch cost.
+    """
+    import torch.nn.functional as F
+
+    from aectorch.coding import pursuit
+
+    torch.set_num_threads(1)
+    gen = torch.Generator().manual_seed(2)
+    dictionary = torch.nn.functional.normalize(torch.randn(P, N, generator=gen), dim=0)
+    gram = gram_matrix(dictionary)
+    x = photo_patches(block)
+    ws = pursuit._Workspace.make(block, N, torch.float32, x.device)
+    alpha = x @ dictionary
+    lam = alpha.abs().argmax(-1)
+    c = alpha.gather(1, lam[:, None])
+    support = torch.randint(0, N, (block, 5), generator=gen)
+    weights = torch.randn(block, 5, generator=gen)
+    tiny = torch.randn(16)
+    stages = {
+        "correlations X D (matmul)": lambda: torch.mm(x, dictionary, out=ws.alpha),
+        "exact argmax |alpha| (packed int32 key + check)": lambda: pursuit._argmax_abs_int32_key(alpha, ws.key),
+        "  for comparison: alpha.abs().argmax(-1)": lambda: alpha.abs().argmax(-1),
+        "MP update (index_select + addcmul_)": lambda: ws.rows.copy_(alpha).addcmul_(
+            torch.index_select(gram, 0, lam, out=ws.alpha), c, value=-1.0
+        ),
+        "OMP update (embedding_bag of 5 Gram rows + addcmul_)": lambda: ws.rows.addcmul_(
+            F.embedding_bag(support, gram, per_sample_weights=weights, mode="sum"), c, value=-1.0
+        ),
+        "one trivial op (dispatch cost)": lambda: tiny.mul(1.0),
+        "whole MP block (k = 10)": lambda: matching_pursuit(x, dictionary, K, gram=gram, check=False, block_size=block),
+        "whole OMP block (k = 10)": lambda: omp(x, dictionary, K, gram=gram, check=False, block_size=block),
+    }
+    rows = []
+    with torch.inference_mode():
+        for name, fn in stages.items():
+            t = median_time(fn, max(repeats, 50), warmup=3)
+            rows.append({"stage": name, "block": block, "microseconds": t * 1e6})
+            print(f"| {name} | {t * 1e6:,.1f} |", flush=True)
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sizes", type=int, nargs="+", default=[113, 1808, 14464, 115712])
@@ -119,8 +164,20 @@ def main() -> None:
     parser.add_argument("--sklearn-repeats", type=int, default=3)
     parser.add_argument("--no-compile", action="store_true")
     parser.add_argument("--quick", action="store_true", help="M = 113, 1808, 14464 on 1 thread")
-    parser.add_argument("--json", type=Path, default=Path(__file__).parent / "results" / "omp.json")
+    parser.add_argument("--json", type=Path, default=None, help="default: benchmarks/results/omp.json (omp_breakdown.json with --breakdown)")
+    parser.add_argument("--breakdown", action="store_true", help="time the stages of one step on a [block, N] tile instead")
+    parser.add_argument("--block", type=int, default=512)
     args = parser.parse_args()
+    results = Path(__file__).parent / "results"
+    if args.breakdown:
+        print(f"\n| stage (one [{args.block}, {N}] tile, 1 thread) | median microseconds |\n|---|---:|")
+        rows = breakdown(args.repeats, args.block)
+        out = args.json or results / "omp_breakdown.json"
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps({"meta": {"torch": torch.__version__, "cpu_model": cpu_model()}, "rows": rows}, indent=2))
+        print(f"\nwrote {out}")
+        return
+    args.json = args.json or results / "omp.json"
     if args.quick:
         args.sizes, args.threads = [113, 1808, 14464], [1]
 
