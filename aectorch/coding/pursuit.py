@@ -11,7 +11,8 @@ Implementation notes (why the code looks the way it does):
   matrix of the chosen atoms. Adding atom ``lam`` appends one row to it, and the
   correlation update of step i is ``alpha -= u_i * y_i`` with
   ``u_i = G[:, I] Linv[i]^T`` (the correlations of the i-th orthonormalised atom)
-  and ``y_i = Linv[i] . alpha0[I]`` (the signal's coordinate along it). Nothing
+  and ``y_i = alpha[lam] / L_ii`` (the signal's coordinate along it, equal to
+  ``Linv[i] . alpha0[I]``); the coefficients are ``Linv^T y`` at the end. Nothing
   grows with i except those k x k triangles, and the sum over chosen atoms is one
   ``embedding_bag`` over rows of G, which never materialises ``[M, k, N]``.
 * The small per-signal state (``Linv``, ``y``, indices) is stored batch-last,
@@ -22,12 +23,14 @@ Implementation notes (why the code looks the way it does):
   ``torch.argmax``'s (first index on ties); see `_select`.
 * On CPU, signals are processed in blocks of ``block_size`` rows so that the
   ``[block, N]`` working set stays in the L2 cache; this is tiling, not a loop
-  over signals. Under ``torch.compile`` and on CUDA the whole batch is one block.
+  over signals. The blocks reuse workspace buffers and run under
+  ``inference_mode``, because at this size torch's per-op dispatch and fresh
+  page-faulted tensors cost as much as the arithmetic (docs/performance.md).
+  Under ``torch.compile`` and on CUDA the whole batch is one block.
 """
 
 from __future__ import annotations
 
-import math
 from typing import Callable, NamedTuple
 
 import torch
