@@ -135,7 +135,9 @@ def breakdown(repeats: int, block: int) -> list[dict]:
     tiny = torch.randn(16)
     stages = {
         "correlations X D (matmul)": lambda: torch.mm(x, dictionary, out=ws.alpha),
-        "exact argmax |alpha| (packed int32 key + check)": lambda: pursuit._argmax_abs_int32_key(alpha, ws.key),
+        "exact argmax |alpha| (packed int32 key + check)": lambda: pursuit._argmax_abs_int32_key(
+            alpha, ws.key, ws.reversed_index
+        ),
         "  for comparison: alpha.abs().argmax(-1)": lambda: alpha.abs().argmax(-1),
         "MP update (index_select + addcmul_)": lambda: ws.rows.copy_(alpha).addcmul_(
             torch.index_select(gram, 0, lam, out=ws.alpha), c, value=-1.0

@@ -15,7 +15,7 @@ import torch
 from torch import nn
 
 from aectorch.coding.dictionary import DictionaryOutput, SparseDictionary
-from aectorch.coding.patches import COARSE, FINE, Scale, as_scale, extract_patches
+from aectorch.coding.patches import COARSE, FINE, Scale, _check_finite, as_scale, extract_patches
 
 __all__ = ["BinocularEncoder", "EncoderOutput"]
 
@@ -122,10 +122,14 @@ class BinocularEncoder(nn.Module):
 
     def forward(self, first: torch.Tensor, second: torch.Tensor, *, check: bool = True) -> EncoderOutput:
         """Encode an image pair; see the class docstring for shapes."""
+        if check:  # once here, not once per scale inside extract_patches
+            for name, images in (("first", first), ("second", second)):
+                if isinstance(images, torch.Tensor):  # other types: extract_patches says why
+                    _check_finite(images, name)
         patches, codes, features, errors = [], [], [], []
         for scale in self.scales:
             dictionary = self.dictionaries[scale.name]
-            x = extract_patches(first, second, scale, check_finite=check)
+            x = extract_patches(first, second, scale, check_finite=False)
             out = dictionary(x, check=check)
             patches.append(x)
             codes.append(out)

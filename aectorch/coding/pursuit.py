@@ -110,6 +110,11 @@ def _reversed_index(num_atoms: int, mask: int, dtype: torch.dtype, device: torch
     return mask - torch.arange(num_atoms, device=device, dtype=dtype)
 
 
+def _index_mask(num_atoms: int) -> int:
+    """All-ones mask wide enough for the atom indices 0 .. num_atoms - 1."""
+    return (1 << max(1, (num_atoms - 1).bit_length())) - 1
+
+
 class _Workspace(NamedTuple):
     """Reused `[block, N]` buffers of the eager CPU path.
 
@@ -120,16 +125,18 @@ class _Workspace(NamedTuple):
     alpha: torch.Tensor  # correlations, the signals' dtype
     rows: torch.Tensor  # gathered Gram rows (MP)
     key: torch.Tensor  # int32 argmax keys (float32 only)
+    reversed_index: torch.Tensor  # [N] int32, low bits of the keys
 
     @staticmethod
     def make(rows: int, num_atoms: int, dtype: torch.dtype, device: torch.device) -> "_Workspace":
         def empty(dt: torch.dtype) -> torch.Tensor:
             return torch.empty(rows, num_atoms, dtype=dt, device=device)
 
-        return _Workspace(empty(dtype), empty(dtype), empty(torch.int32))
+        index = _reversed_index(num_atoms, _index_mask(num_atoms), torch.int32, device)
+        return _Workspace(empty(dtype), empty(dtype), empty(torch.int32), index)
 
     def view(self, m: int) -> "_Workspace":
-        return _Workspace(self.alpha[:m], self.rows[:m], self.key[:m])
+        return _Workspace(self.alpha[:m], self.rows[:m], self.key[:m], self.reversed_index)
 
 
 def _select(alpha: torch.Tensor, ws: _Workspace | None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -143,7 +150,7 @@ def _select(alpha: torch.Tensor, ws: _Workspace | None) -> tuple[torch.Tensor, t
     elif ws is None:
         lam = _argmax_abs_float64_key(alpha)
     else:
-        return _argmax_abs_int32_key(alpha, ws.key)
+        return _argmax_abs_int32_key(alpha, ws.key, ws.reversed_index)
     return lam, alpha.gather(-1, lam[:, None])[:, 0]
 
 
@@ -158,16 +165,17 @@ def _argmax_abs_float64_key(alpha: torch.Tensor) -> torch.Tensor:
     return mask - best.bitwise_and(mask)
 
 
-def _argmax_abs_int32_key(alpha: torch.Tensor, key: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def _argmax_abs_int32_key(
+    alpha: torch.Tensor, key: torch.Tensor, reversed_index: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
     # Half the memory traffic of the float64 key: the reversed index replaces the
     # low mantissa bits of |alpha| itself. That rounds magnitudes to 23 - bits
     # mantissa bits, so a candidate is checked against the exact maximum, and the
     # rare rows where rounding decided (two magnitudes within ~1e-4 relative) are
     # recomputed exactly.
-    num_atoms = alpha.shape[-1]
-    mask = (1 << max(1, (num_atoms - 1).bit_length())) - 1
+    mask = _index_mask(alpha.shape[-1])
     torch.bitwise_and(alpha.view(torch.int32), 0x7FFFFFFF ^ mask, out=key)
-    key.bitwise_or_(_reversed_index(num_atoms, mask, torch.int32, alpha.device))
+    key.bitwise_or_(reversed_index)
     lam = (mask - key.amax(-1).bitwise_and_(mask)).long()
     value = alpha.gather(-1, lam[:, None])[:, 0]
     # (aminmax and vector_norm(inf) are not vectorised along rows on CPU; amax/amin are)
