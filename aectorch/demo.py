@@ -21,72 +21,12 @@ from torch import Tensor
 
 from aectorch.coding import BinocularEncoder
 from aectorch.config import DemoConfig
+from aectorch.sim.textures import pink_noise_images
 
 __all__ = ["pink_noise_images", "stereo_pair", "evaluate_disparities", "run_demo"]
 
 IMAGE_HEIGHT, IMAGE_WIDTH = 240, 320
 _SHOWN_ATOMS = 32
-
-
-def pink_noise_images(
-    batch: int,
-    height: int,
-    width: int,
-    *,
-    alpha: float = 1.1,
-    generator: torch.Generator,
-    dtype: torch.dtype = torch.float32,
-    device: torch.device | str | None = None,
-) -> Tensor:
-    """Random textures with a 1/f^alpha amplitude spectrum and uniform random phase.
-
-    The amplitude of every non-zero spatial frequency f (cycles per pixel, radial) is exactly
-    ``f ** -alpha`` before the final rescaling; the phases are i.i.d. uniform in [0, 2 pi).
-    Each image is then rescaled affinely to span [0, 1], which leaves the spectrum's shape
-    (all bins but the mean) unchanged. The textures are periodic (they come from an inverse FFT).
-
-    Args:
-        batch, height, width: output shape (each >= 1).
-        alpha: spectral exponent of the amplitude (natural images: about 1; power falls as
-            f^(-2 alpha)).
-        generator: source of the random phases; its device is used when `device` is None.
-        dtype: float32 or float64.
-        device: device of the output (must match the generator's device type).
-
-    Returns:
-        Grey images in [0, 1], min 0 and max 1 per image.
-
-    Shape:
-        output: `[batch, height, width]`.
-
-    Example:
-        >>> g = torch.Generator().manual_seed(0)
-        >>> x = pink_noise_images(2, 240, 336, generator=g)
-        >>> x.shape, float(x.amin()), float(x.amax())
-        (torch.Size([2, 240, 336]), 0.0, 1.0)
-    """
-    for name, value in (("batch", batch), ("height", height), ("width", width)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name} must be an int >= 1, got {value!r}")
-    if not math.isfinite(alpha):
-        raise ValueError(f"alpha must be finite, got {alpha!r}")
-    if dtype not in (torch.float32, torch.float64):
-        raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
-    device = torch.device(device) if device is not None else generator.device
-
-    fy = torch.fft.fftfreq(height, dtype=dtype, device=device)
-    fx = torch.fft.rfftfreq(width, dtype=dtype, device=device)
-    radius = torch.sqrt(fy[:, None].square() + fx[None, :].square())
-    # The mean (f = 0) gets amplitude 0: it is set by the rescaling anyway.
-    amplitude = torch.where(radius > 0, radius.clamp_min(1e-12).pow(-alpha), torch.zeros_like(radius))
-    phase = torch.rand(
-        (batch, height, width // 2 + 1), generator=generator, dtype=dtype, device=device
-    ) * (2 * math.pi)
-    images = torch.fft.irfft2(torch.polar(amplitude.expand_as(phase), phase), s=(height, width))
-
-    low = images.amin(dim=(-2, -1), keepdim=True)
-    span = (images.amax(dim=(-2, -1), keepdim=True) - low).clamp_min(torch.finfo(dtype).tiny)
-    return ((images - low) / span).clamp_(0.0, 1.0)
 
 
 def stereo_pair(

@@ -1,0 +1,678 @@
+"""Textures for the object plane: 1/f^alpha procedural noise and folders of photographs.
+
+The paper puts one of 100 natural-image textures on the plane in front of the robot for each
+fixation, and the AEC lineage holds out 40 more textures for testing. We cannot ship or download
+those photographs, so `TextureBank.default` stands in 1/f^alpha random-phase textures (the
+amplitude spectrum of natural images falls roughly as 1/f) from fixed seeds: 100 for ``"train"``
+and 40 different ones for ``"test"``. Any folder of PNG/JPEG photographs can replace them with
+`TextureBank.from_folder`.
+
+A `TextureBank` is a plain container of ``N`` grey textures ``[N, H, W]`` in [0, 1] with their
+names; an environment draws texture indices with `TextureBank.sample_indices` and gathers the
+textures with ``bank[indices]``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+__all__ = ["TextureBank", "pink_noise_images", "DEFAULT_SEEDS", "DEFAULT_SIZES", "IMAGE_EXTENSIONS"]
+
+#: File extensions `TextureBank.from_folder` loads by default (compared case-insensitively).
+IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg")
+#: Seeds of the procedural stand-ins for the paper's training and held-out texture sets.
+DEFAULT_SEEDS: dict[str, int] = {"train": 2017, "test": 2018}
+#: Number of textures of each default split (the AEC lineage: 100 train, 40 test).
+DEFAULT_SIZES: dict[str, int] = {"train": 100, "test": 40}
+_DEFAULT_ALPHA = (1.0, 1.2)
+_PROGRESS_MIN_FILES = 20
+# Pillow modes holding more than 8 bits per grey pixel: read as float and divided by 65535,
+# because Pillow's convert("L") clips them at 255 instead of rescaling.
+_WIDE_GREY_MODES = ("I", "I;16", "I;16L", "I;16B", "I;16N")
+
+
+def pink_noise_images(
+    batch: int,
+    height: int,
+    width: int,
+    *,
+    alpha: float = 1.1,
+    generator: torch.Generator,
+    dtype: torch.dtype = torch.float32,
+    device: torch.device | str | None = None,
+) -> Tensor:
+    """Random textures with a 1/f^alpha amplitude spectrum and uniform random phase.
+
+    The amplitude of every non-zero spatial frequency f (cycles per pixel, radial) is exactly
+    ``f ** -alpha`` before the final rescaling; the phases are i.i.d. uniform in [0, 2 pi).
+    Each image is then rescaled affinely to span [0, 1], which leaves the spectrum's shape
+    (all bins but the mean) unchanged. The textures are periodic (they come from an inverse FFT).
+
+    Args:
+        batch, height, width: output shape (each >= 1).
+        alpha: spectral exponent of the amplitude (natural images: about 1; power falls as
+            f^(-2 alpha)).
+        generator: source of the random phases; its device is used when `device` is None.
+        dtype: float32 or float64.
+        device: device of the output (must match the generator's device type).
+
+    Returns:
+        Grey images in [0, 1], min 0 and max 1 per image.
+
+    Shape:
+        output: `[batch, height, width]`.
+
+    Example:
+        >>> g = torch.Generator().manual_seed(0)
+        >>> x = pink_noise_images(2, 240, 336, generator=g)
+        >>> x.shape, float(x.amin()), float(x.amax())
+        (torch.Size([2, 240, 336]), 0.0, 1.0)
+    """
+    for name, value in (("batch", batch), ("height", height), ("width", width)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+    if not math.isfinite(alpha):
+        raise ValueError(f"alpha must be finite, got {alpha!r}")
+    if dtype not in (torch.float32, torch.float64):
+        raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
+    device = torch.device(device) if device is not None else generator.device
+
+    fy = torch.fft.fftfreq(height, dtype=dtype, device=device)
+    fx = torch.fft.rfftfreq(width, dtype=dtype, device=device)
+    radius = torch.sqrt(fy[:, None].square() + fx[None, :].square())
+    # The mean (f = 0) gets amplitude 0: it is set by the rescaling anyway.
+    amplitude = torch.where(radius > 0, radius.clamp_min(1e-12).pow(-alpha), torch.zeros_like(radius))
+    phase = torch.rand(
+        (batch, height, width // 2 + 1), generator=generator, dtype=dtype, device=device
+    ) * (2 * math.pi)
+    images = torch.fft.irfft2(torch.polar(amplitude.expand_as(phase), phase), s=(height, width))
+
+    low = images.amin(dim=(-2, -1), keepdim=True)
+    span = (images.amax(dim=(-2, -1), keepdim=True) - low).clamp_min(torch.finfo(dtype).tiny)
+    return ((images - low) / span).clamp_(0.0, 1.0)
+
+
+class TextureBank:
+    """``N`` grey textures in [0, 1] with their names, from which environments draw.
+
+    Build one with `procedural`, `from_folder`, `default` or `from_spec`, or directly from a
+    tensor. The bank holds a reference to `textures` (no copy); `to`, `subset` and `split`
+    return new banks.
+
+    Args:
+        textures: floating tensor of grey textures, values finite and within [0, 1].
+        names: one name per texture (default ``"texture-<i>"``).
+        source: a short description of where the textures come from, shown by ``repr``.
+
+    Attributes:
+        textures: the textures, `[N, H, W]`.
+        names: list of the ``N`` names (file names, or ``"pink-<seed>-<i>"``).
+        source: the description given at construction.
+
+    Shape:
+        textures: `[N, H, W]` with ``N >= 1`` and ``H, W >= 2``.
+
+    Example:
+        >>> bank = TextureBank.procedural(num=4, size=(32, 48), seed=0)
+        >>> bank
+        TextureBank(N=4, size=(32, 48), dtype=torch.float32, device=cpu, source='procedural(seed=0, alpha=(1.0, 1.2))')
+        >>> g = torch.Generator().manual_seed(0)
+        >>> idx = bank.sample_indices(3, g)
+        >>> bank[idx].shape
+        torch.Size([3, 32, 48])
+        >>> bank.names[:2]
+        ['pink-0-0', 'pink-0-1']
+    """
+
+    def __init__(
+        self, textures: Tensor, names: Sequence[str] | None = None, *, source: str = "tensor"
+    ) -> None:
+        _check_textures(textures)
+        n = textures.shape[0]
+        if names is None:
+            names = [f"texture-{i}" for i in range(n)]
+        else:
+            if isinstance(names, str) or not isinstance(names, Sequence):
+                raise TypeError(f"names must be a sequence of str, got {type(names).__name__}")
+            names = list(names)
+            if len(names) != n:
+                raise ValueError(
+                    f"names must have one entry per texture: expected {n}, got {len(names)}"
+                )
+            bad = [name for name in names if not isinstance(name, str)]
+            if bad:
+                raise TypeError(f"names must all be str, got {type(bad[0]).__name__} ({bad[0]!r})")
+        if not isinstance(source, str):
+            raise TypeError(f"source must be a str, got {type(source).__name__}")
+        self.textures: Tensor = textures.detach()
+        self.names: list[str] = names
+        self.source: str = source
+
+    # ------------------------------------------------------------------ constructors
+
+    @classmethod
+    def procedural(
+        cls,
+        num: int = 100,
+        size: int | tuple[int, int] = (512, 512),
+        alpha: float | tuple[float, float] = _DEFAULT_ALPHA,
+        seed: int = 0,
+        *,
+        dtype: torch.dtype = torch.float32,
+        device: torch.device | str | None = None,
+    ) -> TextureBank:
+        """Seeded 1/f^alpha random-phase textures (see `pink_noise_images`).
+
+        Texture ``i`` draws its exponent (uniform in `alpha` when a range is given) and then its
+        phases from one CPU generator seeded with `seed`, in float64, one texture after the
+        other. So the same seed gives the same bank on every device and dtype, and the first
+        ``k`` textures of a bank of ``num > k`` are the bank of ``k``. The textures are periodic
+        (they come from an inverse FFT), each spans exactly [0, 1].
+
+        Args:
+            num: number of textures (>= 1).
+            size: (height, width) of each texture, each >= 2 (an int means a square).
+            alpha: amplitude spectral exponent, a float or a (low, high) range sampled
+                uniformly per texture.
+            seed: seed of the generator.
+            dtype: floating dtype of the bank.
+            device: device of the bank (default CPU).
+
+        Returns:
+            A bank whose names are ``"pink-<seed>-<i>"``.
+
+        Example:
+            >>> bank = TextureBank.procedural(num=3, size=16, alpha=1.0, seed=5)
+            >>> len(bank), bank.size, bank.names[-1]
+            (3, (16, 16), 'pink-5-2')
+            >>> torch.equal(bank.textures, TextureBank.procedural(3, 16, 1.0, seed=5).textures)
+            True
+        """
+        num = _check_count(num, "num")
+        height, width = _check_size(size)
+        low, high = _check_alpha(alpha)
+        if isinstance(seed, bool) or not isinstance(seed, int):
+            raise TypeError(f"seed must be an int, got {type(seed).__name__} ({seed!r})")
+        dtype = _check_dtype(dtype)
+
+        generator = torch.Generator().manual_seed(seed)
+        textures = torch.empty((num, height, width), dtype=dtype, device=device)
+        for i in range(num):
+            a = low + (high - low) * float(torch.rand((), generator=generator, dtype=torch.float64))
+            texture = pink_noise_images(1, height, width, alpha=a, generator=generator,
+                                        dtype=torch.float64)
+            textures[i] = texture[0]
+        alpha_text = f"{low}" if low == high else f"({low}, {high})"
+        return cls(
+            textures,
+            [f"pink-{seed}-{i}" for i in range(num)],
+            source=f"procedural(seed={seed}, alpha={alpha_text})",
+        )
+
+    @classmethod
+    def default(
+        cls,
+        split: str = "train",
+        *,
+        size: int | tuple[int, int] = (512, 512),
+        dtype: torch.dtype = torch.float32,
+        device: torch.device | str | None = None,
+    ) -> TextureBank:
+        """The default texture set: procedural stand-ins for the paper's photographs.
+
+        The paper trains on 100 natural-image textures and the AEC lineage tests on 40 held-out
+        ones. Those photographs cannot be shipped or downloaded here, so the default is
+        ``TextureBank.procedural(100, size, alpha=(1.0, 1.2), seed=2017)`` for ``"train"`` and
+        ``TextureBank.procedural(40, size, alpha=(1.0, 1.2), seed=2018)`` for ``"test"``
+        (`DEFAULT_SIZES`, `DEFAULT_SEEDS`): disjoint sets with natural-image-like 1/f spectra.
+        Use `from_folder` to train and test on real photographs.
+
+        Args:
+            split: ``"train"`` (100 textures) or ``"test"`` (40 held-out textures).
+            size: (height, width) of each texture (an int means a square).
+            dtype: floating dtype of the bank.
+            device: device of the bank.
+
+        Returns:
+            The bank, with names ``"pink-<seed>-<i>"``.
+
+        Example:
+            >>> test = TextureBank.default("test", size=(8, 8))
+            >>> len(test), test.names[0]
+            (40, 'pink-2018-0')
+        """
+        if split not in DEFAULT_SEEDS:
+            raise ValueError(f"split must be one of {sorted(DEFAULT_SEEDS)}, got {split!r}")
+        bank = cls.procedural(
+            DEFAULT_SIZES[split], size, _DEFAULT_ALPHA, DEFAULT_SEEDS[split],
+            dtype=dtype, device=device,
+        )
+        bank.source = f"default {split} set: {bank.source}"
+        return bank
+
+    @classmethod
+    def from_folder(
+        cls,
+        path: str | os.PathLike,
+        size: int | tuple[int, int] = (512, 512),
+        *,
+        extensions: Sequence[str] = IMAGE_EXTENSIONS,
+        recursive: bool = False,
+        progress: bool | None = None,
+        dtype: torch.dtype = torch.float32,
+        device: torch.device | str | None = None,
+    ) -> TextureBank:
+        """Load every image of a folder as a grey texture of the given size.
+
+        Files whose extension is in `extensions` (case-insensitive) are loaded in the order of
+        their names (relative paths with ``/`` when `recursive`), so the bank is deterministic.
+        Hidden files (name starting with ``.``, such as macOS ``._*`` forks) are skipped.
+        Each image is
+
+        1. turned upright by its EXIF orientation tag, if any (`PIL.ImageOps.exif_transpose`);
+        2. converted to grey by Pillow's ``convert("L")``, the ITU-R 601-2 luma
+           ``L = 0.299 R + 0.587 G + 0.114 B`` on 8-bit values (an alpha channel is ignored;
+           16-bit grey images are read as such and divided by 65535 instead);
+        3. resized so that it just covers `size` with its aspect ratio kept, then
+           centre-cropped to `size`. Both happen in one resampling, as in Pillow's
+           `PIL.ImageOps.fit`: the largest centred window of the image with the aspect ratio of
+           `size` (fractional coordinates, so exactly centred) is resampled to `size` by Pillow's
+           LANCZOS filter in 32-bit float. LANCZOS is antialiased when downscaling (its kernel
+           is stretched by the scale factor, like an area filter); images smaller than `size`
+           are upscaled by the same filter; an image already of `size` is left untouched;
+        4. divided by 255 and clamped to [0, 1] (LANCZOS overshoots slightly at sharp edges).
+
+        Args:
+            path: the folder.
+            size: (height, width) of each texture, each >= 2 (an int means a square).
+            extensions: file extensions to load (with or without the dot).
+            recursive: also load images from subfolders.
+            progress: show a tqdm progress bar; None (default) shows one only when stderr is a
+                terminal and there are at least 20 files.
+            dtype: floating dtype of the bank.
+            device: device of the bank.
+
+        Returns:
+            The bank, named by file name (relative path when `recursive`).
+
+        Raises:
+            FileNotFoundError: `path` does not exist.
+            NotADirectoryError: `path` is not a folder.
+            ValueError: the folder holds no file with one of `extensions`, or an image file
+                cannot be read (the message names the file and gives Pillow's message).
+
+        Example:
+            >>> import tempfile
+            >>> from PIL import Image
+            >>> with tempfile.TemporaryDirectory() as folder:
+            ...     Image.new("RGB", (60, 40), (255, 0, 0)).save(f"{folder}/b.png")
+            ...     Image.new("L", (30, 30), 128).save(f"{folder}/a.JPG")
+            ...     bank = TextureBank.from_folder(folder, size=(16, 16))
+            >>> bank.names, bank.textures.shape
+            (['a.JPG', 'b.png'], torch.Size([2, 16, 16]))
+            >>> round(float(bank.textures[1].mean()) * 255)   # red: 0.299 * 255
+            76
+        """
+        folder = Path(os.fspath(path)).expanduser()
+        height, width = _check_size(size)
+        suffixes = _check_extensions(extensions)
+        dtype = _check_dtype(dtype)
+        if not folder.exists():
+            raise FileNotFoundError(f"texture folder {str(folder)!r} does not exist")
+        if not folder.is_dir():
+            raise NotADirectoryError(f"texture folder {str(folder)!r} is not a directory")
+
+        candidates = folder.rglob("*") if recursive else folder.iterdir()
+        files = sorted(
+            (
+                p for p in candidates
+                if p.suffix.lower() in suffixes and p.is_file()
+                and not any(part.startswith(".") for part in p.relative_to(folder).parts)
+            ),
+            key=lambda p: p.relative_to(folder).as_posix(),
+        )
+        if not files:
+            where = "or its subfolders " if recursive else ""
+            raise ValueError(
+                f"texture folder {str(folder)!r} {where}holds no image file with an extension in "
+                f"{list(suffixes)} (case-insensitive)"
+            )
+
+        from tqdm import tqdm
+
+        if progress is None:
+            progress = len(files) >= _PROGRESS_MIN_FILES and sys.stderr.isatty()
+        textures = torch.empty((len(files), height, width), dtype=dtype, device=device)
+        for i, file in enumerate(tqdm(files, desc="textures", unit="img", disable=not progress)):
+            textures[i] = torch.from_numpy(_load_grey(file, height, width))
+        return cls(
+            textures,
+            [p.relative_to(folder).as_posix() for p in files],
+            source=f"folder {str(folder)!r}",
+        )
+
+    @classmethod
+    def from_spec(
+        cls,
+        spec: str | os.PathLike,
+        *,
+        split: str = "train",
+        size: int | tuple[int, int] = (512, 512),
+        dtype: torch.dtype = torch.float32,
+        device: torch.device | str | None = None,
+    ) -> TextureBank:
+        """The bank a config names: ``"default"``/``"procedural"`` or a folder of images.
+
+        Args:
+            spec: ``"default"`` or ``"procedural"`` (both give `default` with `split`), or the
+                path of a folder of images (`from_folder`, the whole folder: `split` is not
+                used; give the training and the test set as two folders, or use `split`).
+            split: ``"train"`` or ``"test"``, for the default textures.
+            size: (height, width) of each texture.
+            dtype, device: of the bank.
+
+        Returns:
+            The bank.
+
+        Raises:
+            FileNotFoundError: `spec` is neither a keyword nor an existing path.
+
+        Example:
+            >>> TextureBank.from_spec("default", split="test", size=8).names[:1]
+            ['pink-2018-0']
+        """
+        if not isinstance(spec, (str, os.PathLike)):
+            raise TypeError(
+                f"spec must be 'default', 'procedural' or a folder path, got {type(spec).__name__}"
+            )
+        if isinstance(spec, str) and spec.strip().lower() in ("default", "procedural"):
+            return cls.default(split, size=size, dtype=dtype, device=device)
+        folder = Path(os.fspath(spec)).expanduser()
+        if not os.fspath(spec) or not folder.exists():
+            raise FileNotFoundError(
+                f"texture spec {os.fspath(spec)!r} is neither 'default' / 'procedural' nor an "
+                f"existing folder of images"
+            )
+        return cls.from_folder(folder, size, dtype=dtype, device=device)
+
+    # ------------------------------------------------------------------ container
+
+    def __len__(self) -> int:
+        return self.textures.shape[0]
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(height, width) of the textures."""
+        return int(self.textures.shape[1]), int(self.textures.shape[2])
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.textures.dtype
+
+    @property
+    def device(self) -> torch.device:
+        return self.textures.device
+
+    def __repr__(self) -> str:
+        return (
+            f"TextureBank(N={len(self)}, size={self.size}, dtype={self.dtype}, "
+            f"device={self.device}, source={self.source!r})"
+        )
+
+    def __getitem__(self, index: int | slice | Tensor | Sequence[int]) -> Tensor:
+        """Textures by index: an int gives `[H, W]`, a LongTensor or list `[B]` gives `[B, H, W]`.
+
+        Negative indices count from the end, as in Python. Index tensors may live on any device
+        (they are moved to the bank's); their range is checked, which syncs with the device.
+
+        Raises:
+            IndexError: an index outside ``[-N, N)``.
+            TypeError: an index of another type (e.g. a float or bool tensor).
+        """
+        n = len(self)
+        if isinstance(index, slice):
+            return self.textures[index]
+        if isinstance(index, int) and not isinstance(index, bool):
+            if not -n <= index < n:
+                raise IndexError(f"texture index must lie in [{-n}, {n}) for {n} textures, got {index}")
+            return self.textures[index]
+        return self.textures[self._index_tensor(index, "index")]
+
+    def sample_indices(self, batch: int, generator: torch.Generator) -> Tensor:
+        """Texture indices drawn uniformly with replacement.
+
+        Args:
+            batch: number of indices (>= 1).
+            generator: the source of randomness; the indices live on its device.
+
+        Returns:
+            Indices in ``[0, N)``, int64.
+
+        Shape:
+            output: `[batch]`.
+
+        Example:
+            >>> bank = TextureBank.procedural(num=5, size=8)
+            >>> bank.sample_indices(4, torch.Generator().manual_seed(0))
+            tensor([4, 4, 3, 0])
+        """
+        batch = _check_count(batch, "batch")
+        if not isinstance(generator, torch.Generator):
+            raise TypeError(f"generator must be a torch.Generator, got {type(generator).__name__}")
+        return torch.randint(len(self), (batch,), generator=generator, device=generator.device)
+
+    def to(
+        self, device: torch.device | str | None = None, dtype: torch.dtype | None = None
+    ) -> TextureBank:
+        """A bank with the textures on `device` and/or in `dtype` (same names and source)."""
+        if dtype is not None:
+            dtype = _check_dtype(dtype)
+        return TextureBank(self.textures.to(device=device, dtype=dtype), self.names, source=self.source)
+
+    def subset(self, indices: Tensor | Sequence[int]) -> TextureBank:
+        """A bank of the textures at `indices`, in that order (negative indices count from the end).
+
+        Example:
+            >>> bank = TextureBank.procedural(num=5, size=8)
+            >>> bank.subset([3, 0]).names
+            ['pink-0-3', 'pink-0-0']
+        """
+        index = self._index_tensor(indices, "indices")
+        if index.numel() == 0:
+            raise ValueError("indices must select at least one texture, got none")
+        positions = index.cpu().remainder(len(self)).tolist()
+        return TextureBank(
+            self.textures[index], [self.names[i] for i in positions], source=self.source
+        )
+
+    def split(self, test_fraction: float = 0.2, *, seed: int = 0) -> tuple[TextureBank, TextureBank]:
+        """Split into disjoint training and held-out banks, e.g. for a folder of photographs.
+
+        ``round(N * test_fraction)`` textures, but at least one and at most ``N - 1``, chosen by a
+        random permutation from `seed`, go to the test bank; the rest to the training bank. Each
+        keeps the bank's order.
+
+        Args:
+            test_fraction: share of textures held out, in (0, 1).
+            seed: seed of the permutation.
+
+        Returns:
+            (train_bank, test_bank).
+
+        Raises:
+            ValueError: `test_fraction` outside (0, 1), or fewer than 2 textures.
+
+        Example:
+            >>> train, test = TextureBank.procedural(num=10, size=8).split(0.3, seed=1)
+            >>> len(train), len(test), set(train.names).isdisjoint(test.names)
+            (7, 3, True)
+        """
+        if isinstance(test_fraction, bool) or not isinstance(test_fraction, (int, float)):
+            raise TypeError(f"test_fraction must be a float, got {type(test_fraction).__name__}")
+        if not 0.0 < test_fraction < 1.0:
+            raise ValueError(f"test_fraction must lie in (0, 1), got {test_fraction!r}")
+        if isinstance(seed, bool) or not isinstance(seed, int):
+            raise TypeError(f"seed must be an int, got {type(seed).__name__} ({seed!r})")
+        n = len(self)
+        if n < 2:
+            raise ValueError(f"cannot split {n} texture into non-empty train and test banks (need >= 2)")
+        n_test = min(max(round(n * test_fraction), 1), n - 1)
+        order = torch.randperm(n, generator=torch.Generator().manual_seed(seed))
+        test_idx, _ = order[:n_test].sort()
+        train_idx, _ = order[n_test:].sort()
+        train, test = self.subset(train_idx), self.subset(test_idx)
+        train.source = f"{self.source} [train split, seed={seed}]"
+        test.source = f"{self.source} [test split {test_fraction}, seed={seed}]"
+        return train, test
+
+    def _index_tensor(self, index: Tensor | Sequence[int], name: str) -> Tensor:
+        n = len(self)
+        if isinstance(index, Tensor):
+            if index.dtype not in (torch.int64, torch.int32, torch.int16, torch.int8, torch.uint8):
+                raise TypeError(f"{name} must be an integer tensor, got dtype {index.dtype}")
+            if index.ndim > 1:
+                raise ValueError(f"{name} must have shape [B], got {tuple(index.shape)}")
+            index = index.to(device=self.device, dtype=torch.int64)
+        elif isinstance(index, Sequence) and not isinstance(index, str):
+            if not all(isinstance(i, int) and not isinstance(i, bool) for i in index):
+                raise TypeError(f"{name} must be ints, got {list(index)!r}")
+            index = torch.tensor(list(index), dtype=torch.int64, device=self.device)
+        else:
+            raise TypeError(
+                f"{name} must be an int, a slice, a sequence of ints or an integer tensor, "
+                f"got {type(index).__name__}"
+            )
+        if index.numel():
+            low, high = (int(v) for v in index.aminmax())
+            if low < -n or high >= n:
+                raise IndexError(
+                    f"texture {name} must lie in [{-n}, {n}) for {n} textures, got values in "
+                    f"[{low}, {high}]"
+                )
+        return index
+
+
+# ---------------------------------------------------------------------- helpers
+
+
+def _load_grey(file: Path, height: int, width: int):
+    """One image file as a float32 numpy array `[height, width]` in [0, 1] (see from_folder)."""
+    import numpy as np
+    from PIL import Image, ImageOps
+
+    try:
+        with Image.open(file) as image:
+            image.load()
+            image = ImageOps.exif_transpose(image)
+            if image.mode in _WIDE_GREY_MODES:
+                grey, scale = image.convert("F"), 65535.0
+            else:
+                if image.mode not in ("1", "L", "LA", "P", "PA", "RGB", "RGBA", "RGBX", "La"):
+                    image = image.convert("RGB")  # CMYK, YCbCr, LAB, HSV: through RGB
+                grey, scale = image.convert("L").convert("F"), 255.0
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
+        raise ValueError(f"cannot read image file {str(file)!r}: {exc}") from exc
+
+    w, h = grey.size
+    # The largest centred window with the output's aspect ratio, in source pixels (fractional,
+    # so the crop is exactly centred and the aspect ratio exactly kept), resampled to the output
+    # size in one step: the same as resizing so that the image just covers the output size and
+    # cutting out the centre, without rounding the intermediate size.
+    if w * height >= h * width:  # wider than the output: crop the sides
+        crop_w, crop_h = h * width / height, float(h)
+    else:  # taller: crop top and bottom
+        crop_w, crop_h = float(w), w * height / width
+    left, top = (w - crop_w) / 2, (h - crop_h) / 2
+    if (w, h) != (width, height):
+        grey = grey.resize(
+            (width, height), Image.Resampling.LANCZOS, box=(left, top, left + crop_w, top + crop_h)
+        )
+    array = np.asarray(grey, dtype=np.float32) / np.float32(scale)
+    return np.clip(array, 0.0, 1.0)
+
+
+def _check_textures(textures: Tensor) -> None:
+    if not isinstance(textures, Tensor):
+        raise TypeError(f"textures must be a torch.Tensor [N, H, W], got {type(textures).__name__}")
+    shape = tuple(textures.shape)
+    if textures.ndim == 2:
+        raise ValueError(
+            f"textures must have shape [N, H, W], got a single texture of shape {shape}; "
+            f"use textures.unsqueeze(0) for a bank of one"
+        )
+    if textures.ndim == 4 and textures.shape[1] == 1:
+        raise ValueError(
+            f"textures must have shape [N, H, W] (grey), got {shape}; use textures.squeeze(1)"
+        )
+    if textures.ndim != 3:
+        raise ValueError(f"textures must have shape [N, H, W], got {shape}")
+    n, h, w = shape
+    if n < 1 or h < 2 or w < 2:
+        raise ValueError(f"textures must have shape [N, H, W] with N >= 1 and H, W >= 2, got {shape}")
+    if not textures.is_floating_point():
+        hint = " (divide 8-bit images by 255)" if textures.dtype == torch.uint8 else ""
+        raise TypeError(f"textures must be a floating tensor, got dtype {textures.dtype}{hint}")
+    if not bool(torch.isfinite(textures).all()):
+        raise ValueError("textures must be finite, got NaN or inf values")
+    low, high = float(textures.amin()), float(textures.amax())
+    if low < 0.0 or high > 1.0:
+        raise ValueError(f"textures must lie within [0, 1], got values in [{low}, {high}]")
+
+
+def _check_size(size) -> tuple[int, int]:
+    if isinstance(size, int) and not isinstance(size, bool):
+        size = (size, size)
+    if isinstance(size, (str, bytes)) or not isinstance(size, Sequence) or len(size) != 2:
+        raise ValueError(f"size must be (height, width) or an int, got {size!r}")
+    if not all(isinstance(s, int) and not isinstance(s, bool) for s in size):
+        raise TypeError(f"size must hold two ints (height, width), got {size!r}")
+    if min(size) < 2:
+        raise ValueError(f"size must be (height, width) with both >= 2, got {tuple(size)}")
+    return int(size[0]), int(size[1])
+
+
+def _check_count(value, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TypeError(f"{name} must be an int >= 1, got {type(value).__name__} ({value!r})")
+    if value < 1:
+        raise ValueError(f"{name} must be an int >= 1, got {value}")
+    return value
+
+
+def _check_alpha(alpha) -> tuple[float, float]:
+    if isinstance(alpha, (int, float)) and not isinstance(alpha, bool):
+        low = high = float(alpha)
+    elif isinstance(alpha, Sequence) and not isinstance(alpha, str) and len(alpha) == 2:
+        low, high = (float(a) for a in alpha)
+    else:
+        raise ValueError(f"alpha must be a float or a (low, high) pair, got {alpha!r}")
+    if not (math.isfinite(low) and math.isfinite(high)) or low > high:
+        raise ValueError(f"alpha must be finite with low <= high, got {alpha!r}")
+    return low, high
+
+
+def _check_dtype(dtype) -> torch.dtype:
+    if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
+        raise TypeError(f"dtype must be a floating torch.dtype, got {dtype!r}")
+    return dtype
+
+
+def _check_extensions(extensions) -> tuple[str, ...]:
+    if isinstance(extensions, str):
+        extensions = (extensions,)
+    if not isinstance(extensions, Sequence) or not extensions:
+        raise ValueError(f"extensions must be a non-empty sequence of str, got {extensions!r}")
+    out = []
+    for ext in extensions:
+        if not isinstance(ext, str) or not ext.strip("."):
+            raise ValueError(f"extensions must be non-empty str like '.png', got {ext!r}")
+        ext = ext.lower()
+        out.append(ext if ext.startswith(".") else "." + ext)
+    return tuple(dict.fromkeys(out))
