@@ -1,4 +1,4 @@
-"""Run the docstring examples of every module of aectorch.coding with the stdlib doctest."""
+"""Run the docstring examples of every module of the aectorch subpackages with the stdlib doctest."""
 
 from __future__ import annotations
 
@@ -10,19 +10,25 @@ import pytest
 import torch
 
 import aectorch.coding
+import aectorch.sim
 
 torch.set_num_threads(1)
 
-# Every submodule of the package (the package's own __init__ only re-exports names and has no
-# examples of its own; doctest does not collect objects defined in other modules).
+# Every submodule of the subpackages (their __init__ only re-exports names and has no examples
+# of its own; doctest does not collect objects defined in other modules).
+PACKAGES = (aectorch.coding, aectorch.sim)
 MODULES = sorted(
-    f"aectorch.coding.{m.name}" for m in pkgutil.iter_modules(aectorch.coding.__path__)
+    f"{package.__name__}.{m.name}" for package in PACKAGES for m in pkgutil.iter_modules(package.__path__)
 )
 
 
-def test_module_discovery_finds_the_coding_modules():
-    expected = {"dictionary", "encoder", "patches", "pursuit", "sparse_code"}
-    assert expected <= {name.rsplit(".", 1)[1] for name in MODULES}
+def test_module_discovery_finds_the_modules():
+    expected = {
+        "coding.dictionary", "coding.encoder", "coding.patches", "coding.pursuit",
+        "coding.sparse_code", "sim.camera", "sim.env", "sim.hoap3", "sim.render_pyrender",
+        "sim.render_torch", "sim.scene", "sim.textures",
+    }
+    assert expected <= {name.split(".", 1)[1] for name in MODULES}
 
 
 @pytest.mark.parametrize("name", MODULES)

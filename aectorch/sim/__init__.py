@@ -1,0 +1,40 @@
+"""The simulated world: HOAP-3 eye kinematics, textures, plane renderers, ActiveDepthEnv.
+
+``sim`` knows nothing about learning: it renders what the eyes see and reports the ground truth.
+pyrender (and with it PyOpenGL) is imported only when a :class:`PyrenderRenderer` is built.
+"""
+
+from aectorch.sim.camera import PinholeCamera, PixelWindow
+from aectorch.sim.env import DEFAULT_DISTANCES_M, RENDERERS, ActiveDepthEnv, IterationInfo, make_renderer
+from aectorch.sim.hoap3 import HOAP3Head
+from aectorch.sim.render_torch import TorchPlaneRenderer, render_planes, sample_bilinear
+from aectorch.sim.scene import PlaneScene
+from aectorch.sim.textures import TextureBank, pink_noise_images
+
+
+def __getattr__(name: str):
+    # Lazy: importing pyrender loads OpenGL, which must see PYOPENGL_PLATFORM first.
+    if name == "PyrenderRenderer":
+        from aectorch.sim.render_pyrender import PyrenderRenderer
+
+        return PyrenderRenderer
+    raise AttributeError(f"module 'aectorch.sim' has no attribute {name!r}")
+
+
+__all__ = [
+    "ActiveDepthEnv",
+    "DEFAULT_DISTANCES_M",
+    "HOAP3Head",
+    "IterationInfo",
+    "PinholeCamera",
+    "PixelWindow",
+    "PlaneScene",
+    "PyrenderRenderer",
+    "RENDERERS",
+    "TextureBank",
+    "TorchPlaneRenderer",
+    "make_renderer",
+    "pink_noise_images",
+    "render_planes",
+    "sample_bilinear",
+]

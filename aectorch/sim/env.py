@@ -1,0 +1,410 @@
+"""``ActiveDepthEnv``: B robots, each in front of its own textured plane, running the paper's protocol.
+
+The protocol of section 2.1 of the paper, batched. A **trial** is one texture at one distance,
+seen in two **fixations** of ``h`` iterations each: the body shifts ``shift_m`` to the left
+(fixation 0, the "leftmost position"), then ``shift_m`` to the right (fixation 1, the "rightmost
+position"). One **iteration** of one fixation is:
+
+1. :meth:`ActiveDepthEnv.parallax_observation`: the dominant (left) eye's image at the starting
+   position (taken once per fixation, before any movement) and its image after the body shift
+   with the current pan (motion parallax, cue *m*);
+2. :meth:`ActiveDepthEnv.apply_pursuit`: the pursuit increment is added to the left eye's pan;
+3. :meth:`ActiveDepthEnv.stereo_observation`: both eyes' images at the shifted position
+   (stereo, cue *s*);
+4. :meth:`ActiveDepthEnv.apply_vergence`: the vergence increment is added to the right eye's
+   pan; the iteration ends, and the returned :class:`IterationInfo` carries the ground truth.
+
+At each fixation's start the left eye looks straight ahead (pan ``pursuit_start_deg``, default
+0) and the right eye is parallel to it (vergence ``vergence_start_deg``, default 0), so the eye
+movement, not the start state, carries the distance. The fixation target is the point where the
+left eye's axis meets the plane at the start; the optimal pursuit pan keeps it on that axis after
+the shift, and the optimal vergence puts the right eye's axis through the point where the left
+axis meets the plane now. All environments run in lockstep (their fixations start together),
+each with its own texture, distance and eye state.
+
+Angles are in degrees; pan is positive toward the robot's left (counter-clockwise seen from
+above); the vergence angle is ``right pan - left pan`` (positive = converged).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple, Sequence
+
+import torch
+from torch import Tensor
+
+from aectorch.sim.camera import PinholeCamera, PixelWindow
+from aectorch.sim.hoap3 import HOAP3Head
+from aectorch.sim.scene import PlaneScene
+from aectorch.sim.textures import TextureBank, pink_noise_images
+
+__all__ = ["ActiveDepthEnv", "IterationInfo", "RENDERERS", "DEFAULT_DISTANCES_M"]
+
+#: The paper's object distances: 1.0 to 3.0 m in 0.1 m steps.
+DEFAULT_DISTANCES_M = tuple(round(1.0 + 0.1 * i, 1) for i in range(21))
+#: Renderer names accepted by ``renderer=``.
+RENDERERS = ("torch", "pyrender")
+
+
+class IterationInfo(NamedTuple):
+    """What :meth:`ActiveDepthEnv.apply_vergence` reports at the end of every iteration.
+
+    All angles in degrees, each tensor ``[B]`` unless noted. Errors are actual minus optimal.
+    """
+
+    #: left-eye pan and right-eye pan after this iteration's increments.
+    left_pan_deg: Tensor
+    right_pan_deg: Tensor
+    #: optimal left pan (keeps the fixation target) and optimal right pan (looks where the
+    #: left axis meets the plane), for the state after the increments.
+    optimal_left_pan_deg: Tensor
+    optimal_right_pan_deg: Tensor
+    pursuit_error_deg: Tensor
+    vergence_error_deg: Tensor
+    #: the iteration within the fixation that just ended (0 .. h-1), the fixation (0 = leftward,
+    #: 1 = rightward) and whether this iteration ended a fixation or the whole trial.
+    iteration: int
+    fixation: int
+    fixation_end: bool
+    trial_end: bool
+    #: ``[B, 4]`` final eye movements (q1 left pan and q2 vergence at the leftmost position,
+    #: q3 and q4 at the rightmost one) of the trial that just ended, else ``None``.
+    q_deg: Tensor | None
+    #: the true distance of the trial that just ended (``None`` when no trial ended).
+    distance_m: Tensor | None
+
+
+def _range_or_value(value, name: str) -> tuple[float, float]:
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        lo = hi = float(value)
+    else:
+        try:
+            lo, hi = (float(v) for v in value)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name} must be a number or a (low, high) pair, got {value!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+        raise ValueError(f"{name} must be finite with low <= high, got {value!r}")
+    return lo, hi
+
+
+def make_renderer(name: str, scene: PlaneScene, camera: PinholeCamera, *, device=None, **kwargs):
+    """Build a renderer by name: ``"torch"`` (:class:`TorchPlaneRenderer`) or ``"pyrender"``."""
+    if name == "torch":
+        from aectorch.sim.render_torch import TorchPlaneRenderer
+
+        return TorchPlaneRenderer(scene, camera).to(device)
+    if name == "pyrender":
+        from aectorch.sim.render_pyrender import PyrenderRenderer
+
+        return PyrenderRenderer(scene, camera, **kwargs)
+    raise ValueError(f"renderer must be one of {RENDERERS}, got {name!r}")
+
+
+class ActiveDepthEnv:
+    """B simulated HOAP-3 heads looking at textured planes, batched, with ground truth.
+
+    Args:
+        num_envs: number of environments B (>= 1).
+        textures: object textures: a :class:`TextureBank`, a tensor ``[N, H, W]`` in [0, 1], or
+            ``None`` for ``TextureBank.default("train")`` (100 procedural textures).
+        renderer: ``"torch"`` (default) or ``"pyrender"`` (OSMesa; ``renderer_options`` are
+            passed on, e.g. ``{"platform": "egl"}``).
+        distances_m: the object distances a trial draws from uniformly (metres from the eyes'
+            centres along the robot's forward axis; each > 0); default 1.0 .. 3.0 m in 0.1 m steps.
+        fixation_iterations: h, iterations per fixation (paper: 30).
+        shift_m: δ, the body's lateral shift in each fixation (paper: 0.1 m).
+        pursuit_start_deg: left-eye pan at each fixation's start: a number or a ``(low, high)``
+            range drawn uniformly per environment and fixation.
+        vergence_start_deg: right pan minus left pan at each fixation's start (0 = parallel),
+            a number or a range.
+        window: ``"crops"`` renders only the central 128 x 128 pixels the coder uses (its
+            central 80 x 80 is the fine scale's crop), ``"full"`` the whole frame, or a
+            :class:`PixelWindow`.
+        camera: intrinsics (default 320 x 240, 50 degrees vertical field of view).
+        head: the kinematics (default: :class:`HOAP3Head` from ``robots/hoap3``).
+        background: the background's texture ``[Hb, Wb]`` (default: a fixed 1/f texture).
+        seed: seed of the environment's own generator (textures, distances, start states).
+        device, dtype: where and in which float type poses and images live.
+
+    Example:
+        >>> env = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64), fixation_iterations=2, seed=0)
+        >>> first, second = env.parallax_observation().unbind(1)
+        >>> first.shape
+        torch.Size([2, 128, 128])
+        >>> env.apply_pursuit(torch.tensor([-0.2, 0.1]))
+        >>> left, right = env.stereo_observation().unbind(1)
+        >>> info = env.apply_vergence(torch.zeros(2))
+        >>> info.iteration, info.fixation_end, info.pursuit_error_deg.shape
+        (0, False, torch.Size([2]))
+    """
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        *,
+        textures=None,
+        renderer: str = "torch",
+        distances_m: Sequence[float] = DEFAULT_DISTANCES_M,
+        fixation_iterations: int = 30,
+        shift_m: float = 0.1,
+        pursuit_start_deg=0.0,
+        vergence_start_deg=0.0,
+        window: str | PixelWindow = "crops",
+        camera: PinholeCamera | None = None,
+        head: HOAP3Head | None = None,
+        background: Tensor | None = None,
+        seed: int = 0,
+        device: torch.device | str | None = None,
+        dtype: torch.dtype = torch.float32,
+        renderer_options: dict | None = None,
+    ) -> None:
+        if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
+            raise ValueError(f"num_envs must be an int >= 1, got {num_envs!r}")
+        if renderer not in RENDERERS:
+            raise ValueError(f"renderer must be one of {RENDERERS}, got {renderer!r}")
+        distances = [float(d) for d in distances_m]
+        if not distances or any(not math.isfinite(d) or d <= 0 for d in distances):
+            raise ValueError(
+                f"distances_m must be a non-empty list of distances > 0 (metres), got {distances_m!r}"
+            )
+        if isinstance(fixation_iterations, bool) or not isinstance(fixation_iterations, int) or fixation_iterations < 1:
+            raise ValueError(f"fixation_iterations must be an int >= 1, got {fixation_iterations!r}")
+        if not (isinstance(shift_m, (int, float)) and math.isfinite(shift_m) and shift_m >= 0):
+            raise ValueError(f"shift_m must be a number >= 0 (metres), got {shift_m!r}")
+        if dtype not in (torch.float32, torch.float64):
+            raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
+        self.num_envs = num_envs
+        self.device = torch.device("cpu") if device is None else torch.device(device)
+        self.dtype = dtype
+        self.fixation_iterations = fixation_iterations
+        self.shift_m = float(shift_m)
+        self.pursuit_start_deg = _range_or_value(pursuit_start_deg, "pursuit_start_deg")
+        self.vergence_start_deg = _range_or_value(vergence_start_deg, "vergence_start_deg")
+        self.camera = camera or PinholeCamera()
+        if window == "crops":
+            window = self.camera.central_window(128)
+        elif window == "full":
+            window = self.camera.full_window
+        elif isinstance(window, str):
+            raise ValueError(f"window must be 'crops', 'full' or a PixelWindow, got {window!r}")
+        self.window = self.camera.check_window(window)
+        self.head = (head or HOAP3Head()).to(device=self.device, dtype=dtype)
+
+        if textures is None:
+            textures = TextureBank.default("train")
+        self.textures = textures if isinstance(textures, TextureBank) else TextureBank(textures)
+        if background is None:
+            generator = torch.Generator().manual_seed(20171028)
+            background = pink_noise_images(1, 256, 256, generator=generator)[0]
+        self.scene = PlaneScene(self.textures.textures, background)
+        eye_x = float(self.head.eye_x_m)
+        farthest = eye_x + max(distances)
+        if farthest >= self.scene.background_x_m:
+            raise ValueError(
+                f"distances_m reach {max(distances)} m, behind the background plane at "
+                f"x = {self.scene.background_x_m} m; use distances below "
+                f"{self.scene.background_x_m - eye_x:.2f} m"
+            )
+        self.distances_m = torch.tensor(distances, dtype=dtype, device=self.device)
+        self.renderer_name = renderer
+        self.renderer = make_renderer(
+            renderer, self.scene, self.camera, device=self.device, **(renderer_options or {})
+        )
+        self.seed = seed
+        self.reset(seed)
+
+    # -- state -------------------------------------------------------------------------------
+    def reset(self, seed: int | None = None) -> None:
+        """Start a new trial in every environment (from ``seed`` when given)."""
+        if seed is not None:
+            self._generator = torch.Generator().manual_seed(int(seed))
+        b = self.num_envs
+        self.roll_deg = torch.zeros(b, 2, dtype=self.dtype, device=self.device)
+        self.q_deg = torch.zeros(b, 4, dtype=self.dtype, device=self.device)
+        self._new_trial()
+
+    def _uniform(self, bounds: tuple[float, float]) -> Tensor:
+        lo, hi = bounds
+        u = torch.rand(self.num_envs, generator=self._generator, dtype=torch.float64)
+        return (lo + (hi - lo) * u).to(self.dtype).to(self.device)
+
+    def _new_trial(self) -> None:
+        b = self.num_envs
+        index = torch.randint(len(self.textures), (b,), generator=self._generator)
+        pick = torch.randint(self.distances_m.numel(), (b,), generator=self._generator)
+        self.set_trial(index.to(self.device), self.distances_m[pick.to(self.device)])
+
+    def set_trial(self, texture_index: Tensor, distance_m: Tensor) -> None:
+        """Start a trial with the given textures ``[B]`` and distances ``[B]`` (metres, > 0).
+
+        Evaluation grids use this to pin the conditions; training draws them at random.
+        """
+        b = self.num_envs
+        texture_index = torch.as_tensor(texture_index, device=self.device)
+        distance_m = torch.as_tensor(distance_m, dtype=self.dtype, device=self.device)
+        if texture_index.shape != (b,) or distance_m.shape != (b,):
+            raise ValueError(
+                f"texture_index and distance_m must have shape [B] = [{b}] (num_envs), got "
+                f"{tuple(texture_index.shape)} and {tuple(distance_m.shape)}"
+            )
+        if not bool((distance_m > 0).all()):
+            raise ValueError(
+                f"distance_m must be > 0 (metres in front of the eyes), got min "
+                f"{float(distance_m.min()):.4g}"
+            )
+        if bool(((texture_index < 0) | (texture_index >= len(self.textures))).any()):
+            raise IndexError(f"texture_index must be in [0, {len(self.textures)}), got {texture_index.tolist()}")
+        self.texture_index = texture_index.long()
+        self.distance_m = distance_m
+        self.plane_x_m = distance_m + float(self.head.eye_x_m)
+        self._start_fixation(0)
+
+    def _start_fixation(self, fixation: int) -> None:
+        self.fixation = fixation
+        self.iteration = 0
+        direction = 1.0 if fixation == 0 else -1.0
+        zero = torch.zeros(self.num_envs, dtype=self.dtype, device=self.device)
+        self.body_shift_m = zero + direction * self.shift_m
+        left = self._uniform(self.pursuit_start_deg)
+        self.pan_deg = self.head.clamp_pan_deg(
+            torch.stack((left, left + self._uniform(self.vergence_start_deg)), dim=-1)
+        )
+        left = self.pan_deg[:, 0]
+        # The fixation target: where the left axis meets the plane at the starting position.
+        start = self.head.eye_centres(zero)[:, 0]  # [B, 3]
+        along = torch.tan(torch.deg2rad(left)) * (self.plane_x_m - start[:, 0])
+        self.target_m = torch.stack((self.plane_x_m, start[:, 1] + along, start[:, 2]), dim=-1)
+        self._start_pans = self.pan_deg
+        self._first_image: Tensor | None = None
+
+    def set_pan_deg(self, pan_deg) -> None:
+        """Put the eyes at the given pans ``[B, 2]`` (left, right; degrees), within their limits.
+
+        For evaluation grids (for example a set of initial vergence errors) and tests; the
+        fixation target does not change.
+        """
+        pan = torch.as_tensor(pan_deg, dtype=self.dtype, device=self.device)
+        if pan.shape != (self.num_envs, 2):
+            raise ValueError(f"pan_deg must have shape [B, 2] = [{self.num_envs}, 2], got {tuple(pan.shape)}")
+        self.pan_deg = self.head.clamp_pan_deg(pan)
+
+    def set_roll(self, roll_deg) -> None:
+        """Set each eye's roll about its optical axis (the perturbation), ``[2]`` or ``[B, 2]``, degrees."""
+        roll = torch.as_tensor(roll_deg, dtype=self.dtype, device=self.device)
+        if roll.shape not in ((2,), (self.num_envs, 2)):
+            raise ValueError(
+                f"roll_deg must have shape [2] or [B, 2] = [{self.num_envs}, 2], got {tuple(roll.shape)}"
+            )
+        self.roll_deg = roll.expand(self.num_envs, 2).clone()
+
+    @property
+    def left_pan_deg(self) -> Tensor:
+        """Current left-eye (dominant) pan ``[B]``, degrees."""
+        return self.pan_deg[:, 0]
+
+    @property
+    def right_pan_deg(self) -> Tensor:
+        """Current right-eye pan ``[B]``, degrees."""
+        return self.pan_deg[:, 1]
+
+    @property
+    def vergence_deg(self) -> Tensor:
+        """Current vergence angle ``[B]``: right pan minus left pan (positive = converged)."""
+        return self.pan_deg[:, 1] - self.pan_deg[:, 0]
+
+    # -- ground truth ----------------------------------------------------------------------
+    def optimal_left_pan_deg(self) -> Tensor:
+        """The left pan that keeps the fixation target on the left axis at the shifted position."""
+        return self.head.pursuit_pan_deg(self.target_m, self.body_shift_m)
+
+    def optimal_right_pan_deg(self, left_pan_deg: Tensor | None = None) -> Tensor:
+        """The right pan whose axis meets the plane where the left axis does (current left pan)."""
+        left = self.left_pan_deg if left_pan_deg is None else left_pan_deg
+        return self.head.vergence_pan_deg(left, self.plane_x_m, self.body_shift_m)
+
+    # -- observations ----------------------------------------------------------------------
+    def _render(self, shift_m: Tensor, pans: Tensor, eyes: slice) -> Tensor:
+        poses = self.head.camera_poses(shift_m, pans, self.roll_deg, convention="opengl")
+        return self.renderer(
+            poses[:, eyes], self.plane_x_m, self.texture_index, self.window
+        ).to(self.dtype)
+
+    def parallax_observation(self) -> Tensor:
+        """The motion-parallax pair ``[B, 2, h, w]``: left eye before the shift, then after it.
+
+        The first image is the left eye at the starting position with the fixation's start pan,
+        rendered once per fixation; the second is the left eye after the body shift with the
+        current pan.
+        """
+        if self._first_image is None:
+            zero = torch.zeros_like(self.body_shift_m)
+            self._first_image = self._render(zero, self._start_pans, slice(0, 1))[:, 0]
+        second = self._render(self.body_shift_m, self.pan_deg, slice(0, 1))[:, 0]
+        return torch.stack((self._first_image, second), dim=1)
+
+    def stereo_observation(self) -> Tensor:
+        """The stereo pair ``[B, 2, h, w]``: left then right eye at the shifted position."""
+        return self._render(self.body_shift_m, self.pan_deg, slice(0, 2))
+
+    # -- actions -----------------------------------------------------------------------------
+    def _check_increment(self, delta_deg, name: str) -> Tensor:
+        delta = torch.as_tensor(delta_deg, device=self.device)
+        if not delta.is_floating_point():
+            delta = delta.to(self.dtype)
+        if delta.shape != (self.num_envs,):
+            raise ValueError(
+                f"{name} must have shape [B] = [{self.num_envs}] (num_envs), got {tuple(delta.shape)}"
+            )
+        return delta.to(self.dtype)
+
+    def apply_pursuit(self, delta_deg: Tensor) -> None:
+        """Add the pursuit increments ``[B]`` (degrees) to the left eye's pan (within its limits)."""
+        delta = self._check_increment(delta_deg, "delta_deg")
+        step = torch.stack((delta, torch.zeros_like(delta)), dim=-1)
+        self.pan_deg = self.head.clamp_pan_deg(self.pan_deg + step)
+
+    def apply_vergence(self, delta_deg: Tensor) -> IterationInfo:
+        """Add the vergence increments ``[B]`` to the right eye's pan and end the iteration."""
+        delta = self._check_increment(delta_deg, "delta_deg")
+        step = torch.stack((torch.zeros_like(delta), delta), dim=-1)
+        self.pan_deg = self.head.clamp_pan_deg(self.pan_deg + step)
+        optimal_left = self.optimal_left_pan_deg()
+        optimal_right = self.optimal_right_pan_deg()
+        iteration, fixation = self.iteration, self.fixation
+        fixation_end = iteration == self.fixation_iterations - 1
+        trial_end = fixation_end and fixation == 1
+        q = distance = None
+        if fixation_end:
+            vergence = self.right_pan_deg - self.left_pan_deg
+            self.q_deg[:, 2 * fixation] = self.left_pan_deg
+            self.q_deg[:, 2 * fixation + 1] = vergence
+        info_left, info_right = self.left_pan_deg, self.right_pan_deg
+        if trial_end:
+            q, distance = self.q_deg.clone(), self.distance_m
+            self._new_trial()
+        elif fixation_end:
+            self._start_fixation(1)
+        else:
+            self.iteration += 1
+        return IterationInfo(
+            left_pan_deg=info_left,
+            right_pan_deg=info_right,
+            optimal_left_pan_deg=optimal_left,
+            optimal_right_pan_deg=optimal_right,
+            pursuit_error_deg=info_left - optimal_left,
+            vergence_error_deg=info_right - optimal_right,
+            iteration=iteration,
+            fixation=fixation,
+            fixation_end=fixation_end,
+            trial_end=trial_end,
+            q_deg=q,
+            distance_m=distance,
+        )
+
+    def __repr__(self) -> str:
+        return (
+            f"ActiveDepthEnv(num_envs={self.num_envs}, renderer={self.renderer_name!r}, "
+            f"textures={len(self.textures)}, h={self.fixation_iterations}, shift_m={self.shift_m}, "
+            f"window={tuple(self.window)}, device={self.device}, dtype={self.dtype})"
+        )

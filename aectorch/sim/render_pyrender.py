@@ -1,0 +1,272 @@
+"""The plane scene rendered by pyrender (OpenGL through OSMesa on a CPU machine, EGL on a GPU one).
+
+This is the renderer a user would otherwise reach for, and the independent oracle of
+:class:`aectorch.sim.render_torch.TorchPlaneRenderer`. One ``OffscreenRenderer`` (one OpenGL context)
+is reused for every frame and window size; each texture is uploaded once, as its own quad, the first time an
+environment looks at it, and only the current texture's quad is visible during a draw.
+
+Conventions that make the two renderers agree (see ``docs/simulation.md``):
+
+- unlit: ``RenderFlags.FLAT`` and our own material with ``baseColorFactor`` 1.0 (trimesh's
+  default material would dim the texture to 40 %), so a pixel equals the sampled texture;
+- textures are uploaded as 8-bit RGB (three equal channels); pyrender flips the rows for
+  OpenGL, so texture coordinate ``t = 1`` is the image's top row;
+- filtering ``GL_LINEAR`` for both magnification and minification (no mipmaps), wrap
+  ``GL_CLAMP_TO_EDGE``; unpack and pack alignment 1, so any texture or window width works;
+- the camera is pyrender's ``IntrinsicsCamera`` with the principal point of
+  :class:`~aectorch.sim.camera.PinholeCamera` shifted by the window's offset, so a window renders
+  exactly those pixels of the full image.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from aectorch.sim.camera import PinholeCamera, PixelWindow
+from aectorch.sim.scene import PlaneScene
+
+__all__ = ["PyrenderRenderer", "import_pyrender"]
+
+_PLATFORMS = ("osmesa", "egl")
+_OSMESA_HINT = (
+    "OSMesa (software OpenGL) is needed to render with pyrender on a machine without a display. "
+    "Install it with `sudo apt-get install libosmesa6` (Debian/Ubuntu; `make setup` does this), "
+    "or use the torch renderer (env.renderer=torch)."
+)
+
+
+def import_pyrender(platform: str = "osmesa"):
+    """Import pyrender for off-screen rendering on ``platform`` ("osmesa" or "egl").
+
+    ``PYOPENGL_PLATFORM`` must be set before PyOpenGL is first imported; this sets it when it is
+    unset and refuses a conflicting value with a message that says what to do.
+    """
+    if platform not in _PLATFORMS:
+        raise ValueError(f"platform must be one of {_PLATFORMS}, got {platform!r}")
+    current = os.environ.get("PYOPENGL_PLATFORM")
+    if current is None:
+        import sys
+
+        if "OpenGL" in sys.modules:
+            raise RuntimeError(
+                "PyOpenGL was imported before PYOPENGL_PLATFORM was set; set "
+                f"PYOPENGL_PLATFORM={platform} in the environment before starting Python"
+            )
+        os.environ["PYOPENGL_PLATFORM"] = platform
+    elif current != platform:
+        raise RuntimeError(
+            f"PYOPENGL_PLATFORM is {current!r} but the pyrender renderer was asked for "
+            f"{platform!r}; set PYOPENGL_PLATFORM={platform} before starting Python, or ask for "
+            f"platform={current!r}"
+        )
+    try:
+        import pyrender  # noqa: F401
+        from OpenGL import GL  # noqa: F401
+    except (ImportError, OSError, AttributeError) as error:  # pragma: no cover - depends on system
+        hint = _OSMESA_HINT if platform == "osmesa" else (
+            "EGL needs a GPU driver with libEGL (e.g. NVIDIA's); on a CPU machine use osmesa."
+        )
+        raise RuntimeError(f"cannot load pyrender on {platform}: {error}. {hint}") from error
+    return pyrender
+
+
+def _quad(pyrender, texture: np.ndarray, size_m: tuple[float, float]):
+    """A flat-shaded quad in the plane x = 0 that faces -x, texture column 0 at +y, row 0 at +z."""
+    width, height = size_m
+    w2, h2 = width / 2.0, height / 2.0
+    positions = np.array(
+        [[0.0, w2, h2], [0.0, -w2, h2], [0.0, -w2, -h2], [0.0, w2, -h2]], dtype=np.float32
+    )
+    # pyrender flips the rows on upload: t = 1 is the top row (row 0) of the image.
+    uv = np.array([[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]], dtype=np.float32)
+    normals = np.tile(np.array([[-1.0, 0.0, 0.0]], dtype=np.float32), (4, 1))
+    indices = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.uint32)
+    from OpenGL.GL import GL_CLAMP_TO_EDGE, GL_LINEAR
+
+    sampler = pyrender.Sampler(
+        magFilter=GL_LINEAR, minFilter=GL_LINEAR, wrapS=GL_CLAMP_TO_EDGE, wrapT=GL_CLAMP_TO_EDGE
+    )
+    rgb = np.ascontiguousarray(np.repeat(texture[:, :, None], 3, axis=2))
+    material = pyrender.MetallicRoughnessMaterial(
+        baseColorTexture=pyrender.Texture(source=rgb, source_channels="RGB", sampler=sampler),
+        baseColorFactor=[1.0, 1.0, 1.0, 1.0],
+        metallicFactor=0.0,
+        roughnessFactor=1.0,
+        doubleSided=True,
+    )
+    primitive = pyrender.Primitive(
+        positions=positions, normals=normals, texcoord_0=uv, indices=indices, material=material
+    )
+    return pyrender.Mesh([primitive])
+
+
+def _to_uint8(image: Tensor) -> np.ndarray:
+    return (image.detach().float().clamp(0, 1) * 255.0).round().to(torch.uint8).cpu().numpy()
+
+
+class PyrenderRenderer:
+    """The plane scene rendered with pyrender's ``OffscreenRenderer`` (same API as the torch one).
+
+    Args:
+        scene: geometry and textures (textures are quantised to 8 bits on upload).
+        camera: intrinsics.
+        platform: "osmesa" (default; CPU) or "egl" (GPU machines).
+        znear, zfar: clipping planes in metres (the background must lie inside).
+
+    Renders one camera at a time (OpenGL has no batch); images come back as float32 in [0, 1]
+    (multiples of 1/255) on the device of the poses.
+
+    Example:
+        >>> from aectorch.sim.scene import PlaneScene
+        >>> scene = PlaneScene(torch.rand(2, 64, 64), torch.rand(32, 32))
+        >>> renderer = PyrenderRenderer(scene)
+        >>> pose = torch.eye(4)
+        >>> pose[:3, :3] = torch.tensor([[0.0, 0, -1], [-1, 0, 0], [0, 1, 0]])  # look along +x
+        >>> pose[:3, 3] = torch.tensor([0.03, 0.03, 0.529])
+        >>> renderer(pose.expand(1, 2, 4, 4), torch.tensor([1.03]), torch.tensor([1])).shape
+        torch.Size([1, 2, 240, 320])
+        >>> renderer.close()
+    """
+
+    name = "pyrender"
+
+    def __init__(
+        self,
+        scene: PlaneScene,
+        camera: PinholeCamera = PinholeCamera(),
+        *,
+        platform: str = "osmesa",
+        znear: float = 0.05,
+        zfar: float = 100.0,
+    ) -> None:
+        if not (0 < znear < zfar):
+            raise ValueError(f"need 0 < znear < zfar, got znear={znear!r}, zfar={zfar!r}")
+        if scene.background_x_m >= zfar:
+            raise ValueError(
+                f"zfar ({zfar}) must exceed the background's distance ({scene.background_x_m} m)"
+            )
+        self._pyrender = import_pyrender(platform)
+        self.scene = scene
+        self.camera = camera
+        self.platform = platform
+        self.znear, self.zfar = float(znear), float(zfar)
+        pyrender = self._pyrender
+        self._gl_scene = pyrender.Scene(bg_color=[0.0, 0.0, 0.0, 1.0], ambient_light=[1.0, 1.0, 1.0])
+        background = _to_uint8(scene.background)
+        pose = np.eye(4)
+        pose[:3, 3] = [scene.background_x_m, *scene.background_center_yz_m]
+        self._gl_scene.add(_quad(pyrender, background, scene.background_size_m), pose=pose)
+        self._texture_nodes: dict[int, object] = {}
+        self._visible: int | None = None
+        self._camera_node = None
+        self._gl_renderer = None
+        self._flags = pyrender.RenderFlags.FLAT | pyrender.RenderFlags.SKIP_CULL_FACES
+
+    # -- resources ---------------------------------------------------------------------------
+    def _renderer(self, window: PixelWindow):
+        # One OpenGL context for everything: pyrender keeps uploaded meshes and textures per
+        # context, so a second OffscreenRenderer would not see them. Windows of another size
+        # only resize its framebuffer.
+        renderer = self._gl_renderer
+        if renderer is None:
+            try:
+                renderer = self._pyrender.OffscreenRenderer(window.width, window.height)
+            except Exception as error:  # pragma: no cover - depends on the system's OpenGL
+                raise RuntimeError(
+                    f"pyrender could not create an off-screen context on {self.platform}: "
+                    f"{error!r}. {_OSMESA_HINT if self.platform == 'osmesa' else ''}"
+                ) from error
+            from OpenGL.GL import GL_PACK_ALIGNMENT, GL_UNPACK_ALIGNMENT, glPixelStorei
+
+            # Rows of any width: RGB rows of a width that is not a multiple of 4 bytes would
+            # otherwise be read and written with padding.
+            glPixelStorei(GL_UNPACK_ALIGNMENT, 1)
+            glPixelStorei(GL_PACK_ALIGNMENT, 1)
+            self._gl_renderer = renderer
+        renderer.viewport_width = window.width
+        renderer.viewport_height = window.height
+        return renderer
+
+    def _show_texture(self, index: int) -> None:
+        if self._visible == index:
+            return
+        node = self._texture_nodes.get(index)
+        if node is None:
+            texture = _to_uint8(self.scene.textures[index])
+            mesh = _quad(self._pyrender, texture, self.scene.object_size_m)
+            node = self._gl_scene.add(mesh, pose=np.eye(4))
+            self._texture_nodes[index] = node
+        if self._visible is not None:
+            self._texture_nodes[self._visible].mesh.is_visible = False
+        node.mesh.is_visible = True
+        self._visible = index
+
+    def _set_camera(self, window: PixelWindow) -> None:
+        fx, fy, cx, cy = self.camera.window_intrinsics(window)
+        camera = self._pyrender.IntrinsicsCamera(fx, fy, cx, cy, znear=self.znear, zfar=self.zfar)
+        if self._camera_node is not None:
+            self._gl_scene.remove_node(self._camera_node)
+        self._camera_node = self._gl_scene.add(camera, pose=np.eye(4))
+
+    def close(self) -> None:
+        """Free the OpenGL contexts (also done when the renderer is garbage-collected)."""
+        if self._gl_renderer is not None:
+            self._gl_renderer.delete()
+            self._gl_renderer = None
+
+    def __del__(self) -> None:  # pragma: no cover - best effort at interpreter exit
+        try:
+            self.close()
+        except Exception:
+            pass
+
+    # -- rendering ---------------------------------------------------------------------------
+    def __call__(
+        self,
+        poses: Tensor,
+        plane_x_m: Tensor,
+        texture_index: Tensor,
+        window: PixelWindow | None = None,
+    ) -> Tensor:
+        """Render ``[B, ..., h, w]`` images; the arguments are those of :func:`render_planes`."""
+        if poses.ndim < 3 or poses.shape[-2:] != (4, 4):
+            raise ValueError(f"poses must have shape [B, ..., 4, 4], got {tuple(poses.shape)}")
+        batch = poses.shape[0]
+        if plane_x_m.shape != (batch,):
+            raise ValueError(
+                f"plane_x_m must have shape [B] = [{batch}] (the batch of poses), "
+                f"got {tuple(plane_x_m.shape)}"
+            )
+        self.scene.check_texture_index(texture_index, batch)
+        window = self.camera.check_window(window)
+        index = texture_index.cpu().tolist()
+        if min(index) < 0 or max(index) >= self.scene.num_textures:
+            raise IndexError(
+                f"texture_index must be in [0, {self.scene.num_textures}), got values "
+                f"{min(index)}..{max(index)}"
+            )
+        renderer = self._renderer(window)
+        self._set_camera(window)
+        flat_poses = poses.detach().reshape(batch, -1, 4, 4).to("cpu", torch.float64).numpy()
+        planes = plane_x_m.detach().to("cpu", torch.float64).numpy()
+        out = np.empty((batch, flat_poses.shape[1], window.height, window.width), dtype=np.uint8)
+        y, z = self.scene.object_center_yz_m
+        for b in range(batch):
+            self._show_texture(index[b])
+            node = self._texture_nodes[index[b]]
+            pose = np.eye(4)
+            pose[:3, 3] = [planes[b], y, z]
+            self._gl_scene.set_pose(node, pose)
+            for c in range(flat_poses.shape[1]):
+                self._gl_scene.set_pose(self._camera_node, flat_poses[b, c])
+                colour, _ = renderer.render(self._gl_scene, flags=self._flags)
+                out[b, c] = colour[:, :, 0]
+        images = torch.from_numpy(out).to(torch.float32).div_(255.0)
+        images = images.reshape(poses.shape[:-2] + (window.height, window.width))
+        return images.to(poses.device)
+
+    render = __call__

@@ -1,0 +1,111 @@
+"""The scene every environment sees: a fronto-parallel textured object plane and a still background.
+
+World frame (URDF/ROS): x forward, y left, z up, origin on the floor under the robot's starting
+position. Both planes are perpendicular to x and face the robot. A texture is mapped onto its
+plane as a viewer standing at the robot sees it: texture column 0 on the plane's left edge
+(largest y), row 0 on its top edge (largest z), texels square (the plane's height is its width
+times the texture's aspect ratio ``H / W``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor
+
+__all__ = ["PlaneScene", "DEFAULT_EYE_HEIGHT_M"]
+
+#: Height of HOAP-3's eye centres above the soles at zero pose (see robots/hoap3/README.md).
+DEFAULT_EYE_HEIGHT_M = 0.529
+
+
+def _as_textures(textures, name: str, ndim: int) -> Tensor:
+    if hasattr(textures, "textures") and isinstance(textures.textures, Tensor):
+        textures = textures.textures  # a TextureBank
+    if not isinstance(textures, Tensor) or not textures.is_floating_point():
+        raise TypeError(f"PlaneScene: {name} must be a floating tensor, got {type(textures).__name__}")
+    expected = "[N, H, W]" if ndim == 3 else "[H, W]"
+    if textures.ndim != ndim or textures.shape[-1] < 2 or textures.shape[-2] < 2:
+        hint = " (a single texture needs .unsqueeze(0))" if ndim == 3 and textures.ndim == 2 else ""
+        raise ValueError(
+            f"PlaneScene: {name} must have shape {expected} with H, W >= 2, "
+            f"got {tuple(textures.shape)}{hint}"
+        )
+    return textures
+
+
+@dataclass
+class PlaneScene:
+    """Geometry and textures of the object plane and the background plane.
+
+    The object plane's distance is per environment and per call (``plane_x_m`` of the renderers);
+    everything else is fixed here.
+
+    Args:
+        textures: object textures ``[N, H, W]`` in [0, 1], or a :class:`TextureBank`.
+        background: the background's texture ``[Hb, Wb]`` in [0, 1].
+        object_width_m: width of the object plane (>= 3 m fills the coder's crops at every
+            distance up to 3 m and body shift up to 0.1 m).
+        object_center_yz_m: ``(y, z)`` of the object plane's centre: straight ahead of the robot's
+            starting position, at eye height.
+        background_x_m: world x of the background plane; it must lie behind every object plane.
+        background_width_m: width of the background plane (large enough to fill whole frames).
+        background_center_yz_m: ``(y, z)`` of the background's centre.
+
+    Example:
+        >>> scene = PlaneScene(torch.rand(3, 64, 64), torch.rand(32, 32))
+        >>> scene.num_textures, scene.object_size_m
+        (3, (3.0, 3.0))
+    """
+
+    textures: Tensor
+    background: Tensor
+    object_width_m: float = 3.0
+    object_center_yz_m: tuple[float, float] = (0.0, DEFAULT_EYE_HEIGHT_M)
+    background_x_m: float = 8.0
+    background_width_m: float = 30.0
+    background_center_yz_m: tuple[float, float] = field(default=(0.0, DEFAULT_EYE_HEIGHT_M))
+
+    def __post_init__(self) -> None:
+        self.textures = _as_textures(self.textures, "textures", 3)
+        self.background = _as_textures(self.background, "background", 2)
+        for name in ("object_width_m", "background_width_m", "background_x_m"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and value > 0):
+                raise ValueError(f"PlaneScene: {name} must be a number > 0, got {value!r}")
+        self.object_center_yz_m = tuple(float(v) for v in self.object_center_yz_m)
+        self.background_center_yz_m = tuple(float(v) for v in self.background_center_yz_m)
+
+    @property
+    def num_textures(self) -> int:
+        return self.textures.shape[0]
+
+    @property
+    def object_size_m(self) -> tuple[float, float]:
+        """``(width, height)`` of the object plane in metres."""
+        h, w = self.textures.shape[-2:]
+        return float(self.object_width_m), float(self.object_width_m) * h / w
+
+    @property
+    def background_size_m(self) -> tuple[float, float]:
+        """``(width, height)`` of the background plane in metres."""
+        h, w = self.background.shape[-2:]
+        return float(self.background_width_m), float(self.background_width_m) * h / w
+
+    def check_texture_index(self, texture_index: Tensor, batch: int) -> Tensor:
+        """Validate per-environment texture indices ``[B]`` against the scene's textures."""
+        if not isinstance(texture_index, Tensor) or texture_index.dtype not in (
+            torch.int32,
+            torch.int64,
+        ):
+            raise TypeError(
+                f"texture_index must be an integer tensor [B], got "
+                f"{getattr(texture_index, 'dtype', type(texture_index).__name__)}"
+            )
+        if texture_index.shape != (batch,):
+            raise ValueError(
+                f"texture_index must have shape [B] = [{batch}] (the batch of the poses), "
+                f"got {tuple(texture_index.shape)}"
+            )
+        return texture_index

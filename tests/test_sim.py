@@ -1,0 +1,436 @@
+"""Cameras, the two plane renderers and ActiveDepthEnv: geometry, agreement and ground truth."""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from aectorch.coding import extract_patches
+from aectorch.sim import (
+    ActiveDepthEnv,
+    HOAP3Head,
+    PinholeCamera,
+    PixelWindow,
+    PlaneScene,
+    TextureBank,
+    TorchPlaneRenderer,
+    render_planes,
+    sample_bilinear,
+)
+
+torch.set_num_threads(1)
+CAMERA = PinholeCamera()
+CROPS = CAMERA.central_window(128)
+
+
+def quantised(x: torch.Tensor) -> torch.Tensor:
+    """Textures as pyrender stores them (8 bits), so both renderers see the same texels."""
+    return (x * 255).round() / 255
+
+
+@pytest.fixture(scope="module")
+def bank():
+    return TextureBank.procedural(3, size=(512, 512), seed=7)
+
+
+@pytest.fixture(scope="module")
+def scene(bank):
+    background = quantised(TextureBank.procedural(1, size=(256, 256), seed=8).textures[0])
+    return PlaneScene(quantised(bank.textures), background)
+
+
+@pytest.fixture(scope="module")
+def head():
+    return HOAP3Head()
+
+
+@pytest.fixture(scope="module")
+def pyrender_renderer(scene):
+    from aectorch.sim import PyrenderRenderer
+
+    renderer = PyrenderRenderer(scene)
+    yield renderer
+    renderer.close()
+
+
+def agreement_poses(head, dtype=torch.float32):
+    """Shifted bodies and panned (and one rolled) eyes looking at planes at 1, 2 and 3 m."""
+    shift = torch.tensor([0.1, -0.1, 0.05], dtype=dtype)
+    pan = torch.tensor([[-5.7, -2.3], [2.9, 4.6], [-1.0, 0.3]], dtype=dtype)
+    roll = torch.tensor([[0.0, 0.0], [0.0, 0.0], [3.0, -2.0]], dtype=dtype)
+    poses = head.to(dtype=dtype).camera_poses(shift, pan, roll, convention="opengl")
+    plane_x = torch.tensor([1.0, 2.0, 3.0], dtype=dtype) + head.eye_x_m
+    return poses, plane_x
+
+
+# --- camera -------------------------------------------------------------------------------------
+
+
+def test_camera_defaults_are_the_aec_convention():
+    assert CAMERA.focal_px == pytest.approx(257.34, abs=0.005)
+    assert CAMERA.degrees_per_pixel == pytest.approx(0.2226, abs=5e-5)
+    assert CAMERA.principal_point == (160.0, 120.0)
+
+
+def test_camera_windows_match_extract_patches_crops():
+    image = torch.rand(1, 240, 320)
+    top, left, h, w = CROPS
+    crop = image[:, top : top + h, left : left + w]
+    for scale in ("coarse", "fine"):
+        torch.testing.assert_close(
+            extract_patches(image, image, scale), extract_patches(crop, crop, scale)
+        )
+
+
+def test_camera_rays_project_back_to_pixel_centres():
+    rays = CAMERA.rays(PixelWindow(10, 20, 3, 4), dtype=torch.float64)
+    cx, cy = CAMERA.principal_point
+    cols = rays[..., 0] * CAMERA.focal_px + cx - 0.5
+    rows = rays[..., 1] * CAMERA.focal_px + cy - 0.5
+    torch.testing.assert_close(cols[0], torch.arange(20, 24, dtype=torch.float64))
+    torch.testing.assert_close(rows[:, 0], torch.arange(10, 13, dtype=torch.float64))
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [({"width": 0}, "width"), ({"vfov_deg": 180.0}, "vfov_deg"), ({"cx": float("nan")}, "cx")],
+)
+def test_camera_rejects_bad_values(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        PinholeCamera(**kwargs)
+
+
+def test_window_outside_the_image_is_rejected():
+    with pytest.raises(ValueError, match="window"):
+        CAMERA.check_window(PixelWindow(200, 0, 128, 128))
+
+
+# --- torch renderer -----------------------------------------------------------------------------
+
+
+def test_sample_bilinear_matches_grid_sample_border():
+    textures = torch.rand(2, 7, 9, dtype=torch.float64)
+    u = torch.rand(2, 5, 6, dtype=torch.float64) * 11 - 1  # beyond both edges
+    v = torch.rand(2, 5, 6, dtype=torch.float64) * 9 - 1
+    index = torch.tensor([1, 0])
+    ours = sample_bilinear(textures, index, u, v)
+    grid = torch.stack((2 * u / 9 - 1, 2 * v / 7 - 1), dim=-1)
+    oracle = torch.nn.functional.grid_sample(
+        textures[index, None], grid, mode="bilinear", padding_mode="border", align_corners=False
+    )[:, 0]
+    torch.testing.assert_close(ours, oracle)
+
+
+def test_torch_renderer_maps_a_ramp_like_the_pinhole_model(head):
+    """A horizontal ramp texture: each column's value follows from the pinhole projection."""
+    width_px = 600
+    ramp = ((torch.arange(width_px, dtype=torch.float64) + 0.5) / width_px).expand(300, width_px)
+    scene = PlaneScene(ramp[None].clone(), torch.zeros(4, 4, dtype=torch.float64), object_width_m=3.0)
+    shift = torch.tensor([0.0], dtype=torch.float64)
+    pan = torch.zeros(1, 2, dtype=torch.float64)
+    poses = head.to(dtype=torch.float64).camera_poses(shift, pan)
+    d = 2.0
+    image = render_planes(poses[:, :1], torch.tensor([head.eye_x_m + d], dtype=torch.float64),
+                          torch.tensor([0]), scene, CAMERA, CROPS)[0, 0]
+    # column c looks at y = y_eye - d (c + 0.5 - cx) / f; the ramp is 0 at y = +1.5, 1 at -1.5.
+    cols = torch.arange(CROPS.left, CROPS.left + CROPS.width, dtype=torch.float64)
+    y = 0.03 - d * (cols + 0.5 - CAMERA.principal_point[0]) / CAMERA.focal_px
+    expected = (1.5 - y) / 3.0
+    torch.testing.assert_close(image[0], expected, atol=1e-9, rtol=0)
+    torch.testing.assert_close(image[-1], expected, atol=1e-9, rtol=0)
+
+
+def test_torch_renderer_window_is_a_crop_of_the_full_frame(scene, head):
+    poses, plane_x = agreement_poses(head, torch.float64)
+    index = torch.tensor([0, 1, 2])
+    full = render_planes(poses, plane_x, index, scene.__class__(
+        scene.textures.double(), scene.background.double()), CAMERA)
+    crop = render_planes(poses, plane_x, index, scene.__class__(
+        scene.textures.double(), scene.background.double()), CAMERA, CROPS)
+    top, left, h, w = CROPS
+    torch.testing.assert_close(crop, full[..., top : top + h, left : left + w])
+
+
+def test_torch_renderer_is_differentiable():
+    textures = torch.rand(1, 6, 8, dtype=torch.float64, requires_grad=True)
+    scene = PlaneScene(textures.detach(), torch.rand(4, 4, dtype=torch.float64), object_width_m=0.5)
+    head = HOAP3Head(dtype=torch.float64)
+    plane_x = torch.tensor([1.2], dtype=torch.float64, requires_grad=True)
+    poses = head.camera_poses(torch.zeros(1, dtype=torch.float64), torch.zeros(1, 2, dtype=torch.float64))
+    window = PixelWindow(115, 155, 6, 6)
+
+    def f(tex, px):
+        return render_planes(poses[:, :1], px, torch.tensor([0]), scene, CAMERA, window, textures=tex)
+
+    assert torch.autograd.gradcheck(f, (textures, plane_x))
+
+
+def test_torch_renderer_follows_dtype_and_device(scene, head):
+    poses, plane_x = agreement_poses(head, torch.float64)
+    renderer = TorchPlaneRenderer(scene)
+    out = renderer(poses, plane_x, torch.tensor([0, 1, 2]), CROPS)
+    assert out.dtype == torch.float64 and out.shape == (3, 2, 128, 128)
+    assert 0.0 <= float(out.min()) and float(out.max()) <= 1.0
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_torch_renderer_on_cuda_matches_cpu(scene, head):
+    poses, plane_x = agreement_poses(head)
+    index = torch.tensor([0, 1, 2])
+    cpu = TorchPlaneRenderer(scene)(poses, plane_x, index, CROPS)
+    gpu = TorchPlaneRenderer(scene).cuda()(poses.cuda(), plane_x.cuda(), index.cuda(), CROPS)
+    torch.testing.assert_close(gpu.cpu(), cpu, atol=1e-5, rtol=0)
+
+
+# --- agreement with pyrender ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("window", ["full", "crops"])
+def test_pyrender_and_torch_renderers_agree(scene, head, pyrender_renderer, window):
+    """Mean |difference| <= 0.5 % of the range inside the object plane at 1, 2 and 3 m."""
+    window = CAMERA.full_window if window == "full" else CROPS
+    poses, plane_x = agreement_poses(head)
+    index = torch.tensor([0, 1, 2])
+    ours = TorchPlaneRenderer(scene)(poses, plane_x, index, window)
+    theirs = pyrender_renderer(poses, plane_x, index, window)
+    assert theirs.shape == ours.shape == (3, 2, window.height, window.width)
+    # Pixels whose centre sees the object plane, away from its border by one pixel.
+    inside = render_planes(
+        poses, plane_x, index, PlaneScene(torch.ones(3, 4, 4), torch.zeros(4, 4)), CAMERA, window
+    ) > 0.5
+    inside = -torch.nn.functional.max_pool2d(-inside.float().flatten(0, 1), 3, 1, 1).view_as(inside) > 0
+    difference = (ours - theirs).abs()
+    for b in range(3):
+        for eye in range(2):
+            mask = inside[b, eye]
+            assert mask.float().mean() > 0.5
+            mad = difference[b, eye][mask].mean()
+            assert mad <= 0.005, f"distance {b + 1} m eye {eye}: mean |diff| {mad:.4f}"
+    # A wrong convention (mirrored texture) would be far off: the check can fail.
+    assert (ours.flip(-1) - theirs).abs()[inside].mean() > 0.02
+
+
+def test_pyrender_window_is_a_crop_of_its_full_frame(scene, head, pyrender_renderer):
+    poses, plane_x = agreement_poses(head)
+    index = torch.tensor([2, 0, 1])
+    full = pyrender_renderer(poses[:1], plane_x[:1], index[:1])
+    crop = pyrender_renderer(poses[:1], plane_x[:1], index[:1], CROPS)
+    top, left, h, w = CROPS
+    torch.testing.assert_close(crop, full[..., top : top + h, left : left + w], atol=1.5 / 255, rtol=0)
+
+
+def test_pyrender_renders_odd_widths(head):
+    scene = PlaneScene(torch.rand(1, 30, 37), torch.rand(5, 7))
+    from aectorch.sim import PyrenderRenderer
+
+    renderer = PyrenderRenderer(scene)
+    try:
+        poses, plane_x = agreement_poses(head)
+        window = PixelWindow(100, 101, 13, 17)
+        ours = TorchPlaneRenderer(scene)(poses[:1], plane_x[:1], torch.tensor([0]), window)
+        theirs = renderer(poses[:1], plane_x[:1], torch.tensor([0]), window)
+        assert (ours - theirs).abs().mean() < 0.01
+    finally:
+        renderer.close()
+
+
+def test_missing_osmesa_gets_an_install_hint():
+    code = (
+        "import ctypes\n"
+        "original = ctypes.CDLL.__init__\n"
+        "def refuse(self, name, *args, **kwargs):\n"
+        "    if name and 'OSMesa' in str(name):\n"
+        "        raise OSError('libOSMesa.so: cannot open shared object file')\n"
+        "    original(self, name, *args, **kwargs)\n"
+        "ctypes.CDLL.__init__ = refuse\n"
+        "from aectorch.sim.render_pyrender import import_pyrender\n"
+        "try:\n"
+        "    import_pyrender('osmesa')\n"
+        "except RuntimeError as error:\n"
+        "    print(error)\n"
+    )
+    environment = {k: v for k, v in os.environ.items() if k != "PYOPENGL_PLATFORM"}
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=environment, timeout=120)
+    assert "apt-get install libosmesa6" in result.stdout, result.stdout + result.stderr
+
+
+def test_conflicting_opengl_platform_is_explained():
+    from aectorch.sim.render_pyrender import import_pyrender
+
+    other = "egl" if os.environ.get("PYOPENGL_PLATFORM", "osmesa") == "osmesa" else "osmesa"
+    if "OpenGL" in sys.modules or "PYOPENGL_PLATFORM" in os.environ:
+        with pytest.raises(RuntimeError, match="PYOPENGL_PLATFORM"):
+            import_pyrender(other)
+    with pytest.raises(ValueError, match="platform"):
+        import_pyrender("wgl")
+
+
+# --- ActiveDepthEnv -------------------------------------------------------------------------------
+
+
+def small_env(bank, **kwargs):
+    kwargs.setdefault("fixation_iterations", 3)
+    kwargs.setdefault("seed", 0)
+    return ActiveDepthEnv(3, textures=bank, **kwargs)
+
+
+def run_iteration(env, pursuit, vergence):
+    parallax = env.parallax_observation()
+    env.apply_pursuit(pursuit)
+    stereo = env.stereo_observation()
+    return parallax, stereo, env.apply_vergence(vergence)
+
+
+def test_env_protocol_fixations_trials_and_q(bank):
+    env = small_env(bank)
+    distance = env.distance_m.clone()
+    assert env.fixation == 0 and torch.all(env.body_shift_m == 0.1)
+    infos = []
+    for _ in range(6):
+        infos.append(run_iteration(env, torch.full((3,), -0.1), torch.full((3,), 0.05))[2])
+    assert [i.iteration for i in infos] == [0, 1, 2, 0, 1, 2]
+    assert [i.fixation for i in infos] == [0, 0, 0, 1, 1, 1]
+    assert [i.fixation_end for i in infos] == [False, False, True, False, False, True]
+    assert [i.trial_end for i in infos] == [False] * 5 + [True]
+    q = infos[-1].q_deg
+    # Each fixation starts straight ahead and parallel: 3 x -0.1 pan, 3 x (0.05 + 0.1) vergence.
+    torch.testing.assert_close(q, torch.tensor([[-0.3, 0.45, -0.3, 0.45]]).expand(3, 4))
+    torch.testing.assert_close(infos[-1].distance_m, distance)
+    assert env.fixation == 0 and env.iteration == 0  # a new trial began
+    torch.testing.assert_close(env.pan_deg, torch.zeros(3, 2))
+
+
+def test_env_ground_truth_is_the_closed_form_geometry(bank):
+    env = small_env(bank, dtype=torch.float64)
+    env.set_trial(torch.tensor([0, 1, 2]), torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
+    info = run_iteration(env, torch.zeros(3), torch.zeros(3))[2]
+    d = torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64)
+    torch.testing.assert_close(info.optimal_left_pan_deg, -torch.rad2deg(torch.atan(0.1 / d)))
+    torch.testing.assert_close(info.optimal_right_pan_deg, torch.rad2deg(torch.atan(0.06 / d)))
+    torch.testing.assert_close(info.pursuit_error_deg, torch.rad2deg(torch.atan(0.1 / d)))
+
+
+@pytest.mark.parametrize("fixation", [0, 1])
+def test_env_optimal_pans_make_the_images_most_alike(bank, fixation):
+    """The ground truth agrees with what the renderer shows: image mismatch is least there."""
+    env = small_env(bank, dtype=torch.float64, fixation_iterations=1)
+    env.set_trial(torch.tensor([0, 1, 2]), torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
+    if fixation == 1:
+        run_iteration(env, torch.zeros(3), torch.zeros(3))
+    first = env.parallax_observation()[:, 0]
+    offsets = torch.linspace(-0.5, 0.5, 41, dtype=torch.float64)
+    left = env.optimal_left_pan_deg()
+    mismatch = []
+    for offset in offsets:
+        env.set_pan_deg(torch.stack((left + offset, left), -1))
+        second = env.parallax_observation()[:, 1]
+        mismatch.append(((first - second)[:, 24:104, 24:104] ** 2).mean((1, 2)))
+    best = offsets[torch.stack(mismatch).argmin(0)]
+    assert best.abs().max() <= 0.06, f"pursuit mismatch is least at {best.tolist()} deg off"
+    env.set_pan_deg(torch.stack((left, left), -1))
+    right = env.optimal_right_pan_deg()
+    mismatch = []
+    for offset in offsets:
+        env.set_pan_deg(torch.stack((left, right + offset), -1))
+        pair = env.stereo_observation()
+        mismatch.append(((pair[:, 0] - pair[:, 1])[:, 24:104, 24:104] ** 2).mean((1, 2)))
+    best = offsets[torch.stack(mismatch).argmin(0)]
+    assert best.abs().max() <= 0.06, f"vergence mismatch is least at {best.tolist()} deg off"
+
+
+def test_env_perfect_controller_reaches_zero_error(bank):
+    env = small_env(bank, fixation_iterations=40, dtype=torch.float64)
+    for _ in range(40):
+        env.parallax_observation()
+        step = (env.optimal_left_pan_deg() - env.left_pan_deg).clamp(-0.2, 0.2)
+        env.apply_pursuit(step)
+        env.stereo_observation()
+        info = env.apply_vergence((env.optimal_right_pan_deg() - env.right_pan_deg).clamp(-0.2, 0.2))
+    assert info.fixation_end
+    assert info.pursuit_error_deg.abs().max() < 1e-9 and info.vergence_error_deg.abs().max() < 1e-9
+
+
+def test_env_start_states_and_limits(bank):
+    env = small_env(bank, pursuit_start_deg=(-1.0, 1.0), vergence_start_deg=(-2.0, 2.0))
+    assert env.left_pan_deg.abs().max() <= 1.0 and env.vergence_deg.abs().max() <= 2.0
+    assert env.left_pan_deg.unique().numel() == 3
+    env.set_pan_deg(torch.tensor([[44.9, 0.0]] * 3))
+    env.apply_pursuit(torch.full((3,), 0.2))
+    assert env.left_pan_deg.max() <= 45.0  # the URDF's eye pan limit
+
+
+def test_env_roll_changes_what_the_eye_sees(bank):
+    env = small_env(bank)
+    before = env.stereo_observation()
+    env.set_roll(torch.tensor([0.0, 5.0]))
+    after = env.stereo_observation()
+    torch.testing.assert_close(after[:, 0], before[:, 0])
+    assert (after[:, 1] - before[:, 1]).abs().mean() > 0.01
+
+
+def test_env_is_seeded(bank):
+    a, b, c = small_env(bank, seed=3), small_env(bank, seed=3), small_env(bank, seed=4)
+    assert torch.equal(a.texture_index, b.texture_index) and torch.equal(a.distance_m, b.distance_m)
+    assert not (torch.equal(a.texture_index, c.texture_index) and torch.equal(a.distance_m, c.distance_m))
+    torch.testing.assert_close(a.stereo_observation(), b.stereo_observation())
+
+
+def test_env_torch_and_pyrender_observations_match(bank):
+    textures = quantised(bank.textures)
+    envs = [ActiveDepthEnv(2, textures=textures, renderer=name, fixation_iterations=2, seed=5)
+            for name in ("torch", "pyrender")]
+    generator = torch.Generator().manual_seed(0)
+    for _ in range(5):
+        actions = torch.randint(-2, 3, (2, 2), generator=generator) * 0.1
+        out = [run_iteration(env, actions[0], actions[1]) for env in envs]
+        (p0, s0, i0), (p1, s1, i1) = out
+        assert (p0 - p1).abs().mean() < 0.005 and (s0 - s1).abs().mean() < 0.005
+        torch.testing.assert_close(i0.pursuit_error_deg, i1.pursuit_error_deg)
+    envs[1].renderer.close()
+
+
+@pytest.mark.parametrize(
+    "kwargs, error, match",
+    [
+        ({"distances_m": [1.0, 0.0]}, ValueError, "distances_m"),
+        ({"distances_m": [9.0]}, ValueError, "background"),
+        ({"renderer": "blender"}, ValueError, "renderer must be one of"),
+        ({"textures": torch.rand(64, 64)}, ValueError, r"\[N, H, W\]"),
+        ({"window": "middle"}, ValueError, "window"),
+        ({"fixation_iterations": 0}, ValueError, "fixation_iterations"),
+    ],
+)
+def test_env_rejects_bad_configuration(bank, kwargs, error, match):
+    kwargs = {"textures": bank, **kwargs}
+    with pytest.raises(error, match=match):
+        ActiveDepthEnv(2, **kwargs)
+
+
+def test_env_rejects_bad_calls(bank):
+    env = small_env(bank)
+    with pytest.raises(ValueError, match=r"delta_deg must have shape \[B\] = \[3\]"):
+        env.apply_pursuit(torch.zeros(4))
+    with pytest.raises(ValueError, match="distance_m must be > 0"):
+        env.set_trial(torch.tensor([0, 1, 2]), torch.tensor([1.0, -1.0, 2.0]))
+    with pytest.raises(ValueError, match=r"shape \[B\] = \[3\]"):
+        env.set_trial(torch.tensor([0, 1]), torch.tensor([1.0, 1.0]))
+    with pytest.raises(IndexError, match="texture_index"):
+        env.set_trial(torch.tensor([0, 1, 9]), torch.tensor([1.0, 1.0, 2.0]))
+    with pytest.raises(ValueError, match="roll_deg"):
+        env.set_roll(torch.zeros(3))
+    with pytest.raises(ValueError, match=r"plane_x_m must have shape \[B\]"):
+        env.renderer(torch.eye(4).expand(3, 2, 4, 4), torch.ones(2), torch.zeros(3, dtype=torch.long))
+
+
+def test_env_reports_distance_in_metres_from_the_eyes(bank):
+    env = small_env(bank)
+    torch.testing.assert_close(env.plane_x_m, env.distance_m + 0.03)
+    assert set(env.distance_m.tolist()) <= {round(1.0 + 0.1 * i, 1) for i in range(21)} | set(
+        torch.tensor([round(1.0 + 0.1 * i, 1) for i in range(21)]).tolist()
+    )
+    assert math.isclose(env.head.eye_x_m, 0.03, abs_tol=1e-6)
