@@ -13,6 +13,8 @@ def test_readme_quick_start_runs():
     exec(compile(blocks[0], str(README), "exec"), namespace)
     assert tuple(namespace["out"].features.shape) == (8, 576)
     assert tuple(namespace["x_hat"].shape) == (64, 113, 200)
+    assert tuple(namespace["left"].shape) == (8, 128, 128)
+    assert namespace["info"].pursuit_error_deg.shape == (8,)
 
 
 def test_readme_gives_the_two_commands():

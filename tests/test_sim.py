@@ -434,3 +434,15 @@ def test_env_reports_distance_in_metres_from_the_eyes(bank):
         torch.tensor([round(1.0 + 0.1 * i, 1) for i in range(21)]).tolist()
     )
     assert math.isclose(env.head.eye_x_m, 0.03, abs_tol=1e-6)
+
+
+def test_index_arithmetic_path_matches_the_atlas_path(scene, head, monkeypatch):
+    """Banks too tall for a float32 atlas are sampled by index arithmetic: same images."""
+    import aectorch.sim.render_torch as render_torch
+
+    poses, plane_x = agreement_poses(head)
+    index = torch.tensor([0, 1, 2])
+    atlas = render_planes(poses, plane_x, index, scene, CAMERA, CAMERA.full_window)
+    monkeypatch.setattr(render_torch, "_ATLAS_ROWS_FLOAT32", 0)
+    gathered = render_planes(poses, plane_x, index, scene, CAMERA, CAMERA.full_window)
+    torch.testing.assert_close(gathered, atlas, atol=2e-5, rtol=0)

@@ -21,7 +21,7 @@ from torch import Tensor, nn
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.scene import PlaneScene
 
-__all__ = ["TorchPlaneRenderer", "render_planes", "sample_bilinear"]
+__all__ = ["TorchPlaneRenderer", "render_planes", "sample_bilinear", "texture_atlas"]
 
 
 def sample_bilinear(
@@ -31,7 +31,8 @@ def sample_bilinear(
 
     Args:
         textures: ``[N, H, W]``.
-        texture_index: which texture each leading row of ``u`` reads, ``[B]`` (int64).
+        texture_index: which texture each leading row of ``u`` reads, ``[B]``, or each
+            sample reads, the shape of ``u`` (integers).
         u: column coordinate in texels, ``[B, ...]``; texel ``j`` is centred at ``j + 0.5``.
         v: row coordinate in texels (row 0 at the top), same shape as ``u``.
 
@@ -55,7 +56,9 @@ def sample_bilinear(
     y0i = y0.long()
     x1i = (x0i + 1).clamp(max=w - 1)
     y1i = (y0i + 1).clamp(max=h - 1)
-    base = (texture_index.long() * (h * w)).reshape((-1,) + (1,) * (u.ndim - 1))
+    base = texture_index.long() * (h * w)
+    if base.ndim == 1:
+        base = base.reshape((-1,) + (1,) * (u.ndim - 1))
     row0 = base + y0i * w
     row1 = base + y1i * w
     a = flat[row0 + x0i]
@@ -67,25 +70,28 @@ def sample_bilinear(
     return top + wy * (bottom - top)
 
 
-def _plane_texel_coords(
-    origin: Tensor,
-    direction: Tensor,
-    plane_x: Tensor,
-    center_yz: tuple[float, float],
-    size_m: tuple[float, float],
-    texture_hw: tuple[int, int],
-) -> tuple[Tensor, Tensor, Tensor]:
-    """Texel coordinates ``(u, v)`` where rays hit the plane ``x = plane_x`` and whether they do."""
-    dx = direction[..., 0]
-    ahead = dx > 1e-12
-    t = (plane_x - origin[..., 0]) / torch.where(ahead, dx, torch.ones_like(dx))
-    y = origin[..., 1] + t * direction[..., 1]
-    z = origin[..., 2] + t * direction[..., 2]
+#: Above this many atlas rows in float32, the atlas coordinate's rounding (about
+#: rows * 6e-8 texels) would approach 1 % of a texel: sample by index arithmetic instead.
+_ATLAS_ROWS_FLOAT32 = 2**18
+
+
+def texture_atlas(textures: Tensor, background: Tensor) -> Tensor:
+    """Stack the object textures and the background (same size) into one ``[N + 1, H, W]`` atlas."""
+    if background.shape != textures.shape[-2:]:
+        raise ValueError(
+            f"background must have the textures' size {tuple(textures.shape[-2:])}, got "
+            f"{tuple(background.shape)} (PlaneScene resamples it)"
+        )
+    return torch.cat((textures, background.to(textures).unsqueeze(0)))
+
+
+def _plane_coords(o, ry, rz, plane_x, center_yz, size_m):
+    """Normalised plane coordinates (0..1 from the left / top edge) of rays ``(1, ry, rz)``."""
+    reach = plane_x - o[..., 0]  # along x from the eye to the plane, [B, C, 1, 1]
     width, height = size_m
-    th, tw = texture_hw
-    u = (center_yz[0] + 0.5 * width - y) * (tw / width)
-    v = (center_yz[1] + 0.5 * height - z) * (th / height)
-    hit = ahead & (t > 0) & (u >= 0) & (u <= tw) & (v >= 0) & (v <= th)
+    u = (center_yz[0] + 0.5 * width - o[..., 1]) / width - (reach / width) * ry
+    v = (center_yz[1] + 0.5 * height - o[..., 2]) / height - (reach / height) * rz
+    hit = (reach > 0) & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
     return u, v, hit
 
 
@@ -99,8 +105,16 @@ def render_planes(
     *,
     textures: Tensor | None = None,
     background: Tensor | None = None,
+    atlas: Tensor | None = None,
 ) -> Tensor:
     """Render grey images of the plane scene for a batch of cameras.
+
+    For each camera the pixel -> plane map is a homography: with the ray direction
+    ``(dx, dy, dz)`` of a pixel (linear in the pixel's position), the plane ``x = X`` is hit at
+    ``y = oy + (X - ox) dy / dx``, ``z = oz + (X - ox) dz / dx``. Both planes share the ratios
+    ``dy / dx`` and ``dz / dx``; each pixel then reads the object plane where it hits it, else
+    the background, with one bilinear ``grid_sample`` over an atlas of all textures (clamped to
+    each texture's edge texel centres, which is ``GL_CLAMP_TO_EDGE``).
 
     Args:
         poses: camera-to-world transforms in the OpenGL camera convention (x right, y up, looking
@@ -111,8 +125,9 @@ def render_planes(
         camera: intrinsics.
         window: the pixels to render (``None`` = the whole image).
         textures: override ``scene.textures`` (same shape), e.g. to differentiate with respect to
-            them or to use a copy on another device.
+            them.
         background: override ``scene.background``.
+        atlas: a prebuilt :func:`texture_atlas` (what :class:`TorchPlaneRenderer` passes).
 
     Returns:
         Intensities in [0, 1]; the object plane occludes the background; pixels whose ray hits
@@ -132,34 +147,65 @@ def render_planes(
     scene.check_texture_index(texture_index, batch)
     window = camera.check_window(window)
     dtype, device = poses.dtype, poses.device
-    textures = scene.textures if textures is None else textures
-    background = scene.background if background is None else background
-    textures = textures.to(dtype=dtype, device=device)
-    background = background.to(dtype=dtype, device=device)
+    if atlas is None:
+        atlas = texture_atlas(
+            scene.textures if textures is None else textures,
+            scene.background if background is None else background,
+        )
+    atlas = atlas.to(dtype=dtype, device=device)
+    layers, tex_h, tex_w = atlas.shape
 
     middle = poses.shape[1:-2]
-    flat_poses = poses.reshape(batch, -1, 4, 4)  # [B, C, 4, 4]
-    rays = camera.rays(window, dtype=dtype, device=device)  # ROS: x right, y down, z forward
-    # ROS -> OpenGL camera axes: (x, y, z) -> (x, -y, -z); then rotate into the world.
-    rays_gl = rays * torch.tensor([1.0, -1.0, -1.0], dtype=dtype, device=device)
-    rotation = flat_poses[..., :3, :3]
-    direction = torch.einsum("bcij,hwj->bchwi", rotation, rays_gl)  # [B, C, h, w, 3]
-    origin = flat_poses[..., :3, 3][:, :, None, None, :]  # [B, C, 1, 1, 3]
+    flat = poses.reshape(batch, -1, 4, 4)
+    o = flat[:, :, :3, 3][:, :, None, None, :]  # [B, C, 1, 1, 3]
+    rot = flat[:, :, :3, :3, None, None]  # [B, C, 3, 3, 1, 1]
+    cx, cy = camera.principal_point
+    f = camera.focal_px
+    top, left, h, w = window
+    xs = (torch.arange(left, left + w, dtype=dtype, device=device) + 0.5 - cx) / f  # [w]
+    ys = (torch.arange(top, top + h, dtype=dtype, device=device) + 0.5 - cy) / f  # [h]
+    ys = ys[:, None]
+    # The ray (xs, ys, 1) in the ROS optical frame is (xs, -ys, -1) in the OpenGL camera frame.
+    d = [rot[:, :, i, 0] * xs - (rot[:, :, i, 1] * ys + rot[:, :, i, 2]) for i in range(3)]
+    ahead = d[0] > 1e-12
+    inv = 1.0 / torch.where(ahead, d[0], torch.ones_like(d[0]))
+    ry, rz = d[1] * inv, d[2] * inv  # [B, C, h, w]
 
     plane_x = plane_x_m.to(dtype)[:, None, None, None]
-    u, v, on_object = _plane_texel_coords(
-        origin, direction, plane_x, scene.object_center_yz_m, scene.object_size_m,
-        tuple(textures.shape[-2:]),
+    u, v, on_object = _plane_coords(o, ry, rz, plane_x, scene.object_center_yz_m, scene.object_size_m)
+    ub, vb, on_background = _plane_coords(
+        o, ry, rz, torch.full_like(plane_x, scene.background_x_m),
+        scene.background_center_yz_m, scene.background_size_m,
     )
-    colour = sample_bilinear(textures, texture_index, u, v)
-    ub, vb, on_background = _plane_texel_coords(
-        origin, direction, torch.full_like(plane_x, scene.background_x_m),
-        scene.background_center_yz_m, scene.background_size_m, tuple(background.shape[-2:]),
-    )
-    zero_index = torch.zeros_like(texture_index)
-    behind = sample_bilinear(background.unsqueeze(0), zero_index, ub, vb)
-    image = torch.where(on_object, colour, torch.where(on_background, behind, torch.zeros_like(behind)))
-    return image.reshape((batch, *middle, window.height, window.width))
+    on_object = on_object & ahead
+    seen = on_object | (on_background & ahead)
+    u = torch.where(on_object, u, ub)
+    v = torch.where(on_object, v, vb)
+    # Continuous texel coordinates clamped to the edge texels' centres (GL_CLAMP_TO_EDGE).
+    u = (u * tex_w).clamp_(0.5, tex_w - 0.5)
+    v = (v * tex_h).clamp_(0.5, tex_h - 0.5)
+    index = texture_index.reshape(-1, 1, 1, 1)
+    if dtype == torch.float64 or layers * tex_h <= _ATLAS_ROWS_FLOAT32:
+        # The atlas row of each sample: object texture or background (the last layer).
+        layer = torch.where(on_object, index.to(dtype), float(layers - 1))
+        if torch.is_grad_enabled() and (u.requires_grad or v.requires_grad):
+            gx = u * (2.0 / tex_w) - 1.0
+            gy = (layer * tex_h + v) * (2.0 / (layers * tex_h)) - 1.0
+            grid = torch.stack((gx, gy), dim=-1)
+        else:  # the same, written in place into the grid (saves a copy of every coordinate)
+            grid = torch.empty(u.shape + (2,), dtype=dtype, device=device)
+            torch.mul(u, 2.0 / tex_w, out=grid[..., 0]).sub_(1.0)
+            torch.add(v, layer, alpha=tex_h, out=grid[..., 1])
+            grid[..., 1].mul_(2.0 / (layers * tex_h)).sub_(1.0)
+        image = torch.nn.functional.grid_sample(
+            atlas.reshape(1, 1, layers * tex_h, tex_w), grid.reshape(1, -1, w, 2), mode="bilinear",
+            padding_mode="border", align_corners=False,
+        ).reshape(u.shape)
+    else:
+        layer = torch.where(on_object, index, layers - 1)
+        image = sample_bilinear(atlas, layer, u, v)
+    image = torch.where(seen, image, torch.zeros_like(image))
+    return image.reshape((batch, *middle, h, w))
 
 
 class TorchPlaneRenderer(nn.Module):
@@ -190,8 +236,8 @@ class TorchPlaneRenderer(nn.Module):
         super().__init__()
         self.scene = scene
         self.camera = camera
-        self.register_buffer("textures", scene.textures, persistent=False)
-        self.register_buffer("background", scene.background, persistent=False)
+        # One copy of all textures plus the background, built once (see render_planes).
+        self.register_buffer("atlas", texture_atlas(scene.textures, scene.background), persistent=False)
 
     def forward(
         self,
@@ -202,8 +248,7 @@ class TorchPlaneRenderer(nn.Module):
     ) -> Tensor:
         """Render ``[B, ..., h, w]`` images; see :func:`render_planes` for the arguments."""
         return render_planes(
-            poses, plane_x_m, texture_index, self.scene, self.camera, window,
-            textures=self.textures, background=self.background,
+            poses, plane_x_m, texture_index, self.scene, self.camera, window, atlas=self.atlas,
         )
 
     render = forward

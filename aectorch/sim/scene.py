@@ -44,13 +44,15 @@ class PlaneScene:
 
     Args:
         textures: object textures ``[N, H, W]`` in [0, 1], or a :class:`TextureBank`.
-        background: the background's texture ``[Hb, Wb]`` in [0, 1].
+        background: the background's texture ``[Hb, Wb]`` in [0, 1]; it is resampled
+            (bilinear, antialiased) to the object textures' size ``[H, W]``.
         object_width_m: width of the object plane (>= 3 m fills the coder's crops at every
             distance up to 3 m and body shift up to 0.1 m).
         object_center_yz_m: ``(y, z)`` of the object plane's centre: straight ahead of the robot's
             starting position, at eye height.
         background_x_m: world x of the background plane; it must lie behind every object plane.
-        background_width_m: width of the background plane (large enough to fill whole frames).
+        background_width_m: width of the background plane (large enough to fill whole frames);
+            its height is ``background_width_m * H / W``.
         background_center_yz_m: ``(y, z)`` of the background's centre.
 
     Example:
@@ -70,6 +72,14 @@ class PlaneScene:
     def __post_init__(self) -> None:
         self.textures = _as_textures(self.textures, "textures", 3)
         self.background = _as_textures(self.background, "background", 2)
+        size = tuple(self.textures.shape[-2:])
+        if tuple(self.background.shape) != size:
+            # One texture size for everything lets both renderers treat the background as one
+            # more texture (the torch renderer samples all of them from one atlas).
+            self.background = torch.nn.functional.interpolate(
+                self.background[None, None].to(self.textures), size=size, mode="bilinear",
+                antialias=True, align_corners=False,
+            )[0, 0].clamp(0.0, 1.0)
         for name in ("object_width_m", "background_width_m", "background_x_m"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and value > 0):
