@@ -10,13 +10,14 @@ import pytest
 import torch
 
 import aectorch.coding
+import aectorch.control
 import aectorch.sim
 
 torch.set_num_threads(1)
 
 # Every submodule of the subpackages (their __init__ only re-exports names and has no examples
 # of its own; doctest does not collect objects defined in other modules).
-PACKAGES = (aectorch.coding, aectorch.sim)
+PACKAGES = (aectorch.coding, aectorch.sim, aectorch.control)
 MODULES = sorted(
     f"{package.__name__}.{m.name}" for package in PACKAGES for m in pkgutil.iter_modules(package.__path__)
 )
