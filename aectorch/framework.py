@@ -1,0 +1,295 @@
+"""``JointLearner``: the paper's joint learning framework (sections 2-3), batched over B environments.
+
+It composes the three learners and drives an :class:`~aectorch.sim.ActiveDepthEnv`:
+
+- two :class:`~aectorch.coding.BinocularEncoder` s, one per depth cue: motion parallax (*m*:
+  the dominant eye before and after the body shift) and stereo (*s*: both eyes), each with its
+  coarse and fine dictionary;
+- two :class:`~aectorch.control.NaturalActorCritic` s: pursuit of the dominant eye (fed by cue
+  *m*) and vergence of the other eye (fed by cue *s*);
+- the :class:`~aectorch.depth.DepthMLP`, retrained with our Levenberg-Marquardt on the final eye
+  movements ``q`` of the trials seen so far.
+
+One :meth:`JointLearner.iteration` advances every environment by one iteration:
+
+**step k1** parallax observation -> encode -> features f_m and reward R_m = -(e^C + e^F)
+-> critic/actor update for the previous pursuit transition (reward R_m is the reward of the
+previous pursuit action: the coding quality its movement led to) -> pursuit action -> one
+dictionary step on the observation;
+**step k2** the same for the stereo observation and vergence.
+
+Transitions that cross a fixation boundary (a new start state, or a new texture and distance)
+are not learned from (``skip_fixation_boundary``; the last state of a fixation does not lead to
+the first of the next). Each finished trial's ``q`` is first predicted by the current depth MLP
+(so the online depth error is honest) and then joins the depth training data. With B = 1 this is
+the paper's sequential algorithm; with B > 1 every learner takes the mean of the B
+per-environment updates (see the learners' docstrings).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import torch
+from torch import Tensor, nn
+
+from aectorch.coding import BinocularEncoder
+from aectorch.control import ActorCriticConfig, NaturalActorCritic
+from aectorch.depth import DepthMLP, fit_levenberg_marquardt
+
+__all__ = ["CueRecord", "IterationRecord", "JointLearner", "LearnerConfig"]
+
+
+@dataclass
+class LearnerConfig:
+    """Hyperparameters of :class:`JointLearner` (defaults: the paper's values where it gives them).
+
+    Attributes:
+        num_atoms: atoms per dictionary, N (paper: 288).
+        sparsity: non-zero coefficients per patch (paper: 10).
+        algorithm: ``"mp"`` (the paper's matching pursuit) or ``"omp"``.
+        scales: foveal scales, ``("coarse", "fine")`` (paper) or one of them.
+        dictionary_lr: dictionary learning rate per iteration (the lineage: 0.01-0.5).
+        pooling: ``"mean"`` over patches (the lineage; keeps the features' norm near 1, which the
+            critic's step size needs) or ``"sum"`` (eq. 3 literally).
+        feature_scale: the features f the actor-critics see are ``feature_scale * f``. The
+            critic's step is stable only while ``alpha_v * ||f||^2 < 2``; mean-pooled features of
+            a 288-atom dictionary have a norm of about 0.1, so 10 brings them near 1.
+        actions_deg: the action set A of pan increments (paper: +-0.2, +-0.1, +-0.05, 0).
+        control: actor-critic hyperparameters shared by pursuit and vergence.
+        skip_fixation_boundary: do not learn from the transition between two fixations.
+        depth_hidden: hidden units of the depth MLP (paper: 10).
+        depth_every_trials: retrain the depth MLP after every this many finished trials (all B
+            environments' trials count).
+        depth_max_samples: keep the last this many trials as the MLP's training data.
+        depth_max_epochs: Levenberg-Marquardt epoch budget per retraining.
+    """
+
+    num_atoms: int = 288
+    sparsity: int = 10
+    algorithm: str = "mp"
+    scales: tuple[str, ...] = ("coarse", "fine")
+    dictionary_lr: float = 0.05
+    pooling: str = "mean"
+    feature_scale: float = 10.0
+    actions_deg: tuple[float, ...] = (-0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2)
+    control: ActorCriticConfig = field(default_factory=ActorCriticConfig)
+    skip_fixation_boundary: bool = True
+    depth_hidden: int = 10
+    depth_every_trials: int = 500
+    depth_max_samples: int = 20000
+    depth_max_epochs: int = 200
+
+    def __post_init__(self) -> None:
+        if self.algorithm not in ("mp", "omp"):
+            raise ValueError(f"LearnerConfig.algorithm must be 'mp' or 'omp', got {self.algorithm!r}")
+        if self.pooling not in ("mean", "sum"):
+            raise ValueError(f"LearnerConfig.pooling must be 'mean' or 'sum', got {self.pooling!r}")
+        self.scales = tuple(self.scales)
+        if not self.scales or any(s not in ("coarse", "fine") for s in self.scales):
+            raise ValueError(f"LearnerConfig.scales must be a non-empty subset of ('coarse', 'fine'), got {self.scales!r}")
+        for name in ("num_atoms", "sparsity", "depth_hidden", "depth_every_trials",
+                     "depth_max_samples", "depth_max_epochs"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"LearnerConfig.{name} must be an int >= 1, got {value!r}")
+        if not (isinstance(self.feature_scale, (int, float)) and self.feature_scale > 0):
+            raise ValueError(f"LearnerConfig.feature_scale must be a number > 0, got {self.feature_scale!r}")
+        if not (isinstance(self.dictionary_lr, (int, float)) and self.dictionary_lr >= 0):
+            raise ValueError(f"LearnerConfig.dictionary_lr must be a number >= 0, got {self.dictionary_lr!r}")
+        if isinstance(self.control, dict):
+            self.control = ActorCriticConfig(**self.control)
+
+
+class CueRecord(NamedTuple):
+    """One cue's step of an iteration, per environment ``[B]`` unless noted."""
+
+    reward: Tensor  #: R = -(e^C + e^F) of the observation
+    errors: Tensor  #: ``[B, n_scales]`` reconstruction error per scale (eq. 4)
+    td_error: Tensor | None  #: TD error of the update (``None`` when nothing was learned)
+    entropy: Tensor  #: entropy of the policy that chose the action, nats
+    actions: Tensor  #: chosen action indices
+    increments_deg: Tensor  #: chosen pan increments
+
+
+class IterationRecord(NamedTuple):
+    """What :meth:`JointLearner.iteration` returns."""
+
+    parallax: CueRecord
+    stereo: CueRecord
+    pursuit_error_deg: Tensor  #: ``[B]`` left pan - optimal, after this iteration
+    vergence_error_deg: Tensor  #: ``[B]`` right pan - optimal
+    fixation_end: bool
+    trial_end: bool
+    q_deg: Tensor | None  #: ``[B, 4]`` at a trial's end
+    distance_m: Tensor | None  #: ``[B]`` true distance at a trial's end
+    depth_prediction_m: Tensor | None  #: ``[B]`` the MLP's estimate before it saw these trials
+    depth_retrained: bool
+
+
+class JointLearner(nn.Module):
+    """The paper's agent: sparse coding, eye-movement learning and depth learning, together.
+
+    Args:
+        config: hyperparameters (:class:`LearnerConfig`).
+        generator: seeds the initial dictionaries and policies and draws the actions.
+        device, dtype: of every learner.
+
+    Example:
+        >>> import torch
+        >>> from aectorch.sim import ActiveDepthEnv
+        >>> env = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64), fixation_iterations=2, seed=0)
+        >>> learner = JointLearner(LearnerConfig(num_atoms=32), generator=torch.Generator().manual_seed(0))
+        >>> record = learner.iteration(env)
+        >>> record.parallax.reward.shape, record.pursuit_error_deg.shape
+        (torch.Size([2]), torch.Size([2]))
+    """
+
+    def __init__(
+        self,
+        config: LearnerConfig | None = None,
+        *,
+        generator: torch.Generator | None = None,
+        device: torch.device | str | None = None,
+        dtype: torch.dtype = torch.float32,
+    ) -> None:
+        super().__init__()
+        self.config = config = config or LearnerConfig()
+        self.generator = generator or torch.Generator().manual_seed(0)
+        kwargs = dict(num_atoms=config.num_atoms, sparsity=config.sparsity, algorithm=config.algorithm,
+                      scales=config.scales, lr=config.dictionary_lr, pooling=config.pooling,
+                      generator=self.generator, dtype=dtype, device=device)
+        self.parallax = BinocularEncoder(**kwargs)
+        self.stereo = BinocularEncoder(**kwargs)
+        features = self.parallax.num_features
+        agent = dict(actions_deg=config.actions_deg, config=config.control,
+                     generator=self.generator, dtype=dtype, device=device)
+        self.pursuit = NaturalActorCritic(features, **agent)
+        self.vergence = NaturalActorCritic(features, **agent)
+        self.depth = DepthMLP(in_features=4, hidden=config.depth_hidden, out_features=1).to(
+            device=device, dtype=dtype
+        )
+        # Learning state that is not a parameter: previous transitions and the depth data.
+        self._previous: dict[str, tuple[Tensor, Tensor] | None] = {"m": None, "s": None}
+        self.register_buffer("depth_inputs", torch.zeros(0, 4, dtype=dtype, device=device))
+        self.register_buffer("depth_targets", torch.zeros(0, dtype=dtype, device=device))
+        self.register_buffer("depth_trained", torch.zeros((), dtype=torch.bool, device=device))
+        self.trials_seen = 0
+        self._trials_at_last_fit = 0
+
+    # -- one cue -------------------------------------------------------------------------------
+    def _cue(self, key: str, encoder: BinocularEncoder, agent: NaturalActorCritic, pair: Tensor,
+             *, learn: bool, greedy: bool) -> CueRecord:
+        with torch.no_grad():
+            out = encoder(pair[:, 0], pair[:, 1], check=False)
+        features, reward = out.features * self.config.feature_scale, out.reward
+        td_error = None
+        previous = self._previous[key]
+        if learn and previous is not None:
+            update = agent.update(previous[0], previous[1], reward, features)
+            td_error = update.td_error
+        action = agent.act(features, greedy=greedy, generator=self.generator)
+        if learn and self.config.dictionary_lr > 0:
+            encoder.learn_(out)
+        self._previous[key] = (features, action.actions)
+        return CueRecord(reward, out.errors, td_error, action.entropy, action.actions, action.increments_deg)
+
+    # -- the schedule ----------------------------------------------------------------------------
+    def iteration(self, env, *, learn: bool = True, greedy: bool = False) -> IterationRecord:
+        """Advance every environment of ``env`` by one iteration (steps k1 and k2).
+
+        Args:
+            env: an :class:`~aectorch.sim.ActiveDepthEnv` on this learner's device and dtype.
+            learn: update dictionaries, policies, critics and the depth MLP; ``False`` freezes
+                everything (evaluation).
+            greedy: take the most probable action instead of sampling.
+        """
+        parallax = self._cue("m", self.parallax, self.pursuit, env.parallax_observation(),
+                             learn=learn, greedy=greedy)
+        env.apply_pursuit(parallax.increments_deg)
+        stereo = self._cue("s", self.stereo, self.vergence, env.stereo_observation(),
+                           learn=learn, greedy=greedy)
+        info = env.apply_vergence(stereo.increments_deg)
+        if info.fixation_end and self.config.skip_fixation_boundary:
+            self._previous = {"m": None, "s": None}
+        prediction, retrained = None, False
+        if info.trial_end:
+            prediction = self.predict_depth(info.q_deg)
+            if learn:
+                retrained = self._add_trials(info.q_deg, info.distance_m)
+        return IterationRecord(
+            parallax=parallax,
+            stereo=stereo,
+            pursuit_error_deg=info.pursuit_error_deg,
+            vergence_error_deg=info.vergence_error_deg,
+            fixation_end=info.fixation_end,
+            trial_end=info.trial_end,
+            q_deg=info.q_deg,
+            distance_m=info.distance_m,
+            depth_prediction_m=prediction,
+            depth_retrained=retrained,
+        )
+
+    def forget_transitions(self) -> None:
+        """Start the next iteration without a previous transition (e.g. after ``env.reset``)."""
+        self._previous = {"m": None, "s": None}
+
+    # -- depth -------------------------------------------------------------------------------------
+    def predict_depth(self, q_deg: Tensor) -> Tensor:
+        """The MLP's distance estimate ``[B]`` (metres) from ``q`` ``[B, 4]``; NaN before any training."""
+        with torch.no_grad():
+            estimate = self.depth(q_deg.to(self.depth_inputs.dtype)).reshape(-1)
+        return torch.where(self.depth_trained, estimate, torch.full_like(estimate, math.nan))
+
+    def _add_trials(self, q_deg: Tensor, distance_m: Tensor) -> bool:
+        keep = self.config.depth_max_samples
+        self.depth_inputs = torch.cat((self.depth_inputs, q_deg.to(self.depth_inputs)))[-keep:]
+        self.depth_targets = torch.cat((self.depth_targets, distance_m.to(self.depth_targets)))[-keep:]
+        self.trials_seen += q_deg.shape[0]
+        if self.trials_seen - self._trials_at_last_fit < self.config.depth_every_trials:
+            return False
+        self.fit_depth()
+        return True
+
+    def fit_depth(self, *, seed: int | None = None):
+        """Retrain the depth MLP on the stored trials with Levenberg-Marquardt (from its current weights)."""
+        if self.depth_inputs.shape[0] < 10:
+            raise ValueError(
+                f"fit_depth needs at least 10 finished trials, has {self.depth_inputs.shape[0]}"
+            )
+        if seed is None:
+            seed = int(torch.randint(0, 2**31 - 1, (1,), generator=self.generator))
+        first = not bool(self.depth_trained)
+        result = fit_levenberg_marquardt(
+            self.depth, self.depth_inputs, self.depth_targets,
+            max_epochs=self.config.depth_max_epochs, seed=seed,
+            init="nguyen-widrow" if first else None,
+        )
+        self.depth_trained.fill_(True)
+        self._trials_at_last_fit = self.trials_seen
+        return result
+
+    # -- checkpoints -------------------------------------------------------------------------------
+    def get_extra_state(self) -> dict:
+        return {
+            "trials_seen": self.trials_seen,
+            "trials_at_last_fit": self._trials_at_last_fit,
+            "previous": self._previous,
+            "generator": self.generator.get_state(),
+        }
+
+    def set_extra_state(self, state: dict) -> None:
+        self.trials_seen = int(state["trials_seen"])
+        self._trials_at_last_fit = int(state["trials_at_last_fit"])
+        self._previous = state["previous"]
+        self.generator.set_state(state["generator"])
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # The depth buffers grow during training: take the checkpoint's size.
+        for name in ("depth_inputs", "depth_targets"):
+            key = prefix + name
+            if key in state_dict:
+                setattr(self, name, torch.empty_like(state_dict[key]))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)

@@ -1,0 +1,103 @@
+"""JointLearner: the schedule of the paper's framework over ActiveDepthEnv."""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+import torch
+
+from aectorch.framework import JointLearner, LearnerConfig
+from aectorch.sim import ActiveDepthEnv
+
+torch.set_num_threads(1)
+
+
+def make(num_envs=2, h=2, **config):
+    env = ActiveDepthEnv(num_envs, textures=torch.rand(4, 64, 64, generator=torch.Generator().manual_seed(1)),
+                         fixation_iterations=h, seed=0)
+    config.setdefault("num_atoms", 32)
+    learner = JointLearner(LearnerConfig(**config), generator=torch.Generator().manual_seed(0))
+    return env, learner
+
+
+def test_iteration_records_both_cues_and_the_ground_truth():
+    env, learner = make()
+    record = learner.iteration(env)
+    for cue in (record.parallax, record.stereo):
+        assert cue.reward.shape == (2,) and cue.errors.shape == (2, 2)
+        assert torch.allclose(cue.reward, -cue.errors.sum(1))
+        assert cue.td_error is None  # nothing to learn from on the very first step
+        assert cue.actions.shape == (2,) and cue.entropy.shape == (2,)
+    assert record.pursuit_error_deg.shape == (2,) and not record.fixation_end
+    record = learner.iteration(env)
+    assert record.parallax.td_error.shape == (2,) and record.fixation_end
+
+
+def test_no_learning_across_a_fixation_boundary():
+    env, learner = make(h=2)
+    records = [learner.iteration(env) for _ in range(4)]
+    assert [r.fixation_end for r in records] == [False, True, False, True]
+    assert records[2].parallax.td_error is None and records[2].stereo.td_error is None
+    assert records[3].stereo.td_error is not None
+
+
+def test_trials_feed_the_depth_mlp_honestly():
+    env, learner = make(num_envs=4, h=1, depth_every_trials=12)
+    predictions, retrained = [], []
+    for _ in range(8):  # 4 trials x 4 environments
+        record = learner.iteration(env)
+        if record.trial_end:
+            predictions.append(record.depth_prediction_m)
+            retrained.append(record.depth_retrained)
+            assert record.q_deg.shape == (4, 4) and record.distance_m.shape == (4,)
+    assert retrained == [False, False, True, False]
+    assert torch.isnan(predictions[0]).all() and torch.isnan(predictions[2]).all()
+    assert torch.isfinite(predictions[3]).all()  # predicted by the MLP trained on earlier trials
+    assert learner.depth_inputs.shape == (16, 4) and learner.trials_seen == 16
+
+
+def test_learn_false_freezes_everything():
+    env, learner = make()
+    learner.iteration(env)
+    before = copy.deepcopy(learner.state_dict())
+    for _ in range(3):
+        learner.iteration(env, learn=False, greedy=True)
+    after = learner.state_dict()
+    for key, value in before.items():
+        if isinstance(value, torch.Tensor):
+            assert torch.equal(value, after[key]), key
+
+
+def test_learning_moves_dictionaries_and_policies():
+    env, learner = make()
+    before = copy.deepcopy(learner.state_dict())
+    for _ in range(3):
+        learner.iteration(env)
+    after = learner.state_dict()
+    for key in ("parallax.dictionaries.coarse.atoms", "stereo.dictionaries.fine.atoms",
+                "pursuit.actor_weight", "vergence.critic_weight"):
+        assert not torch.equal(before[key], after[key]), key
+
+
+def test_state_dict_round_trip_continues_identically():
+    env, learner = make()
+    for _ in range(3):
+        learner.iteration(env)
+    state = copy.deepcopy(learner.state_dict())
+    env_copy = copy.deepcopy(env)
+    _, twin = make()
+    twin.load_state_dict(state)
+    a = [learner.iteration(env).stereo.td_error for _ in range(2)]
+    b = [twin.iteration(env_copy).stereo.td_error for _ in range(2)]
+    for x, y in zip(a, b):
+        torch.testing.assert_close(x, y, rtol=0, atol=0)
+
+
+def test_config_rejects_bad_values():
+    with pytest.raises(ValueError, match="algorithm"):
+        LearnerConfig(algorithm="lasso")
+    with pytest.raises(ValueError, match="scales"):
+        LearnerConfig(scales=("medium",))
+    with pytest.raises(ValueError, match="depth_every_trials"):
+        LearnerConfig(depth_every_trials=0)
