@@ -277,6 +277,7 @@ class ActiveDepthEnv:
         self.target_m = torch.stack((self.plane_x_m, start[:, 1] + along, start[:, 2]), dim=-1)
         self._start_pans = self.pan_deg
         self._first_image: Tensor | None = None
+        self._first_roll: Tensor | None = None
 
     def set_pan_deg(self, pan_deg) -> None:
         """Put the eyes at the given pans ``[B, 2]`` (left, right; degrees), within their limits.
@@ -324,8 +325,9 @@ class ActiveDepthEnv:
         return self.head.vergence_pan_deg(left, self.plane_x_m, self.body_shift_m)
 
     # -- observations ----------------------------------------------------------------------
-    def _render(self, shift_m: Tensor, pans: Tensor, eyes: slice) -> Tensor:
-        poses = self.head.camera_poses(shift_m, pans, self.roll_deg, convention="opengl")
+    def _render(self, shift_m: Tensor, pans: Tensor, eyes: slice, roll_deg: Tensor | None = None) -> Tensor:
+        roll = self.roll_deg if roll_deg is None else roll_deg
+        poses = self.head.camera_poses(shift_m, pans, roll, convention="opengl")
         return self.renderer(
             poses[:, eyes], self.plane_x_m, self.texture_index, self.window
         ).to(self.dtype)
@@ -339,7 +341,9 @@ class ActiveDepthEnv:
         """
         if self._first_image is None:
             zero = torch.zeros_like(self.body_shift_m)
-            self._first_image = self._render(zero, self._start_pans, slice(0, 1))[:, 0]
+            if self._first_roll is None:  # the roll when the fixation's first image was taken
+                self._first_roll = self.roll_deg.clone()
+            self._first_image = self._render(zero, self._start_pans, slice(0, 1), self._first_roll)[:, 0]
         second = self._render(self.body_shift_m, self.pan_deg, slice(0, 1))[:, 0]
         return torch.stack((self._first_image, second), dim=1)
 
@@ -401,6 +405,46 @@ class ActiveDepthEnv:
             q_deg=q,
             distance_m=distance,
         )
+
+    # -- checkpoints ---------------------------------------------------------------------------
+    _STATE_TENSORS = ("texture_index", "distance_m", "plane_x_m", "body_shift_m", "pan_deg",
+                      "roll_deg", "q_deg", "target_m", "_start_pans")
+
+    def state_dict(self) -> dict:
+        """Everything that determines the environments' future: resume with :meth:`load_state_dict`.
+
+        The configuration (textures, renderer, geometry) is not included: build the environment
+        with the same arguments, then load the state. The cached first image of the current
+        fixation is not stored; it is rendered again, identically (with the roll of the moment
+        it was first taken), when next needed.
+        """
+        state = {name: getattr(self, name).clone() for name in self._STATE_TENSORS}
+        state.update(
+            fixation=self.fixation,
+            iteration=self.iteration,
+            generator=self._generator.get_state(),
+            num_envs=self.num_envs,
+            num_textures=len(self.textures),
+            first_roll=None if self._first_roll is None else self._first_roll.clone(),
+        )
+        return state
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore a :meth:`state_dict` taken from an environment built with the same arguments."""
+        for key, expected in (("num_envs", self.num_envs), ("num_textures", len(self.textures))):
+            if state.get(key) != expected:
+                raise ValueError(
+                    f"state was saved with {key}={state.get(key)!r}, this environment has {expected}; "
+                    "build it with the same arguments as the one that was saved"
+                )
+        for name in self._STATE_TENSORS:
+            setattr(self, name, state[name].to(device=self.device, dtype=getattr(self, name).dtype).clone())
+        self.fixation = int(state["fixation"])
+        self.iteration = int(state["iteration"])
+        self._generator.set_state(state["generator"])
+        self._first_image = None
+        first_roll = state.get("first_roll")
+        self._first_roll = None if first_roll is None else first_roll.to(self.roll_deg)
 
     def __repr__(self) -> str:
         return (
