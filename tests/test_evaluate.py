@@ -1,0 +1,64 @@
+"""aectorch.evaluate: frozen, greedy evaluation over textures x distances."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+import torch
+
+from aectorch.evaluate import evaluate, summarise
+from aectorch.framework import JointLearner, LearnerConfig
+from aectorch.sim import ActiveDepthEnv, TextureBank
+
+torch.set_num_threads(1)
+
+
+def test_summarise_matches_numpy():
+    x = torch.randn(101, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    s = summarise(x)
+    n = x.numpy()
+    assert s["mae"] == pytest.approx(np.abs(n).mean())
+    assert s["rmse"] == pytest.approx(np.sqrt((n**2).mean()))
+    assert s["median"] == pytest.approx(np.median(n))
+    assert s["iqr4"] == pytest.approx(4 * (np.percentile(n, 75) - np.percentile(n, 25)))
+    assert summarise(torch.tensor([float("nan")]))["n"] == 0
+
+
+def test_evaluate_runs_every_texture_at_every_distance_frozen():
+    bank = TextureBank(torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0)))
+    learner = JointLearner(LearnerConfig(num_atoms=32, depth_every_trials=12),
+                           generator=torch.Generator().manual_seed(0))
+    env = ActiveDepthEnv(4, textures=bank, fixation_iterations=1, seed=0)
+    for _ in range(6):  # three trials of four environments: the depth MLP gets trained
+        learner.iteration(env)
+    before = copy.deepcopy(learner.state_dict())
+    result = evaluate(learner, bank, distances_m=[1.0, 2.0], batch_size=4, fixation_iterations=2, steps=3)
+    assert result["trials"] == 6 and result["pursuit"]["n"] == 12 and result["vergence"]["n"] == 12
+    assert [row["distance_m"] for row in result["per_distance"]] == [1.0, 2.0]
+    assert result["depth"]["n"] == 6 and np.isfinite(result["depth_mae_m"])
+    test = result["vergence_test"]
+    assert test["degrees"]["n"] == 6
+    assert test["pixels"]["rmse"] == pytest.approx(test["degrees"]["rmse"] / env.camera.degrees_per_pixel)
+    after = learner.state_dict()
+    for key, value in before.items():
+        if isinstance(value, torch.Tensor):
+            assert torch.equal(value, after[key]), key
+
+
+def test_untrained_greedy_policy_is_far_from_zero_error():
+    """A frozen random policy does not fixate: the metric can fail."""
+    bank = TextureBank(torch.rand(2, 64, 64, generator=torch.Generator().manual_seed(1)))
+    learner = JointLearner(LearnerConfig(num_atoms=32), generator=torch.Generator().manual_seed(0))
+    result = evaluate(learner, bank, distances_m=[1.0], fixation_iterations=3, vergence_test=False)
+    assert result["pursuit_mae_deg"] > 1.0  # at 1 m pursuit needs 5.7 degrees; 3 steps give <= 0.6
+
+
+def test_evaluate_rejects_bad_arguments():
+    learner = JointLearner(LearnerConfig(num_atoms=32))
+    bank = TextureBank(torch.rand(1, 64, 64))
+    with pytest.raises(ValueError, match="distances_m"):
+        evaluate(learner, bank, distances_m=[0.0])
+    with pytest.raises(ValueError, match="batch_size"):
+        evaluate(learner, bank, batch_size=0)
