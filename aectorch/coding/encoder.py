@@ -15,7 +15,8 @@ import torch
 from torch import nn
 
 from aectorch.coding.dictionary import DictionaryOutput, SparseDictionary
-from aectorch.coding.patches import COARSE, FINE, Scale, _check_finite, as_scale, extract_patches
+from aectorch._checks import check_finite
+from aectorch.coding.patches import COARSE, FINE, Scale, as_scale, extract_patches
 
 __all__ = ["BinocularEncoder", "EncoderOutput"]
 
@@ -125,7 +126,7 @@ class BinocularEncoder(nn.Module):
         if check:  # once here, not once per scale inside extract_patches
             for name, images in (("first", first), ("second", second)):
                 if isinstance(images, torch.Tensor):  # other types: extract_patches says why
-                    _check_finite(images, name)
+                    check_finite(images, name)
         patches, codes, features, errors = [], [], [], []
         for scale in self.scales:
             dictionary = self.dictionaries[scale.name]

@@ -15,6 +15,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from aectorch._checks import check_finite as _check_finite
+
 __all__ = [
     "Scale",
     "COARSE",
@@ -158,14 +160,6 @@ def _check_image(images: Tensor, name: str) -> None:
             f"{name} has dtype {images.dtype}: expected a floating-point image in [0, 1]; "
             "convert uint8 with x.float() / 255"
         )
-
-
-def _check_finite(images: Tensor, name: str) -> None:
-    # One pass over the data and a host sync: optional, and never traced by torch.compile.
-    if torch.compiler.is_compiling():
-        return
-    if not bool(torch.isfinite(images).all()):
-        raise ValueError(f"{name} contains non-finite values (NaN or inf)")
 
 
 def _pyramid_down(x: Tensor, levels: int) -> Tensor:

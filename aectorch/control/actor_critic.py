@@ -50,6 +50,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from aectorch._checks import check_finite
+
 __all__ = ["ActOutput", "ActorCriticConfig", "NaturalActorCritic", "PAPER_ACTIONS_DEG", "UpdateOutput"]
 
 PAPER_ACTIONS_DEG = (-0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2)
@@ -337,7 +339,7 @@ class NaturalActorCritic(nn.Module):
             raise TypeError(f"{name} must be a floating-point tensor, got {features.dtype}")
         self._same_device(features, name)
         if check:
-            _check_finite(features, name)
+            check_finite(features, name)
         return features.to(self.actor_weight.dtype)
 
     def _same_device(self, tensor: torch.Tensor, name: str) -> None:
@@ -487,7 +489,7 @@ class NaturalActorCritic(nn.Module):
             if first_step.dtype != torch.bool:
                 raise TypeError(f"first_step must be a bool tensor, got {first_step.dtype}")
         if check and not torch.compiler.is_compiling():
-            _check_finite(rewards, "rewards")
+            check_finite(rewards, "rewards")
             if not bool(((actions >= 0) & (actions < self.num_actions)).all()):
                 raise ValueError(
                     f"actions must be indices in [0, {self.num_actions}), got values in "
@@ -570,11 +572,3 @@ def _project(theta: torch.Tensor, projection: str, bound: float) -> torch.Tensor
 
 def _entropy(logp: torch.Tensor) -> torch.Tensor:
     return -(logp.exp() * logp).sum(-1)
-
-
-def _check_finite(tensor: torch.Tensor, name: str) -> None:
-    # One pass over the data and a host sync: optional, and never traced by torch.compile.
-    if torch.compiler.is_compiling():
-        return
-    if not bool(torch.isfinite(tensor).all()):
-        raise ValueError(f"{name} contains non-finite values (NaN or inf)")

@@ -1,0 +1,17 @@
+"""Input checks shared by the subpackages (kept here so that they need not import each other)."""
+
+from __future__ import annotations
+
+import torch
+
+
+def check_finite(tensor: torch.Tensor, name: str) -> None:
+    """Raise ``ValueError`` naming ``name`` when ``tensor`` holds NaN or inf.
+
+    One pass over the data and a host sync: call it at public boundaries, optionally; it is
+    skipped while ``torch.compile`` traces.
+    """
+    if torch.compiler.is_compiling():
+        return
+    if not bool(torch.isfinite(tensor).all()):
+        raise ValueError(f"{name} contains non-finite values (NaN or inf)")
