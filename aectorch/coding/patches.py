@@ -296,6 +296,9 @@ def extract_patches(
     halves = tiles.reshape(b, 2, g * g, p * p)
 
     centred = halves - halves.mean(dim=-1, keepdim=True)
+    # A second pass removes the first one's rounding (about eps * max|half|), which division by a
+    # small contrast would otherwise magnify into a visible non-zero mean in float32.
+    centred = centred - centred.mean(dim=-1, keepdim=True)
     norm = torch.linalg.vector_norm(centred, dim=-1, keepdim=True)
     rounding = _ROUNDING_ULPS * torch.finfo(halves.dtype).eps * (p * p) ** 0.5
     flat = norm <= eps + rounding * halves.abs().amax(dim=-1, keepdim=True)
