@@ -67,7 +67,8 @@ def evaluate(
     """Evaluate ``learner`` greedily with all learning frozen; returns a JSON-ready dict.
 
     Args:
-        learner: a :class:`~aectorch.framework.JointLearner` (it is not modified).
+        learner: a :class:`~aectorch.framework.JointLearner`; its weights and statistics are not
+            modified (it runs with ``learn=False``).
         textures: the evaluation textures (e.g. ``TextureBank.from_folder(...)`` of photographs
             it never trained on).
         distances_m: object distances; every texture is tested at every distance.
@@ -101,7 +102,7 @@ def evaluate(
 
         bar = tqdm(total=total * (2 if vergence_test else 1), desc="evaluate", unit="trial")
 
-    envs: dict[int, ActiveDepthEnv] = {}
+    envs: dict[tuple[int, int], ActiveDepthEnv] = {}
 
     def env_for(size: int, h: int) -> ActiveDepthEnv:
         key = (size, h)
@@ -112,8 +113,7 @@ def evaluate(
             )
         return envs[key]
 
-    saved_transitions = dict(learner._previous)
-    pursuit, vergence, depth_error, q_all = [], [], [], []
+    pursuit, vergence, depth_error = [], [], []
     with torch.no_grad():
         for start, stop in chunks:
             env = env_for(stop - start, fixation_iterations)
@@ -130,7 +130,6 @@ def evaluate(
             pursuit.append(torch.stack(finals_p, 1))  # [b, 2 fixations]
             vergence.append(torch.stack(finals_v, 1))
             depth_error.append(record.depth_prediction_m - record.distance_m)
-            q_all.append(record.q_deg)
             if bar is not None:
                 bar.update(stop - start)
     pursuit, vergence = torch.cat(pursuit).cpu(), torch.cat(vergence).cpu()
@@ -184,7 +183,6 @@ def evaluate(
         }
     if bar is not None:
         bar.close()
-    learner._previous = saved_transitions
     for env in envs.values():
         close = getattr(env.renderer, "close", None)
         if close is not None:

@@ -193,7 +193,8 @@ class JointLearner(nn.Module):
         action = agent.act(features, greedy=greedy, generator=self.generator)
         if learn and self.config.dictionary_lr > 0:
             encoder.learn_(out)
-        self._previous[key] = (features, action.actions)
+        # Without learning there is no transition to complete on the next step.
+        self._previous[key] = (features, action.actions) if learn else None
         return CueRecord(reward, out.errors, td_error, action.entropy, action.actions, action.increments_deg)
 
     # -- the schedule ----------------------------------------------------------------------------
@@ -203,7 +204,8 @@ class JointLearner(nn.Module):
         Args:
             env: an :class:`~aectorch.sim.ActiveDepthEnv` on this learner's device and dtype.
             learn: update dictionaries, policies, critics and the depth MLP; ``False`` freezes
-                everything (evaluation).
+                everything (evaluation) and leaves no pending transition, so a later learning
+                step does not learn from a transition it did not see.
             greedy: take the most probable action instead of sampling.
         """
         parallax = self._cue("m", self.parallax, self.pursuit, env.parallax_observation(),

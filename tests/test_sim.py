@@ -148,10 +148,9 @@ def test_torch_renderer_maps_a_ramp_like_the_pinhole_model(head):
 def test_torch_renderer_window_is_a_crop_of_the_full_frame(scene, head):
     poses, plane_x = agreement_poses(head, torch.float64)
     index = torch.tensor([0, 1, 2])
-    full = render_planes(poses, plane_x, index, scene.__class__(
-        scene.textures.double(), scene.background.double()), CAMERA)
-    crop = render_planes(poses, plane_x, index, scene.__class__(
-        scene.textures.double(), scene.background.double()), CAMERA, CROPS)
+    scene64 = PlaneScene(scene.textures.double(), scene.background.double())
+    full = render_planes(poses, plane_x, index, scene64, CAMERA)
+    crop = render_planes(poses, plane_x, index, scene64, CAMERA, CROPS)
     top, left, h, w = CROPS
     torch.testing.assert_close(crop, full[..., top : top + h, left : left + w])
 
@@ -465,3 +464,9 @@ def test_env_state_dict_resumes_exactly(bank, tmp_path):
     torch.testing.assert_close(env.texture_index, twin.texture_index)
     with pytest.raises(ValueError, match="num_envs"):
         ActiveDepthEnv(2, textures=bank, fixation_iterations=3).load_state_dict(env.state_dict())
+
+
+def test_torch_renderer_rejects_out_of_range_texture_indices(scene, head):
+    poses, plane_x = agreement_poses(head)
+    with pytest.raises(IndexError, match=r"texture_index must be in \[0, 3\)"):
+        TorchPlaneRenderer(scene)(poses, plane_x, torch.tensor([0, 1, 3]))

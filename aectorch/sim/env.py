@@ -254,7 +254,10 @@ class ActiveDepthEnv:
                 f"{float(distance_m.min()):.4g}"
             )
         if bool(((texture_index < 0) | (texture_index >= len(self.textures))).any()):
-            raise IndexError(f"texture_index must be in [0, {len(self.textures)}), got {texture_index.tolist()}")
+            raise IndexError(
+                f"texture_index must be in [0, {len(self.textures)}), got values "
+                f"{int(texture_index.min())}..{int(texture_index.max())}"
+            )
         self.texture_index = texture_index.long()
         self.distance_m = distance_m
         self.plane_x_m = distance_m + float(self.head.eye_x_m)
@@ -328,8 +331,9 @@ class ActiveDepthEnv:
     def _render(self, shift_m: Tensor, pans: Tensor, eyes: slice, roll_deg: Tensor | None = None) -> Tensor:
         roll = self.roll_deg if roll_deg is None else roll_deg
         poses = self.head.camera_poses(shift_m, pans, roll, convention="opengl")
+        # The indices were checked by set_trial: no host sync per frame.
         return self.renderer(
-            poses[:, eyes], self.plane_x_m, self.texture_index, self.window
+            poses[:, eyes], self.plane_x_m, self.texture_index, self.window, check=False
         ).to(self.dtype)
 
     def parallax_observation(self) -> Tensor:

@@ -231,24 +231,17 @@ class PyrenderRenderer:
         plane_x_m: Tensor,
         texture_index: Tensor,
         window: PixelWindow | None = None,
+        *,
+        check: bool = True,
     ) -> Tensor:
-        """Render ``[B, ..., h, w]`` images; the arguments are those of :func:`render_planes`."""
-        if poses.ndim < 3 or poses.shape[-2:] != (4, 4):
-            raise ValueError(f"poses must have shape [B, ..., 4, 4], got {tuple(poses.shape)}")
-        batch = poses.shape[0]
-        if plane_x_m.shape != (batch,):
-            raise ValueError(
-                f"plane_x_m must have shape [B] = [{batch}] (the batch of poses), "
-                f"got {tuple(plane_x_m.shape)}"
-            )
-        self.scene.check_texture_index(texture_index, batch)
+        """Render ``[B, ..., h, w]`` images; the arguments are those of :func:`render_planes`.
+
+        ``check`` is accepted for symmetry with the torch renderer; the indices are always
+        checked, since they go to the host anyway.
+        """
+        batch = self.scene.check_render_inputs(poses, plane_x_m, texture_index)
         window = self.camera.check_window(window)
         index = texture_index.cpu().tolist()
-        if min(index) < 0 or max(index) >= self.scene.num_textures:
-            raise IndexError(
-                f"texture_index must be in [0, {self.scene.num_textures}), got values "
-                f"{min(index)}..{max(index)}"
-            )
         renderer = self._renderer(window)
         self._set_camera(window)
         flat_poses = poses.detach().reshape(batch, -1, 4, 4).to("cpu", torch.float64).numpy()

@@ -106,6 +106,7 @@ def render_planes(
     textures: Tensor | None = None,
     background: Tensor | None = None,
     atlas: Tensor | None = None,
+    check: bool = True,
 ) -> Tensor:
     """Render grey images of the plane scene for a batch of cameras.
 
@@ -128,6 +129,8 @@ def render_planes(
             them.
         background: override ``scene.background``.
         atlas: a prebuilt :func:`texture_atlas` (what :class:`TorchPlaneRenderer` passes).
+        check: check that every texture index is in range (one host sync). An index out of
+            range would otherwise read a neighbouring texture of the atlas without an error.
 
     Returns:
         Intensities in [0, 1]; the object plane occludes the background; pixels whose ray hits
@@ -136,15 +139,7 @@ def render_planes(
     Shape:
         output: ``[B, ..., window.height, window.width]``.
     """
-    if poses.ndim < 3 or poses.shape[-2:] != (4, 4):
-        raise ValueError(f"poses must have shape [B, ..., 4, 4], got {tuple(poses.shape)}")
-    batch = poses.shape[0]
-    if plane_x_m.shape != (batch,):
-        raise ValueError(
-            f"plane_x_m must have shape [B] = [{batch}] (the batch of poses), "
-            f"got {tuple(plane_x_m.shape)}"
-        )
-    scene.check_texture_index(texture_index, batch)
+    batch = scene.check_render_inputs(poses, plane_x_m, texture_index, check_range=check)
     window = camera.check_window(window)
     dtype, device = poses.dtype, poses.device
     if atlas is None:
@@ -245,10 +240,13 @@ class TorchPlaneRenderer(nn.Module):
         plane_x_m: Tensor,
         texture_index: Tensor,
         window: PixelWindow | None = None,
+        *,
+        check: bool = True,
     ) -> Tensor:
         """Render ``[B, ..., h, w]`` images; see :func:`render_planes` for the arguments."""
         return render_planes(
             poses, plane_x_m, texture_index, self.scene, self.camera, window, atlas=self.atlas,
+            check=check,
         )
 
     render = forward

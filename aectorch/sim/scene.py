@@ -103,8 +103,26 @@ class PlaneScene:
         h, w = self.background.shape[-2:]
         return float(self.background_width_m), float(self.background_width_m) * h / w
 
-    def check_texture_index(self, texture_index: Tensor, batch: int) -> Tensor:
-        """Validate per-environment texture indices ``[B]`` against the scene's textures."""
+    def check_render_inputs(
+        self, poses: Tensor, plane_x_m: Tensor, texture_index: Tensor, *, check_range: bool = True
+    ) -> int:
+        """Validate what both renderers take; returns the batch size B.
+
+        Args:
+            poses: ``[B, ..., 4, 4]``.
+            plane_x_m: ``[B]``.
+            texture_index: integer ``[B]``, each in ``[0, num_textures)``.
+            check_range: also check the index values (one host sync; callers that validated
+                them already, such as :class:`ActiveDepthEnv` on every frame, pass ``False``).
+        """
+        if poses.ndim < 3 or poses.shape[-2:] != (4, 4):
+            raise ValueError(f"poses must have shape [B, ..., 4, 4], got {tuple(poses.shape)}")
+        batch = poses.shape[0]
+        if plane_x_m.shape != (batch,):
+            raise ValueError(
+                f"plane_x_m must have shape [B] = [{batch}] (the batch of poses), "
+                f"got {tuple(plane_x_m.shape)}"
+            )
         if not isinstance(texture_index, Tensor) or texture_index.dtype not in (
             torch.int32,
             torch.int64,
@@ -118,4 +136,9 @@ class PlaneScene:
                 f"texture_index must have shape [B] = [{batch}] (the batch of the poses), "
                 f"got {tuple(texture_index.shape)}"
             )
-        return texture_index
+        if check_range and bool(((texture_index < 0) | (texture_index >= self.num_textures)).any()):
+            raise IndexError(
+                f"texture_index must be in [0, {self.num_textures}), got values "
+                f"{int(texture_index.min())}..{int(texture_index.max())}"
+            )
+        return batch
