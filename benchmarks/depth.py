@@ -40,8 +40,6 @@ import collections
 import copy
 import importlib.metadata
 import json
-import os
-import platform
 import statistics
 import sys
 import time
@@ -51,6 +49,8 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.machine import machine_info  # noqa: E402
 
 from aectorch.depth import DepthMLP, fit_levenberg_marquardt, nguyen_widrow_  # noqa: E402
 
@@ -285,15 +285,11 @@ def main() -> None:
     print_table(summary, floor, unavailable, args)
     args.json.parent.mkdir(parents=True, exist_ok=True)
     meta = {
-        "command": " ".join([Path(sys.executable).name, *sys.argv]),
-        "torch": torch.__version__,
+        **machine_info(),
         "scipy": importlib.metadata.version("scipy"),
         "torch_levenberg_marquardt": package_version("torch-levenberg-marquardt"),
         "torch_levenberg_marquardt_unavailable": unavailable,
         "threads": args.threads,
-        "cpu": platform.processor() or platform.machine(),
-        "cpu_model": cpu_model(),
-        "cores": os.cpu_count(),
         "seeds": args.seeds,
         "noise_deg": NOISE_DEG,
         "test_size": args.test_size,
@@ -340,16 +336,6 @@ def package_version(name: str) -> str | None:
         return importlib.metadata.version(name)
     except importlib.metadata.PackageNotFoundError:
         return None
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor()
 
 
 if __name__ == "__main__":

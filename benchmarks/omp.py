@@ -27,8 +27,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import statistics
 import sys
 import time
@@ -39,6 +37,8 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.machine import cpu_model, machine_info  # noqa: E402
 
 from aectorch.coding import COARSE, FINE, extract_patches, gram_matrix, matching_pursuit, omp  # noqa: E402
 
@@ -258,11 +258,7 @@ def main() -> None:
     print_table(rows)
     args.json.parent.mkdir(parents=True, exist_ok=True)
     meta = {
-        "command": " ".join([Path(sys.executable).name, *sys.argv]),
-        "torch": torch.__version__,
-        "cpu": platform.processor() or platform.machine(),
-        "cpu_model": cpu_model(),
-        "cores": os.cpu_count(),
+        **machine_info(),
         "P": P,
         "N": N,
         "k": K,
@@ -271,16 +267,6 @@ def main() -> None:
     }
     args.json.write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
     print(f"\nwrote {args.json}")
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor()
 
 
 def print_table(rows: list[dict]) -> None:

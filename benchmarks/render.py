@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import subprocess
 import sys
@@ -182,12 +181,12 @@ def main() -> None:
                 g = keyed[("pyrender", window, batch, threads)]["frames_per_s"]
                 label = "320x240" if window == "full" else "128x128 crops"
                 print(f"| {label} | {batch} | {threads} | {t:,.0f} | {g:,.0f} | {t / g:.1f}x |")
-    import torch
+    sys.path.insert(0, str(ROOT))
+    from benchmarks.machine import machine_info
 
     report = {
         "benchmark": "render",
-        "machine": {"platform": platform.platform(), "processor": platform.processor(),
-                    "cpu_count": os.cpu_count(), "torch": torch.__version__},
+        "machine": machine_info(),
         "repeats": args.repeats,
         "rows": rows,
     }
