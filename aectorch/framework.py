@@ -112,6 +112,7 @@ class CueRecord(NamedTuple):
     entropy: Tensor  #: entropy of the policy that chose the action, nats
     actions: Tensor  #: chosen action indices
     increments_deg: Tensor  #: chosen pan increments
+    atom_counts: Tensor  #: ``[n_scales, num_atoms]`` how often each atom was chosen (all B, all patches)
 
 
 class IterationRecord(NamedTuple):
@@ -195,7 +196,12 @@ class JointLearner(nn.Module):
             encoder.learn_(out)
         # Without learning there is no transition to complete on the next step.
         self._previous[key] = (features, action.actions) if learn else None
-        return CueRecord(reward, out.errors, td_error, action.entropy, action.actions, action.increments_deg)
+        counts = torch.stack([
+            torch.bincount(c.code.indices.reshape(-1), minlength=encoder.dictionaries[s.name].num_atoms)
+            for s, c in zip(encoder.scales, out.codes)
+        ])
+        return CueRecord(reward, out.errors, td_error, action.entropy, action.actions,
+                         action.increments_deg, counts)
 
     # -- the schedule ----------------------------------------------------------------------------
     def iteration(self, env, *, learn: bool = True, greedy: bool = False) -> IterationRecord:
