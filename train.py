@@ -1,12 +1,14 @@
-"""aectorch training entry point (Hydra).
+"""aectorch training entry point (Hydra): the paper's experiment, `aectorch.experiment.run_experiment`.
 
-This is a demonstration until the joint learning framework (simulated HOAP-3 head,
-natural actor-critic eye control, depth MLP) lands: it learns binocular sparse-coding
-dictionaries (coarse and fine scale) from synthetic stereo pairs with random disparities
-and writes a figure, metrics, TensorBoard logs and the trained encoder to Hydra's run folder.
+B simulated HOAP-3 heads learn, jointly, sparse codes of what their eyes see, pursuit and
+vergence eye movements (natural actor-critic) and the object's distance (an MLP); the run folder
+(Hydra's, ``outputs/<date>/<time>`` by default) receives config.yaml, metrics.jsonl, tb/,
+checkpoint.pt, figures/, evaluation.json and summary.json. See docs/training.md.
 
-    python train.py                                   # defaults (aectorch.config.DemoConfig)
-    python train.py steps=50 seed=3 hydra.run.dir=/tmp/x
+    python train.py                                   # defaults (aectorch.config.ExperimentConfig)
+    python train.py env.num_envs=64 train.iterations=500 seed=3 hydra.run.dir=/tmp/x
+    python train.py preset=paper +experiment=roll_perturbation
+    python train.py train.resume=/tmp/x train.iterations=1000   # continue a run in place
     python train.py -m seed=0,1,2                     # multirun sweep
 
 Invalid values exit with status 2 and one ``error: ...`` line; set ``AECTORCH_DEBUG=1``
@@ -20,14 +22,12 @@ import sys
 from pathlib import Path
 
 import hydra
-import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import HydraException
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from omegaconf.errors import OmegaConfBaseException
 
-from aectorch.config import DemoConfig, register_configs
-from aectorch.demo import run_demo
+from aectorch.config import ExperimentConfig, register_configs, to_experiment_config, validate_resources
 
 register_configs()
 
@@ -41,26 +41,50 @@ def _fail(message: str) -> None:
     sys.exit(2)
 
 
+def _command_line_keys() -> set[str]:
+    keys = set()
+    for override in HydraConfig.get().overrides.task:
+        key = override.split("=", 1)[0].lstrip("+~")
+        keys.add(key)
+    return keys
+
+
+def _prepare(raw: DictConfig) -> ExperimentConfig:
+    """Validate everything before any work; on resume, take the run's own iterations/progress
+    unless the command line gives them."""
+    from aectorch.experiment import load_checkpoint
+
+    cfg = to_experiment_config(raw)
+    validate_resources(cfg)
+    if cfg.train.resume is not None:
+        stored = to_experiment_config(load_checkpoint(Path(cfg.train.resume) / "checkpoint.pt")["config"])
+        given = _command_line_keys()
+        for key in ("iterations", "progress"):
+            if f"train.{key}" not in given:
+                setattr(cfg.train, key, getattr(stored.train, key))
+        validate_resources(stored)
+    return cfg
+
+
 @hydra.main(version_base=None, config_name="train")
 def main(raw: DictConfig) -> dict:
     try:
-        cfg: DemoConfig = OmegaConf.to_object(raw)
-    except ValueError as err:  # a value rejected by DemoConfig.__post_init__
+        cfg = _prepare(raw)
+    except (ValueError, OmegaConfBaseException) as err:  # a value rejected by the configs' checks
         if _debug():
             raise
         # Exit here, inside the job: Hydra would add its own "Error executing job" line.
-        _fail(str(err))
-    torch.set_num_threads(cfg.threads)
-    run_dir = Path(HydraConfig.get().runtime.output_dir)
-    (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(raw, resolve=True))
-    return run_demo(cfg, run_dir)
+        _fail(str(err).strip().splitlines()[0])
+    from aectorch.experiment import run_experiment
+
+    return run_experiment(cfg, Path(HydraConfig.get().runtime.output_dir))
 
 
 def _one_line(err: BaseException) -> str:
     text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
     cause = err.__cause__
     if isinstance(err, HydraException) and isinstance(cause, OmegaConfBaseException):
-        # e.g. "Error merging override steps=abc: Value 'abc' ... could not be converted to Integer"
+        # e.g. "Error merging override train.iterations=abc: Value 'abc' ... could not be converted to Integer"
         text = f"{text}: {str(cause).strip().splitlines()[0]}"
     return text
 

@@ -1,92 +1,392 @@
-"""Dataclass configs used by Hydra (`train.py`).
+"""Structured configs of the experiment (`train.py`, Hydra).
 
-Each component has one dataclass whose docstring explains every field and whose
-``__post_init__`` rejects impossible values with a message naming the field. Hydra
-composes the command line onto these dataclasses (type checks), and
-``OmegaConf.to_object`` then builds the dataclass, which runs the value checks.
+One dataclass per component; each docstring explains every field and each ``__post_init__``
+rejects impossible values with a message that names the field (``env.num_envs must be ...``).
+Hydra composes the command line onto :class:`ExperimentConfig` (type checks), and
+:func:`to_experiment_config` then builds the dataclasses, which runs the value checks.
 
-Until the joint learning framework (simulator, eye control, depth) lands, the only
-experiment is the binocular sparse-coding demonstration of `aectorch.demo`, whose
-config `DemoConfig` is registered with Hydra's ConfigStore under the name ``"train"``.
+:func:`register_configs` stores the schema in Hydra's ConfigStore as ``train`` with two groups:
+
+- ``preset``: ``default`` (no change, selected by default) and ``paper`` (:data:`PAPER_PRESET`,
+  the paper's values), chosen with ``preset=paper``;
+- ``experiment``: ``roll_perturbation`` (the paper's Fig. 4 experiment, a 3 degree roll of the
+  right eye at half of the training and of both eyes at three quarters), added with
+  ``+experiment=roll_perturbation``.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import os
+from dataclasses import dataclass, field
+from typing import Any, Optional
 
 import torch
 
-__all__ = ["DemoConfig", "register_configs"]
+from aectorch.framework import LearnerConfig
+from aectorch.sim import DEFAULT_DISTANCES_M, RENDERERS
 
-_ALGORITHMS = ("mp", "omp")
+__all__ = [
+    "EnvConfig",
+    "EvalConfig",
+    "ExperimentConfig",
+    "PAPER_PRESET",
+    "PerturbationConfig",
+    "ROLL_PERTURBATION",
+    "TrainConfig",
+    "register_configs",
+    "to_experiment_config",
+    "validate_resources",
+]
+
+#: The paper's values (Wong et al. 2017), applied by ``preset=paper``: dotted key -> value.
+PAPER_PRESET: dict[str, Any] = {
+    "learner.actions_deg": [-0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2],
+    "learner.algorithm": "mp",
+    "learner.num_atoms": 288,
+    "learner.sparsity": 10,
+    "learner.scales": ["coarse", "fine"],
+    "env.fixation_iterations": 30,
+    "env.shift_m": 0.1,
+    "env.pursuit_start_deg": 0.0,
+    "env.vergence_start_deg": 0.0,
+}
+
+#: The paper's perturbation experiment (section 4, Fig. 4), ``+experiment=roll_perturbation``.
+ROLL_PERTURBATION: dict[str, Any] = {
+    "perturbation.roll_deg": 3.0,
+    "perturbation.first_eye": "right",
+    "perturbation.first_fraction": 0.5,
+    "perturbation.second_fraction": 0.75,
+}
+
+_DTYPES = {"float32": torch.float32, "float64": torch.float64}
+_EYES = ("left", "right")
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_real(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _require_int(owner: str, name: str, value: object, minimum: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+    if not _is_int(value) or value < minimum:
         raise ValueError(f"{owner}.{name} must be an int >= {minimum}, got {value!r}")
 
 
-@dataclass
-class DemoConfig:
-    """Binocular sparse-coding demonstration: learn coarse and fine dictionaries from stereo pairs.
+def _require_bool(owner: str, name: str, value: object) -> None:
+    if not isinstance(value, bool):
+        raise ValueError(f"{owner}.{name} must be true or false, got {value!r}")
 
-    Every step draws ``batch_size`` new pink-noise textures and a random horizontal disparity per
-    texture, codes the stereo pairs with a `BinocularEncoder`, and takes one dictionary-learning
-    step on minus the mean reconstruction error (the AEC reward).
+
+def _require_distances(owner: str, name: str, value: object) -> list[float]:
+    try:
+        distances = [float(d) for d in value]  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        distances = []
+    if not distances or any(not math.isfinite(d) or d <= 0 for d in distances):
+        raise ValueError(f"{owner}.{name} must be a non-empty list of distances > 0 (metres), got {value!r}")
+    return distances
+
+
+def _require_device(owner: str, name: str, value: object) -> None:
+    try:
+        torch.device(value)  # type: ignore[arg-type]
+    except (RuntimeError, TypeError) as err:
+        raise ValueError(
+            f"{owner}.{name} must be a torch device string such as 'cpu' or 'cuda', got {value!r}"
+        ) from err
+
+
+@dataclass
+class EnvConfig:
+    """The simulated world: B HOAP-3 heads in front of textured planes (`ActiveDepthEnv`).
 
     Attributes:
-        steps: number of dictionary-learning steps (>= 1).
-        batch_size: stereo pairs per step, B (>= 1); the step is the mean of the B updates.
-        lr: dictionary learning rate (finite, >= 0; 0 trains nothing, a baseline).
-        max_disparity_px: disparities are drawn uniformly from the integers in
-            [-max_disparity_px, +max_disparity_px], in pixels of the 320 x 240 image (>= 0).
-            The coarse scale sees them divided by 8, the fine scale divided by 2.
-        algorithm: sparse coder, ``"mp"`` (the paper's matching pursuit) or ``"omp"``.
-        log_every: TensorBoard logging and progress-bar refresh interval in steps (>= 1).
-        seed: seeds the initial atoms, the textures and the disparities (>= 0).
-        device: torch device string for the encoder and the images (``"cpu"``, ``"cuda"``, ...).
-        threads: CPU threads for torch (``torch.set_num_threads``, >= 1).
+        num_envs: environments B simulated in lockstep (>= 1); every learner step is the mean
+            of the B per-environment updates.
+        renderer: ``"torch"`` (differentiable bilinear ray casting, fast on CPU and GPU) or
+            ``"pyrender"`` (OpenGL through OSMesa).
+        textures: a folder of images used as the object textures (`TextureBank.from_folder`,
+            512 x 512 grey); ``None`` uses ``TextureBank.default("train")``, 100 procedural
+            1/f textures standing in for the paper's photographs.
+        distances_m: object distances a trial draws from uniformly, metres (paper: 1.0 to 3.0 m
+            in 0.1 m steps).
+        fixation_iterations: h, iterations per fixation (paper: 30).
+        shift_m: the body's lateral shift in each fixation, metres (paper: 0.1).
+        pursuit_start_deg: left-eye pan at each fixation's start, degrees (paper: 0).
+        vergence_start_deg: vergence at each fixation's start, degrees (paper: 0 = parallel).
+        device: torch device of the environment and the learner (``"cpu"``, ``"cuda"``, ...).
+        dtype: ``"float32"`` or ``"float64"``, of the environment and the learner.
     """
 
-    steps: int = 450
-    batch_size: int = 16
-    lr: float = 0.05
-    max_disparity_px: int = 8
-    algorithm: str = "mp"
-    log_every: int = 10
-    seed: int = 0
+    num_envs: int = 16
+    renderer: str = "torch"
+    textures: Optional[str] = None
+    distances_m: list[float] = field(default_factory=lambda: list(DEFAULT_DISTANCES_M))
+    fixation_iterations: int = 30
+    shift_m: float = 0.1
+    pursuit_start_deg: float = 0.0
+    vergence_start_deg: float = 0.0
     device: str = "cpu"
-    threads: int = 1
+    dtype: str = "float32"
 
     def __post_init__(self) -> None:
-        owner = type(self).__name__
-        _require_int(owner, "steps", self.steps, 1)
-        _require_int(owner, "batch_size", self.batch_size, 1)
-        _require_int(owner, "max_disparity_px", self.max_disparity_px, 0)
+        owner = "env"
+        _require_int(owner, "num_envs", self.num_envs, 1)
+        if self.renderer not in RENDERERS:
+            raise ValueError(f"{owner}.renderer must be one of {', '.join(map(repr, RENDERERS))}, got {self.renderer!r}")
+        if self.textures is not None and (not isinstance(self.textures, str) or not self.textures):
+            raise ValueError(f"{owner}.textures must be null or a folder of images, got {self.textures!r}")
+        self.distances_m = _require_distances(owner, "distances_m", self.distances_m)
+        _require_int(owner, "fixation_iterations", self.fixation_iterations, 1)
+        if not (_is_real(self.shift_m) and self.shift_m >= 0):
+            raise ValueError(f"{owner}.shift_m must be a finite number >= 0 (metres), got {self.shift_m!r}")
+        for name in ("pursuit_start_deg", "vergence_start_deg"):
+            if not _is_real(getattr(self, name)):
+                raise ValueError(f"{owner}.{name} must be a finite number (degrees), got {getattr(self, name)!r}")
+        _require_device(owner, "device", self.device)
+        if self.dtype not in _DTYPES:
+            raise ValueError(f"{owner}.dtype must be 'float32' or 'float64', got {self.dtype!r}")
+
+    @property
+    def torch_dtype(self) -> torch.dtype:
+        return _DTYPES[self.dtype]
+
+
+@dataclass
+class TrainConfig:
+    """The training loop, its logs and checkpoints.
+
+    Attributes:
+        iterations: learner iterations (>= 1); each advances every environment by one
+            iteration (steps k1 and k2), so the run makes ``iterations * env.num_envs``
+            environment iterations.
+        compile: compile the two encoders' forward passes (the hot path) with ``torch.compile``.
+        resume: a run folder to continue in place from its ``checkpoint.pt`` (until
+            ``iterations``); its stored config is used, except ``train.iterations``,
+            ``train.progress`` and ``train.resume`` from the command line.
+        log_every: append a line to ``metrics.jsonl`` and TensorBoard every this many
+            iterations (>= 1).
+        checkpoint_every: write ``checkpoint.pt`` every this many iterations (>= 1), and always
+            at the end or on an interruption.
+        threads: CPU threads for torch (``torch.set_num_threads``, >= 1).
+        progress: show tqdm progress bars.
+        figures: draw the figures into ``figures/`` at the end.
+        tensorboard: write TensorBoard events into ``tb/``.
+    """
+
+    iterations: int = 3000
+    compile: bool = False
+    resume: Optional[str] = None
+    log_every: int = 25
+    checkpoint_every: int = 500
+    threads: int = 1
+    progress: bool = True
+    figures: bool = True
+    tensorboard: bool = True
+
+    def __post_init__(self) -> None:
+        owner = "train"
+        _require_int(owner, "iterations", self.iterations, 1)
         _require_int(owner, "log_every", self.log_every, 1)
-        _require_int(owner, "seed", self.seed, 0)
+        _require_int(owner, "checkpoint_every", self.checkpoint_every, 1)
         _require_int(owner, "threads", self.threads, 1)
-        if isinstance(self.lr, bool) or not isinstance(self.lr, (int, float)) or not (
-            math.isfinite(self.lr) and self.lr >= 0
-        ):
-            raise ValueError(f"{owner}.lr must be a finite float >= 0, got {self.lr!r}")
-        if self.algorithm not in _ALGORITHMS:
+        for name in ("compile", "progress", "figures", "tensorboard"):
+            _require_bool(owner, name, getattr(self, name))
+        if self.resume is not None and (not isinstance(self.resume, str) or not self.resume):
+            raise ValueError(f"{owner}.resume must be null or a run folder, got {self.resume!r}")
+
+
+@dataclass
+class EvalConfig:
+    """Evaluation at the end of training (`aectorch.evaluate.evaluate`), frozen and greedy.
+
+    Attributes:
+        enabled: evaluate after training and write ``evaluation.json``.
+        textures: a folder of held-out images; ``None`` uses ``TextureBank.default("test")``,
+            40 procedural textures disjoint from the training set.
+        distances_m: distances every texture is tested at, metres.
+        batch_size: environments simulated at once (>= 1).
+    """
+
+    enabled: bool = True
+    textures: Optional[str] = None
+    distances_m: list[float] = field(default_factory=lambda: [1.0, 1.5, 2.0, 2.5, 3.0])
+    batch_size: int = 256
+
+    def __post_init__(self) -> None:
+        owner = "eval"
+        _require_bool(owner, "enabled", self.enabled)
+        if self.textures is not None and (not isinstance(self.textures, str) or not self.textures):
+            raise ValueError(f"{owner}.textures must be null or a folder of images, got {self.textures!r}")
+        self.distances_m = _require_distances(owner, "distances_m", self.distances_m)
+        _require_int(owner, "batch_size", self.batch_size, 1)
+
+
+@dataclass
+class PerturbationConfig:
+    """The paper's perturbation (section 4, Fig. 4): a constant in-plane roll of the eyes.
+
+    At ``first_fraction * train.iterations`` (rounded down) the eye ``first_eye`` is rolled by
+    ``roll_deg`` about its optical axis; at ``second_fraction * train.iterations`` the other eye
+    is rolled by the same angle too. Both stay rolled until the end.
+
+    Attributes:
+        roll_deg: the roll, degrees (0 = no perturbation; the paper: 3).
+        first_eye: ``"left"`` or ``"right"`` (the paper: right).
+        first_fraction: when the first eye is rolled, a fraction of ``train.iterations``.
+        second_fraction: when both eyes are rolled; ``0 < first_fraction < second_fraction <= 1``.
+    """
+
+    roll_deg: float = 0.0
+    first_eye: str = "right"
+    first_fraction: float = 0.5
+    second_fraction: float = 0.75
+
+    def __post_init__(self) -> None:
+        owner = "perturbation"
+        if not _is_real(self.roll_deg):
+            raise ValueError(f"{owner}.roll_deg must be a finite number (degrees), got {self.roll_deg!r}")
+        if self.first_eye not in _EYES:
+            raise ValueError(f"{owner}.first_eye must be 'left' or 'right', got {self.first_eye!r}")
+        for name in ("first_fraction", "second_fraction"):
+            if not _is_real(getattr(self, name)):
+                raise ValueError(f"{owner}.{name} must be a number in (0, 1], got {getattr(self, name)!r}")
+        if self.enabled and not (0 < self.first_fraction < self.second_fraction <= 1):
             raise ValueError(
-                f"{owner}.algorithm must be one of {', '.join(map(repr, _ALGORITHMS))}, "
-                f"got {self.algorithm!r}"
+                f"{owner}.first_fraction and {owner}.second_fraction must satisfy "
+                f"0 < first_fraction < second_fraction <= 1, got {self.first_fraction!r} and "
+                f"{self.second_fraction!r}"
             )
+
+    @property
+    def enabled(self) -> bool:
+        return self.roll_deg != 0
+
+    def events(self, iterations: int) -> list[tuple[int, tuple[float, float], str]]:
+        """``(iteration, (left_roll_deg, right_roll_deg), label)`` of the two roll changes.
+
+        The roll is set before learner iteration ``iteration`` (0-based) runs; none when disabled.
+        """
+        if not self.enabled:
+            return []
+        first = _EYES.index(self.first_eye)
+        one = [0.0, 0.0]
+        one[first] = float(self.roll_deg)
+        return [
+            (int(self.first_fraction * iterations), (one[0], one[1]), f"{self.first_eye} eye rolled"),
+            (int(self.second_fraction * iterations), (float(self.roll_deg),) * 2, "both eyes rolled"),
+        ]
+
+
+@dataclass
+class ExperimentConfig:
+    """The whole experiment: world, learner, training loop, final evaluation, perturbation.
+
+    Attributes:
+        env: the simulated world (:class:`EnvConfig`).
+        learner: the agent (`aectorch.framework.LearnerConfig`; its ``control`` holds the
+            actor-critics' `ActorCriticConfig`).
+        train: the loop, logs and checkpoints (:class:`TrainConfig`).
+        eval: the final evaluation on held-out textures (:class:`EvalConfig`).
+        perturbation: the roll perturbation (:class:`PerturbationConfig`).
+        seed: seeds the learner's generator (initial dictionaries and policies, actions) and the
+            environments' (textures, distances) (>= 0).
+    """
+
+    env: EnvConfig = field(default_factory=EnvConfig)
+    learner: LearnerConfig = field(default_factory=LearnerConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    perturbation: PerturbationConfig = field(default_factory=PerturbationConfig)
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not _is_int(self.seed) or self.seed < 0:
+            raise ValueError(f"seed must be an int >= 0, got {self.seed!r}")
+
+
+def to_experiment_config(node) -> ExperimentConfig:
+    """Build (and so validate) an :class:`ExperimentConfig` from a DictConfig or a plain dict.
+
+    Hydra's ``defaults`` key, if present, is ignored. Raises ``ValueError`` naming the field
+    for an impossible value, and OmegaConf's errors for unknown keys or wrong types.
+    """
+    from omegaconf import OmegaConf
+
+    container = node if isinstance(node, dict) else OmegaConf.to_container(node, resolve=True)
+    container = {k: v for k, v in container.items() if k != "defaults"}
+    merged = OmegaConf.merge(OmegaConf.structured(ExperimentConfig), container)
+    return OmegaConf.to_object(merged)
+
+
+def to_container(cfg: ExperimentConfig) -> dict:
+    """The plain (JSON/YAML-ready) dict of a config, as stored in checkpoints."""
+    from omegaconf import OmegaConf
+
+    return OmegaConf.to_container(OmegaConf.structured(cfg), resolve=True)
+
+
+def _has_images(folder: str) -> bool:
+    from aectorch.sim.textures import IMAGE_EXTENSIONS
+
+    extensions = {e.lower() if e.startswith(".") else f".{e.lower()}" for e in IMAGE_EXTENSIONS}
+    return any(
+        entry.is_file() and not entry.name.startswith(".") and os.path.splitext(entry.name)[1].lower() in extensions
+        for entry in os.scandir(folder)
+    )
+
+
+def validate_resources(cfg: ExperimentConfig) -> None:
+    """Check what the dataclasses cannot: folders exist and hold images, the renderer imports,
+    the resume folder has a checkpoint. Raises ``ValueError`` naming the field."""
+    for name, folder in (("env.textures", cfg.env.textures), ("eval.textures", cfg.eval.textures)):
+        if folder is None:
+            continue
+        if not os.path.isdir(folder):
+            raise ValueError(f"{name}: no such folder {folder!r}")
+        if not _has_images(folder):
+            raise ValueError(f"{name}: the folder {folder!r} holds no images")
+    if cfg.env.renderer == "pyrender":
         try:
-            torch.device(self.device)
-        except (RuntimeError, TypeError) as err:
-            raise ValueError(
-                f"{owner}.device must be a torch device string such as 'cpu' or 'cuda', "
-                f"got {self.device!r}"
-            ) from err
+            import pyrender  # noqa: F401
+        except Exception as err:  # ImportError, or OpenGL failing to find a platform
+            raise ValueError(f"env.renderer='pyrender' cannot be used: {type(err).__name__}: {err}") from err
+    if cfg.train.resume is not None:
+        checkpoint = os.path.join(cfg.train.resume, "checkpoint.pt")
+        if not os.path.isfile(checkpoint):
+            raise ValueError(f"train.resume: no checkpoint at {checkpoint!r}")
+
+
+def _nested(dotted: dict[str, Any]) -> dict:
+    out: dict = {}
+    for key, value in dotted.items():
+        *parents, leaf = key.split(".")
+        node = out
+        for parent in parents:
+            node = node.setdefault(parent, {})
+        node[leaf] = value
+    return out
+
+
+@dataclass
+class _TrainNode(ExperimentConfig):
+    # Hydra's defaults list: the preset group applies after the schema's own values.
+    defaults: list[Any] = field(default_factory=lambda: ["_self_", {"preset": "default"}])
 
 
 def register_configs() -> None:
-    """Register the structured configs with Hydra's ConfigStore (``config_name="train"``)."""
+    """Register the configs with Hydra's ConfigStore: ``train`` and the groups ``preset``
+    (``default``, ``paper``) and ``experiment`` (``roll_perturbation``)."""
     from hydra.core.config_store import ConfigStore
 
-    ConfigStore.instance().store(name="train", node=DemoConfig)
+    store = ConfigStore.instance()
+    store.store(name="train", node=_TrainNode)
+    store.store(group="preset", name="default", node={}, package="_global_")
+    store.store(group="preset", name="paper", node=_nested(PAPER_PRESET), package="_global_")
+    store.store(group="experiment", name="roll_perturbation", node=_nested(ROLL_PERTURBATION),
+                package="_global_")

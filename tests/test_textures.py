@@ -141,10 +141,7 @@ def test_bad_size_argument(size, error, tmp_path):
         TextureBank.from_folder(tmp_path, size=size)
 
 
-def test_pink_noise_images_lives_here_and_in_demo():
-    from aectorch.demo import pink_noise_images as from_demo
-
-    assert from_demo is pink_noise_images
+def test_pink_noise_images_lives_here():
     assert pink_noise_images.__module__ == "aectorch.sim.textures"
 
 

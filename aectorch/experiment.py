@@ -1,0 +1,387 @@
+"""Run the paper's experiment: train a `JointLearner` in `ActiveDepthEnv`, log, checkpoint, evaluate.
+
+:func:`run_experiment` is what ``train.py`` calls with a validated :class:`ExperimentConfig`
+and a run folder. It writes into the folder
+
+- ``config.yaml``: the resolved config;
+- ``metrics.jsonl``: one JSON line every ``train.log_every`` iterations (`aectorch.metrics`);
+- ``tb/``: the same scalars as TensorBoard events;
+- ``checkpoint.pt``: every ``train.checkpoint_every`` iterations, at the end and when
+  interrupted (atomic: a temporary file in the same folder replaces the old one);
+- ``figures/``: Fig. 2 (dictionaries), Fig. 3 (training), Fig. 4 (perturbation, when one is
+  configured) and the evaluation figure (`aectorch.figures`);
+- ``evaluation.json``: `aectorch.evaluate.evaluate` on held-out textures;
+- ``summary.json``: final metrics, evaluation headline numbers, timing, perturbation recovery.
+
+A run continues in place from its checkpoint (``train.resume=<run folder>``) and ends
+bit-identical to an uninterrupted one (the learner's, the environments' and the metrics' state,
+random generators included, are in the checkpoint).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Callable
+
+import torch
+
+from aectorch.config import ExperimentConfig, to_container, to_experiment_config, validate_resources
+from aectorch.framework import IterationRecord, JointLearner
+from aectorch.metrics import CUES, TrainingMetrics
+from aectorch.sim import ActiveDepthEnv, TextureBank
+
+__all__ = [
+    "CHECKPOINT_FORMAT",
+    "build_env",
+    "build_learner",
+    "build_textures",
+    "dictionaries",
+    "load_checkpoint",
+    "load_learner",
+    "resume_config",
+    "run_experiment",
+    "save_checkpoint",
+]
+
+CHECKPOINT_FORMAT = 1
+#: Keys kept from the command line when a run is resumed; everything else is the run's own.
+RESUME_KEYS = ("iterations", "progress", "resume")
+
+
+# -- building ------------------------------------------------------------------------------------
+def build_textures(folder: str | None, split: str, cfg: ExperimentConfig) -> TextureBank:
+    """``TextureBank.from_folder(folder)``, or ``TextureBank.default(split)`` when ``folder`` is None."""
+    kwargs = dict(dtype=cfg.env.torch_dtype)
+    if folder is None:
+        return TextureBank.default(split, **kwargs)
+    return TextureBank.from_folder(folder, progress=None if cfg.train.progress else False, **kwargs)
+
+
+def build_env(cfg: ExperimentConfig) -> ActiveDepthEnv:
+    """The training environments of ``cfg.env``, seeded from ``cfg.seed``."""
+    e = cfg.env
+    return ActiveDepthEnv(
+        e.num_envs,
+        textures=build_textures(e.textures, "train", cfg),
+        renderer=e.renderer,
+        distances_m=e.distances_m,
+        fixation_iterations=e.fixation_iterations,
+        shift_m=e.shift_m,
+        pursuit_start_deg=e.pursuit_start_deg,
+        vergence_start_deg=e.vergence_start_deg,
+        seed=cfg.seed,
+        device=e.device,
+        dtype=e.torch_dtype,
+    )
+
+
+def build_learner(cfg: ExperimentConfig, device: str | torch.device | None = None) -> JointLearner:
+    """A fresh :class:`JointLearner` of ``cfg.learner``, its generator seeded from ``cfg.seed``."""
+    return JointLearner(
+        cfg.learner,
+        generator=torch.Generator().manual_seed(cfg.seed),
+        dtype=cfg.env.torch_dtype,
+        device=cfg.env.device if device is None else device,
+    )
+
+
+def dictionaries(learner: JointLearner) -> dict[str, torch.Tensor]:
+    """Copies of the learner's dictionaries ``{"parallax/coarse": atoms [P, N], ...}`` on the CPU."""
+    return {
+        f"{cue}/{name}": d.atoms.detach().cpu().clone()
+        for cue in CUES
+        for name, d in getattr(learner, cue).dictionaries.items()
+    }
+
+
+def _compile(learner: JointLearner) -> None:
+    # The hot path: both encoders (patch extraction, pursuit, pooling, errors).
+    for cue in CUES:
+        getattr(learner, cue).compile()
+
+
+# -- checkpoints -----------------------------------------------------------------------------------
+def save_checkpoint(path: str | os.PathLike, payload: dict) -> None:
+    """Write ``payload`` with ``torch.save`` atomically (temporary file, fsync, ``os.replace``)."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            torch.save(payload, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def load_checkpoint(path: str | os.PathLike) -> dict:
+    """Read a checkpoint written by :func:`save_checkpoint`; ``ValueError`` naming the path if it
+    is missing, unreadable or not an aectorch checkpoint."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"no checkpoint at {str(path)!r}")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:
+        raise ValueError(f"cannot read the checkpoint {str(path)!r}: {type(err).__name__}: {err}") from err
+    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{str(path)!r} is not an aectorch checkpoint (format {CHECKPOINT_FORMAT})")
+    return payload
+
+
+def load_learner(checkpoint_path: str | os.PathLike, device=None) -> tuple[ExperimentConfig, JointLearner]:
+    """The config and the trained learner of a checkpoint (on ``device``, default the run's)."""
+    payload = load_checkpoint(checkpoint_path)
+    cfg = to_experiment_config(payload["config"])
+    learner = build_learner(cfg, device=device)
+    learner.load_state_dict(payload["learner"])
+    return cfg, learner
+
+
+def resume_config(cfg: ExperimentConfig, checkpoint: dict) -> ExperimentConfig:
+    """The stored config of ``checkpoint`` with ``train.iterations/progress/resume`` of ``cfg``."""
+    stored = to_container(to_experiment_config(checkpoint["config"]))
+    for key in RESUME_KEYS:
+        stored["train"][key] = getattr(cfg.train, key)
+    return to_experiment_config(stored)
+
+
+# -- the run -------------------------------------------------------------------------------------
+def _json_value(value):
+    if isinstance(value, float) and not math.isfinite(value):
+        return None if math.isnan(value) else value
+    return value
+
+
+def _write_json(path: Path, data: dict) -> None:
+    path.write_text(json.dumps(data, indent=2, allow_nan=True) + "\n")
+
+
+def _truncate_metrics(path: Path, iteration: int) -> None:
+    if not path.exists():
+        return
+    kept = [line for line in path.read_text().splitlines()
+            if line.strip() and json.loads(line)["iteration"] <= iteration]
+    path.write_text("".join(line + "\n" for line in kept))
+
+
+def _state(learner, env, metrics) -> dict:
+    return {
+        "learner": copy.deepcopy(learner.state_dict()),
+        "env": env.state_dict(),
+        "metrics": metrics.state_dict(),
+    }
+
+
+def run_experiment(
+    cfg: ExperimentConfig,
+    run_dir: str | os.PathLike,
+    *,
+    callback: Callable[[int, IterationRecord], None] | None = None,
+) -> dict:
+    """Train, log, checkpoint, draw and evaluate; returns the final summary (``summary.json``).
+
+    Args:
+        cfg: the experiment. With ``cfg.train.resume`` set, the run continues in that folder
+            (``run_dir`` is ignored) with its stored config (see :func:`resume_config`).
+        run_dir: the run folder (created if needed).
+        callback: called as ``callback(iteration, record)`` after every learner iteration
+            (1-based count of completed iterations); an exception it raises interrupts the run
+            like Ctrl-C does (a checkpoint of the last completed iteration is written first).
+    """
+    from omegaconf import OmegaConf
+
+    validate_resources(cfg)
+    torch.set_num_threads(cfg.train.threads)
+    checkpoint = None
+    if cfg.train.resume is not None:
+        run_dir = Path(cfg.train.resume)
+        checkpoint = load_checkpoint(run_dir / "checkpoint.pt")
+        cfg = resume_config(cfg, checkpoint)
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    total = cfg.train.iterations
+
+    env = build_env(cfg)
+    learner = build_learner(cfg)
+    metrics = TrainingMetrics(cfg.env.num_envs, scales=cfg.learner.scales)
+    if checkpoint is not None:
+        learner.load_state_dict(checkpoint["learner"])
+        env.load_state_dict(checkpoint["env"])
+        metrics.load_state_dict(checkpoint["metrics"])
+        start = int(checkpoint["iteration"])
+        initial = checkpoint["initial_dictionaries"]
+        elapsed_before = float(checkpoint["elapsed_s"])
+        print(f"resuming {run_dir} at iteration {start} of {total}", file=sys.stderr)
+    else:
+        start, initial, elapsed_before = 0, dictionaries(learner), 0.0
+    config_dict = to_container(cfg)
+    (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(config_dict)))
+    metrics_path = run_dir / "metrics.jsonl"
+    if checkpoint is None:
+        metrics_path.write_text("")
+    else:
+        _truncate_metrics(metrics_path, start)
+    writer = None
+    if cfg.train.tensorboard:
+        from torch.utils.tensorboard import SummaryWriter
+
+        writer = SummaryWriter(log_dir=str(run_dir / "tb"), purge_step=start + 1 if start else None)
+    if cfg.train.compile:
+        _compile(learner)
+    events = cfg.perturbation.events(total)
+
+    def payload(iteration: int, state: dict, elapsed: float) -> dict:
+        return {"format": CHECKPOINT_FORMAT, "config": config_dict, "iteration": iteration,
+                **state, "initial_dictionaries": initial, "elapsed_s": elapsed}
+
+    bar = None
+    if cfg.train.progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=total, initial=start, desc="training", unit="it", dynamic_ncols=True)
+    clock = time.perf_counter()
+    elapsed = lambda: elapsed_before + time.perf_counter() - clock  # noqa: E731
+    last = (start, _state(learner, env, metrics))  # the last completed iteration
+    it = start
+    try:
+        with metrics_path.open("a") as log:
+            for it in range(start, total):
+                for when, roll, label in events:
+                    if it == when:
+                        env.set_roll(torch.tensor(roll))
+                        if bar is not None:
+                            bar.write(f"iteration {it}: {label} by {cfg.perturbation.roll_deg} deg")
+                record = learner.iteration(env)
+                metrics.update(record)
+                done = it + 1
+                if callback is not None:
+                    callback(done, record)
+                if done % cfg.train.log_every == 0 or done == total:
+                    roll = env.roll_deg[0].tolist()
+                    line = {"iteration": done, "env_iterations": done * cfg.env.num_envs,
+                            "elapsed_s": elapsed(), "roll_left_deg": roll[0], "roll_right_deg": roll[1],
+                            **metrics.summary()}
+                    log.write(json.dumps({k: _json_value(v) for k, v in line.items()}) + "\n")
+                    log.flush()
+                    if writer is not None:
+                        for key, value in line.items():
+                            if key != "iteration" and value is not None and math.isfinite(value):
+                                writer.add_scalar(key, value, done)
+                    if bar is not None:
+                        bar.set_postfix(pursuit=f"{line['pursuit_mae_deg']:.3f}",
+                                        vergence=f"{line['vergence_mae_deg']:.3f}",
+                                        depth=f"{line['depth_mae_m']:.3f}", refresh=False)
+                state = _state(learner, env, metrics)
+                if done % cfg.train.checkpoint_every == 0 or done == total:
+                    save_checkpoint(run_dir / "checkpoint.pt", payload(done, state, elapsed()))
+                last = (done, state)
+                if bar is not None:
+                    bar.update(1)
+    except BaseException:
+        done, state = last
+        if done > start or checkpoint is None:
+            save_checkpoint(run_dir / "checkpoint.pt", payload(done, state, elapsed()))
+        print(
+            f"\ninterrupted after iteration {done} of {total}; checkpoint written to "
+            f"{run_dir / 'checkpoint.pt'}\nresume with: python train.py train.resume={run_dir}",
+            file=sys.stderr,
+        )
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+        if writer is not None:
+            writer.close()
+    train_seconds = elapsed()
+    final = metrics.summary(reset=False)
+    return _finish(cfg, run_dir, learner, env, initial, final, events, train_seconds)
+
+
+def _finish(cfg, run_dir: Path, learner, env, initial, final, events, train_seconds) -> dict:
+    total = cfg.train.iterations
+    records = _read_lines(run_dir / "metrics.jsonl")
+    labels = [(when + 1, label) for when, _, label in events]
+    summary: dict = {
+        "iterations": total,
+        "env_iterations": total * cfg.env.num_envs,
+        "train_seconds": train_seconds,
+        "iterations_per_s": total / max(train_seconds, 1e-9),
+        "final": {k: _json_value(v) for k, v in final.items()},
+    }
+    figures = None
+    if cfg.train.figures:
+        try:
+            import aectorch.figures as figures
+        except ModuleNotFoundError as err:
+            if err.name != "aectorch.figures":
+                raise
+            print("aectorch.figures is not available: no figures drawn", file=sys.stderr)
+    if figures is not None:
+        folder = run_dir / "figures"
+        folder.mkdir(exist_ok=True)
+        records = figures.read_metrics(run_dir / "metrics.jsonl")
+        figures.plot_dictionaries(initial, dictionaries(learner), folder / "dictionaries.png")
+        figures.plot_training(records, folder / "training.png", events=labels)
+        if events:
+            figures.plot_perturbation(records, folder / "perturbation.png", events=labels)
+    if events:
+        recovery = {}
+        recover = getattr(figures, "recovery", None) if figures is not None else None
+        for when, label in labels:
+            if recover is not None:
+                recovery[label] = {key: recover(records, key, when)
+                                   for key in ("pursuit_mae_deg", "vergence_mae_deg")}
+        summary["perturbation"] = {"roll_deg": cfg.perturbation.roll_deg,
+                                   "events": [{"iteration": w, "label": lab} for w, lab in labels],
+                                   "recovery": recovery}
+    close = getattr(env.renderer, "close", None)
+    if close is not None:
+        close()
+    if cfg.eval.enabled:
+        from aectorch.evaluate import evaluate
+
+        bank = build_textures(cfg.eval.textures, "test", cfg)
+        result = evaluate(learner, bank, distances_m=cfg.eval.distances_m, renderer=cfg.env.renderer,
+                          batch_size=cfg.eval.batch_size, fixation_iterations=cfg.env.fixation_iterations,
+                          shift_m=cfg.env.shift_m, progress=cfg.train.progress)
+        _write_json(run_dir / "evaluation.json", result)
+        if figures is not None:
+            figures.plot_evaluation(result, run_dir / "figures" / "evaluation.png")
+        summary["evaluation"] = {k: result[k] for k in ("pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m", "trials")}
+        if "vergence_test" in result:
+            summary["evaluation"]["vergence_test_rmse_deg"] = result["vergence_test"]["degrees"]["rmse"]
+    _write_json(run_dir / "summary.json", summary)
+    _print_table(summary, run_dir)
+    return summary
+
+
+def _read_lines(path: Path) -> list[dict]:
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def _print_table(summary: dict, run_dir: Path) -> None:
+    def fmt(v):
+        return "n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.4g}"
+
+    final, evaluation = summary["final"], summary.get("evaluation", {})
+    rows = [("", "training (window)", "evaluation")]
+    for key in ("pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m"):
+        rows.append((key, fmt(final.get(key)), fmt(evaluation.get(key))))
+    lines = [f"{a:<18}{b:>18}{c:>14}" for a, b, c in rows]
+    rate = summary["iterations_per_s"]
+    lines.append(f"{summary['iterations']} iterations in {summary['train_seconds']:.1f} s"
+                 + (f" ({rate:.2f} it/s)" if rate else "") + f"; run folder: {run_dir}")
+    print("\n".join(lines))

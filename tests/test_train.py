@@ -1,0 +1,232 @@
+"""train.py and aectorch.experiment: run folder, resume, interruption, config errors, presets."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from aectorch.config import ExperimentConfig, PAPER_PRESET, to_experiment_config, validate_resources
+from aectorch.experiment import load_checkpoint, load_learner, run_experiment, save_checkpoint
+from aectorch.sim import ActiveDepthEnv
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = [
+    "env.num_envs=5", "env.fixation_iterations=2", "env.distances_m=[1.0,2.0]",
+    "learner.num_atoms=16", "learner.depth_every_trials=10", "eval.distances_m=[1.0]",
+    "eval.batch_size=8", "train.iterations=12", "train.log_every=2", "train.checkpoint_every=4",
+    "train.progress=false",
+]
+QUIET = ["train.figures=false", "train.tensorboard=false", "eval.enabled=false"]
+
+
+@pytest.fixture(scope="module")
+def textures(tmp_path_factory) -> Path:
+    from PIL import Image
+
+    folder = tmp_path_factory.mktemp("textures")
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        Image.fromarray((rng.random((64, 64)) * 255).astype(np.uint8)).save(folder / f"t{i}.png")
+    return folder
+
+
+def _cfg(textures: Path, *extra: str) -> ExperimentConfig:
+    dotlist = TINY + QUIET + [f"env.textures={textures}", f"eval.textures={textures}", *extra]
+    return to_experiment_config(OmegaConf.from_dotlist(dotlist))
+
+
+def _train(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYOPENGL_PLATFORM="osmesa", OMP_NUM_THREADS="1")
+    env.pop("AECTORCH_DEBUG", None)
+    return subprocess.run([sys.executable, str(ROOT / "train.py"), *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=300)
+
+
+def _lines(run: Path) -> list[dict]:
+    return [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+
+
+def _without_time(lines: list[dict]) -> list[dict]:
+    return [{k: v for k, v in line.items() if k != "elapsed_s"} for line in lines]
+
+
+def _assert_same_state(a: dict, b: dict) -> None:
+    assert a.keys() == b.keys()
+    for key in a:
+        x, y = a[key], b[key]
+        if isinstance(x, torch.Tensor):
+            assert torch.equal(x, y), key
+        elif key.endswith("_extra_state"):
+            assert torch.equal(x["generator"], y["generator"]), key
+            assert {k: v for k, v in x.items() if k not in ("generator", "previous")} == \
+                   {k: v for k, v in y.items() if k not in ("generator", "previous")}, key
+            for cue in ("m", "s"):
+                p, q = x["previous"][cue], y["previous"][cue]
+                assert (p is None) == (q is None), key
+                if p is not None:
+                    assert all(torch.equal(u, v) for u, v in zip(p, q)), key
+        else:
+            assert x == y, key
+
+
+def test_train_py_writes_the_run_folder(tmp_path, textures):
+    run = tmp_path / "run"
+    done = _train(*TINY, f"env.textures={textures}", f"eval.textures={textures}",
+                  "+experiment=roll_perturbation", f"hydra.run.dir={run}", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-3000:]
+    for name in ("config.yaml", "metrics.jsonl", "checkpoint.pt", "evaluation.json", "summary.json",
+                 "figures/dictionaries.png", "figures/training.png", "figures/perturbation.png",
+                 "figures/evaluation.png"):
+        assert (run / name).is_file(), name
+    assert any((run / "tb").iterdir())
+    lines = _lines(run)
+    assert [line["iteration"] for line in lines] == list(range(2, 13, 2))
+    keys = {"iteration", "env_iterations", "elapsed_s", "roll_left_deg", "roll_right_deg",
+            "pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m"}
+    for cue in ("parallax", "stereo"):
+        keys |= {f"{cue}/reward", f"{cue}/entropy", f"{cue}/td_error"}
+        keys |= {f"{cue}/{s}/{m}" for s in ("coarse", "fine") for m in ("error", "atom_usage")}
+    assert set(lines[-1]) == keys and lines[-1]["env_iterations"] == 60
+    # The roll: the right eye from iteration 6 (0-based; line 6 reports after it), both from 9.
+    rolls = [(line["iteration"], line["roll_left_deg"], line["roll_right_deg"]) for line in lines]
+    assert rolls == [(2, 0, 0), (4, 0, 0), (6, 0, 0), (8, 0, 3), (10, 3, 3), (12, 3, 3)]
+    checkpoint = load_checkpoint(run / "checkpoint.pt")
+    assert checkpoint["iteration"] == 12 and checkpoint["env"]["roll_deg"].eq(3).all()
+    assert set(checkpoint["initial_dictionaries"]) == {"parallax/coarse", "parallax/fine", "stereo/coarse", "stereo/fine"}
+    evaluation = json.loads((run / "evaluation.json").read_text())
+    assert evaluation["trials"] == 3
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["iterations"] == 12 and "evaluation" in summary
+    assert [e["iteration"] for e in summary["perturbation"]["events"]] == [7, 10]
+
+
+def test_resume_is_bit_identical(tmp_path, textures):
+    straight = tmp_path / "straight"
+    run_experiment(_cfg(textures), straight)
+    half = tmp_path / "half"
+    run_experiment(_cfg(textures, "train.iterations=6"), half)
+    assert load_checkpoint(half / "checkpoint.pt")["iteration"] == 6
+    run_experiment(_cfg(textures, f"train.resume={half}"), tmp_path / "ignored")
+    a, b = load_checkpoint(straight / "checkpoint.pt"), load_checkpoint(half / "checkpoint.pt")
+    assert b["iteration"] == 12
+    _assert_same_state(a["learner"], b["learner"])
+    assert _without_time(_lines(straight)) == _without_time(_lines(half))
+    assert not (tmp_path / "ignored").exists()
+
+
+def test_interruption_leaves_a_checkpoint_and_resume_completes(tmp_path, textures, monkeypatch):
+    straight = tmp_path / "straight"
+    run_experiment(_cfg(textures), straight)
+    original = ActiveDepthEnv.apply_vergence
+    calls = {"n": 0}
+
+    def failing(self, delta):
+        calls["n"] += 1
+        if calls["n"] == 8:  # in the middle of iteration 8: its parallax step has learned
+            raise KeyboardInterrupt
+        return original(self, delta)
+
+    run = tmp_path / "run"
+    monkeypatch.setattr(ActiveDepthEnv, "apply_vergence", failing)
+    with pytest.raises(KeyboardInterrupt):
+        run_experiment(_cfg(textures), run)
+    monkeypatch.setattr(ActiveDepthEnv, "apply_vergence", original)
+    assert load_checkpoint(run / "checkpoint.pt")["iteration"] == 7
+    run_experiment(_cfg(textures, f"train.resume={run}"), run)
+    _assert_same_state(load_checkpoint(straight / "checkpoint.pt")["learner"],
+                       load_checkpoint(run / "checkpoint.pt")["learner"])
+    assert _without_time(_lines(straight)) == _without_time(_lines(run))
+    cfg, learner = load_learner(run / "checkpoint.pt")
+    assert cfg.train.iterations == 12 and learner.parallax.dictionaries["coarse"].atoms.shape[1] == 16
+
+
+def test_checkpoint_errors_name_the_path(tmp_path):
+    with pytest.raises(ValueError, match="no checkpoint at .*missing.pt"):
+        load_checkpoint(tmp_path / "missing.pt")
+    (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="bad.pt"):
+        load_checkpoint(tmp_path / "bad.pt")
+    save_checkpoint(tmp_path / "ok.pt", {"format": 1, "x": 1})
+    assert load_checkpoint(tmp_path / "ok.pt")["x"] == 1
+    assert not [p for p in os.listdir(tmp_path) if p.endswith(".tmp")]
+
+
+@pytest.mark.parametrize("override, field", [
+    ("env.num_envs=0", "env.num_envs"),
+    ("env.renderer=opengl", "env.renderer"),
+    ("env.textures=/nonexistent", "env.textures"),
+    ("train.iterations=abc", "train.iterations"),
+    ("nosuchkey=1", "nosuchkey"),
+    ("perturbation.roll_deg=3.0", None),  # valid
+    ("perturbation.first_fraction=0.9", None),  # valid without a roll
+    ("+experiment=roll_perturbation", None),
+])
+def test_config_errors_name_the_field(override, field, textures):
+    from hydra import compose, initialize
+
+    from aectorch.config import register_configs
+
+    register_configs()
+    with initialize(version_base=None, config_path=None):
+        try:
+            raw = compose(config_name="train", overrides=[override])
+            cfg = to_experiment_config(raw)
+            validate_resources(cfg)
+        except Exception as err:  # Hydra's override errors or our ValueError
+            assert field is not None, err
+            text = f"{err} {err.__cause__ or ''}"
+            assert field in text, text
+        else:
+            assert field is None
+
+
+def test_bad_override_exits_2_before_any_work(tmp_path):
+    run = tmp_path / "run"
+    for override, field in (("env.num_envs=0", "env.num_envs"), ("train.iterations=abc", "train.iterations")):
+        done = _train(override, f"hydra.run.dir={run}", cwd=tmp_path)
+        assert done.returncode == 2, done.stderr[-2000:]
+        errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+        assert len(errors) == 1 and field in errors[0], done.stderr[-2000:]
+        assert not (run / "checkpoint.pt").exists() and not (run / "metrics.jsonl").exists()
+
+
+def test_preset_paper_and_perturbation_fractions():
+    from hydra import compose, initialize
+
+    from aectorch.config import PerturbationConfig, register_configs
+
+    register_configs()
+    with initialize(version_base=None, config_path=None):
+        default = to_experiment_config(compose(config_name="train"))
+        paper = to_experiment_config(compose(config_name="train", overrides=["preset=paper", "learner.num_atoms=32"]))
+        roll = to_experiment_config(compose(config_name="train", overrides=["+experiment=roll_perturbation"]))
+    assert list(paper.learner.actions_deg) == PAPER_PRESET["learner.actions_deg"]
+    assert paper.learner.num_atoms == 32 and paper.env.fixation_iterations == 30  # command line wins
+    assert default.train.iterations == ExperimentConfig().train.iterations
+    assert roll.perturbation.roll_deg == 3.0 and default.perturbation.roll_deg == 0
+    assert [e[:2] for e in roll.perturbation.events(100)] == [(50, (0.0, 3.0)), (75, (3.0, 3.0))]
+    with pytest.raises(ValueError, match="perturbation.first_fraction"):
+        PerturbationConfig(roll_deg=3.0, first_fraction=0.8, second_fraction=0.7)
+
+
+def test_multirun_makes_one_folder_per_seed(tmp_path, textures):
+    sweep = tmp_path / "sweep"
+    done = _train("-m", "seed=0,1", *TINY, *QUIET, "train.iterations=2", f"env.textures={textures}",
+                  f"hydra.sweep.dir={sweep}", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-3000:]
+    for job in ("0", "1"):
+        assert load_checkpoint(sweep / job / "checkpoint.pt")["config"]["seed"] == int(job)
+
+
+@pytest.mark.slow
+def test_compile_runs_on_cpu(tmp_path, textures):
+    summary = run_experiment(_cfg(textures, "train.compile=true", "train.iterations=4"), tmp_path / "run")
+    assert summary["iterations"] == 4 and np.isfinite(summary["final"]["parallax/reward"])
