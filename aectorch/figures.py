@@ -1,0 +1,613 @@
+"""Figures of a training run of the joint learning framework (Wong et al. 2017, Figs. 2-4).
+
+Every plotting function takes plain data (tensors, lists of metric dicts), draws on a
+:class:`matplotlib.figure.Figure` that is never attached to pyplot (so no window opens and no
+global backend state is touched; the PNG is rendered by Agg), writes the file at ``dpi=120``
+with a tight layout, creates the parent folders and returns the :class:`pathlib.Path` written.
+
+- :func:`principal_components`: PCA of a dictionary's atoms (scores and explained variance);
+- :func:`plot_dictionaries`: Fig. 2, every dictionary on its first two PCs, initial vs trained;
+- :func:`read_metrics`: a ``metrics.jsonl`` file as a list of dicts;
+- :func:`plot_training`: Fig. 3, pursuit / vergence MAE (deg) and depth MAE (m) over training;
+- :func:`plot_perturbation`: Fig. 4, the same around perturbation events;
+- :func:`recovery`: baseline, peak and recovery iteration of an error after a perturbation;
+- :func:`plot_evaluation`: per-distance breakdown of :func:`aectorch.evaluate.evaluate`.
+
+Metric records are dicts with an ``'iteration'`` key; a value that is missing, ``None`` or NaN
+is a gap in the curve (the depth error is NaN before the depth MLP's first fit).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import warnings
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import torch
+from torch import Tensor
+
+__all__ = [
+    "principal_components",
+    "plot_dictionaries",
+    "read_metrics",
+    "plot_training",
+    "plot_perturbation",
+    "recovery",
+    "plot_evaluation",
+]
+
+DPI = 120
+PURSUIT_COLOR = "tab:blue"  # the paper's Fig. 3(a): pursuit blue, vergence (stereo) red
+VERGENCE_COLOR = "tab:red"
+DEPTH_COLOR = "black"
+EVENT_STYLE = {"color": "grey", "linestyle": ":", "linewidth": 1.5}
+
+
+# ----------------------------------------------------------------------------------------------
+# helpers
+
+
+def _new_figure(figsize: tuple[float, float]):
+    from matplotlib.figure import Figure  # Agg renders it on savefig; pyplot is never used
+
+    return Figure(figsize=figsize, dpi=DPI)
+
+
+def _save(fig, path: str | os.PathLike) -> Path:
+    out = Path(path)
+    if out.suffix == "":
+        raise ValueError(f"path must name a file with an image suffix such as '.png', got {str(path)!r}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(out, dpi=DPI)
+    return out
+
+
+def _as_float(value: Any) -> float:
+    """A metric value as a float; missing, None or non-numeric-NaN gives NaN."""
+    if value is None:
+        return math.nan
+    if isinstance(value, Tensor):
+        if value.numel() != 1:
+            return math.nan
+        value = value.item()
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _check_records(records: Sequence[Mapping], name: str = "records") -> np.ndarray:
+    """Validate metric records and return their iterations as a float array."""
+    if isinstance(records, (str, bytes)) or not isinstance(records, Sequence):
+        raise ValueError(f"{name} must be a sequence of dicts, got {type(records).__name__}")
+    if len(records) == 0:
+        raise ValueError(f"{name} must not be empty")
+    iterations = np.empty(len(records))
+    for i, record in enumerate(records):
+        if not isinstance(record, Mapping):
+            raise ValueError(f"{name}[{i}] must be a dict, got {type(record).__name__}")
+        if "iteration" not in record:
+            raise ValueError(f"{name}[{i}] has no 'iteration' key (keys: {sorted(record)})")
+        it = _as_float(record["iteration"])
+        if not math.isfinite(it):
+            raise ValueError(f"{name}[{i}]['iteration'] must be a finite number, got {record['iteration']!r}")
+        iterations[i] = it
+    return iterations
+
+
+def _series(records: Sequence[Mapping], key: str) -> np.ndarray:
+    return np.array([_as_float(r.get(key)) for r in records], dtype=float)
+
+
+def _check_events(events: Sequence[tuple[int, str]], name: str = "events") -> list[tuple[float, str]]:
+    if isinstance(events, (str, bytes)) or not isinstance(events, Sequence):
+        raise ValueError(f"{name} must be a sequence of (iteration, label) pairs, got {type(events).__name__}")
+    checked = []
+    for i, event in enumerate(events):
+        if not (isinstance(event, Sequence) and not isinstance(event, (str, bytes)) and len(event) == 2):
+            raise ValueError(f"{name}[{i}] must be an (iteration, label) pair, got {event!r}")
+        it = _as_float(event[0])
+        if not math.isfinite(it) or isinstance(event[0], bool):
+            raise ValueError(f"{name}[{i}][0] must be a finite iteration number, got {event[0]!r}")
+        checked.append((it, str(event[1])))
+    return checked
+
+
+def _log_if_positive(ax, *arrays: np.ndarray) -> None:
+    """Logarithmic y axis when all finite values are positive; ticks read 0.2, 1, 4 (not 4 x 10^0)."""
+    from matplotlib.ticker import LogFormatterSciNotation
+
+    class _PlainLogFormatter(LogFormatterSciNotation):
+        def __call__(self, x, pos=None):  # label the ticks matplotlib would label, in plain numbers
+            return f"{x:g}" if super().__call__(x, pos) else ""
+
+    values = np.concatenate([a[np.isfinite(a)] for a in arrays])
+    if values.size and bool((values > 0).all()):
+        ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(_PlainLogFormatter())
+        ax.yaxis.set_minor_formatter(_PlainLogFormatter(labelOnlyBase=False, minor_thresholds=(2, 0.5)))
+
+
+def _curve(ax, x: np.ndarray, y: np.ndarray, **kwargs) -> None:
+    """A line with gaps at NaN; isolated finite points (a gap on both sides) still show as dots."""
+    finite = np.isfinite(y)
+    if not finite.any():
+        return
+    ax.plot(x, y, **kwargs)
+    left = np.concatenate([[False], finite[:-1]])
+    right = np.concatenate([finite[1:], [False]])
+    isolated = finite & ~left & ~right
+    if isolated.any():
+        ax.plot(x[isolated], y[isolated], linestyle="none", marker=".", color=kwargs.get("color"))
+
+
+def _no_data(ax, key_text: str) -> None:
+    ax.text(0.5, 0.5, f"no finite values of {key_text}", transform=ax.transAxes,
+            ha="center", va="center", color="grey")
+
+
+def _draw_events(axes, events: list[tuple[float, str]]) -> None:
+    for ax_index, ax in enumerate(axes):
+        for it, label in events:
+            ax.axvline(it, **EVENT_STYLE)
+            if ax_index == 0 and label:
+                ax.text(it, 0.98, f" {label}", transform=ax.get_xaxis_transform(), rotation=90,
+                        ha="right", va="top", color="dimgrey", fontsize=8)
+
+
+def _error_panels(ax_eye, ax_depth, x: np.ndarray, records: Sequence[Mapping]) -> None:
+    """Panels (a) pursuit / vergence MAE (deg) and (b) depth MAE (m) over iterations."""
+    pursuit = _series(records, "pursuit_mae_deg")
+    vergence = _series(records, "vergence_mae_deg")
+    depth = _series(records, "depth_mae_m")
+    _curve(ax_eye, x, pursuit, color=PURSUIT_COLOR, label="pursuit")
+    _curve(ax_eye, x, vergence, color=VERGENCE_COLOR, label="vergence")
+    if np.isfinite(pursuit).any() or np.isfinite(vergence).any():
+        _log_if_positive(ax_eye, pursuit, vergence)
+        ax_eye.legend(loc="upper right", fontsize=8)
+    else:
+        _no_data(ax_eye, "'pursuit_mae_deg' / 'vergence_mae_deg'")
+    ax_eye.set_ylabel("eye movement MAE (deg)")
+    ax_eye.set_title("(a) eye movement error", loc="left", fontsize=10)
+    _curve(ax_depth, x, depth, color=DEPTH_COLOR, label="depth")
+    if np.isfinite(depth).any():
+        _log_if_positive(ax_depth, depth)
+    else:
+        _no_data(ax_depth, "'depth_mae_m'")
+    ax_depth.set_ylabel("depth MAE (m)")
+    ax_depth.set_title("(b) depth estimation error", loc="left", fontsize=10)
+    for ax in (ax_eye, ax_depth):
+        ax.grid(True, which="major", alpha=0.3)
+
+
+def _as_matrix(value: Any, name: str) -> Tensor:
+    if not isinstance(value, Tensor):
+        try:
+            value = torch.as_tensor(np.asarray(value))
+        except Exception as exc:  # noqa: BLE001 - re-raised as the documented ValueError
+            raise ValueError(f"{name} must be a [P, N] tensor, got {type(value).__name__}") from exc
+    if value.ndim != 2:
+        raise ValueError(f"{name} must be a 2-D [P, N] tensor (atoms as columns), got shape {tuple(value.shape)}")
+    if not value.is_floating_point():
+        raise ValueError(f"{name} must be a floating-point tensor, got dtype {value.dtype}")
+    if not bool(torch.isfinite(value).all()):
+        raise ValueError(f"{name} contains non-finite values (NaN or inf)")
+    return value
+
+
+# ----------------------------------------------------------------------------------------------
+# Fig. 2: dictionaries
+
+
+def principal_components(atoms: Tensor, k: int = 2) -> tuple[Tensor, Tensor]:
+    r"""PCA of a dictionary's atoms: their scores on the first ``k`` principal axes.
+
+    The ``N`` atoms (columns of ``atoms``) are the samples: the mean atom is subtracted and the
+    centred ``[N, P]`` matrix is decomposed by SVD. Scores and ratios equal scikit-learn's
+    ``PCA(n_components=k).fit_transform(atoms.T)`` and ``explained_variance_ratio_`` up to the
+    sign of each axis; here the sign is fixed so that each axis's largest-magnitude loading
+    (first one on ties) is positive.
+
+    Args:
+        atoms: dictionary ``[P, N]``, floating point, finite; ``N >= 2`` atoms of dimension ``P``.
+        k: number of principal axes, ``1 <= k <= min(N, P)``.
+
+    Returns:
+        ``(scores [N, k], explained_variance_ratio [k])`` in the dtype and on the device of
+        ``atoms``. The ratio is the share of the total variance of the atoms per axis (zeros when
+        all atoms are equal).
+
+    Example:
+        >>> atoms = torch.tensor([[0., 1., 2., 3.], [0., 2., 4., 6.], [1., 1., 1., 1.]])
+        >>> scores, ratio = principal_components(atoms, k=1)
+        >>> scores[:, 0]
+        tensor([-3.3541, -1.1180,  1.1180,  3.3541])
+        >>> ratio
+        tensor([1.])
+    """
+    atoms = _as_matrix(atoms, "atoms")
+    p, n = atoms.shape
+    if isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= min(n, p):
+        raise ValueError(f"k must be an int in [1, min(N, P)] = [1, {min(n, p)}] for atoms of shape {(p, n)}, got {k!r}")
+    if n < 2:
+        raise ValueError(f"atoms must hold at least 2 atoms (columns), got shape {(p, n)}")
+    x = atoms.detach().T
+    x = x - x.mean(dim=0, keepdim=True)
+    u, s, vh = torch.linalg.svd(x, full_matrices=False)
+    u, s, vh = u[:, :k], s[:k], vh[:k]
+    columns = vh.abs().argmax(dim=1)
+    signs = torch.sign(vh.gather(1, columns[:, None]).squeeze(1))
+    signs = torch.where(signs == 0, torch.ones_like(signs), signs)
+    scores = u * (s * signs)
+    variance = (x * x).sum()
+    ratio = s.square() / variance if bool(variance > 0) else torch.zeros_like(s)
+    return scores, ratio
+
+
+def plot_dictionaries(initial: Mapping[str, Tensor], trained: Mapping[str, Tensor],
+                      path: str | os.PathLike) -> Path:
+    """Fig. 2: every dictionary's atoms on its first two principal components, initial vs trained.
+
+    One row per key (in the order of ``initial``), two panels: the initial and the trained
+    dictionary, each a scatter of its ``N`` atoms' PC1 / PC2 scores (PCA of that dictionary,
+    :func:`principal_components`); axis labels give the explained variance in %.
+
+    Args:
+        initial: dictionaries before training, ``{key: atoms [P, N]}``, e.g. keys
+            ``'parallax/coarse'``, ``'parallax/fine'``, ``'stereo/coarse'``, ``'stereo/fine'``.
+        trained: the same keys after training.
+        path: the image file to write (``.png``; any matplotlib format suffix works).
+
+    Returns:
+        The path written.
+
+    Example:
+        >>> import tempfile
+        >>> d = {"stereo/coarse": torch.randn(20, 30)}
+        >>> out = plot_dictionaries(d, d, Path(tempfile.mkdtemp()) / "fig2.png")
+        >>> out.name, out.stat().st_size > 0
+        ('fig2.png', True)
+    """
+    for name, mapping in (("initial", initial), ("trained", trained)):
+        if not isinstance(mapping, Mapping):
+            raise ValueError(f"{name} must be a mapping {{key: atoms [P, N]}}, got {type(mapping).__name__}")
+    if len(initial) == 0:
+        raise ValueError("initial must hold at least one dictionary")
+    for key in initial:
+        if key not in trained:
+            raise ValueError(f"trained is missing key {key!r} (initial has {sorted(initial)})")
+    for key in trained:
+        if key not in initial:
+            raise ValueError(f"initial is missing key {key!r} (trained has {sorted(trained)})")
+    pcs = {}
+    for key in initial:
+        for name, mapping in (("initial", initial), ("trained", trained)):
+            atoms = _as_matrix(mapping[key], f"{name}[{key!r}]")
+            if atoms.shape[0] < 2 or atoms.shape[1] < 2:
+                raise ValueError(f"{name}[{key!r}] must be [P, N] with P >= 2 and N >= 2, got {tuple(atoms.shape)}")
+            scores, ratio = principal_components(atoms.double().cpu(), k=2)
+            pcs[key, name] = (scores.numpy(), ratio.numpy(), atoms.shape)
+
+    rows = len(initial)
+    fig = _new_figure((8.0, 3.6 * rows + 0.4))
+    axes = fig.subplots(rows, 2, squeeze=False)
+    for row, key in enumerate(initial):
+        for col, name in enumerate(("initial", "trained")):
+            scores, ratio, shape = pcs[key, name]
+            ax = axes[row, col]
+            ax.scatter(scores[:, 0], scores[:, 1], s=8, alpha=0.7,
+                       color="tab:grey" if name == "initial" else "tab:green", edgecolors="none")
+            ax.set_xlabel(f"PC1 score ({100 * ratio[0]:.1f} % of variance)")
+            ax.set_ylabel(f"PC2 score ({100 * ratio[1]:.1f} % of variance)")
+            ax.set_title(f"{key}: {name} ({shape[1]} atoms, dim {shape[0]})", fontsize=10)
+            ax.axhline(0, color="lightgrey", linewidth=0.8, zorder=0)
+            ax.axvline(0, color="lightgrey", linewidth=0.8, zorder=0)
+            ax.set_aspect("equal", adjustable="datalim")
+    fig.suptitle("Visual dictionaries on their first two principal components (Fig. 2)")
+    return _save(fig, path)
+
+
+# ----------------------------------------------------------------------------------------------
+# metrics and Figs. 3, 4
+
+
+def read_metrics(path: str | os.PathLike) -> list[dict]:
+    """Read a ``metrics.jsonl`` file: one JSON object per line.
+
+    Blank lines are skipped. A last line that does not parse (a run that crashed mid-write) is
+    skipped with a :func:`warnings.warn`; a bad line elsewhere is a ``ValueError``.
+
+    Args:
+        path: the ``.jsonl`` file.
+
+    Returns:
+        The records, in file order.
+
+    Example:
+        >>> import tempfile
+        >>> f = Path(tempfile.mkdtemp()) / "metrics.jsonl"
+        >>> _ = f.write_text('{"iteration": 1, "pursuit_mae_deg": 2.5}\\n\\n{"iteration": 2, "pursu')
+        >>> with warnings.catch_warnings(record=True):
+        ...     read_metrics(f)
+        [{'iteration': 1, 'pursuit_mae_deg': 2.5}]
+    """
+    path = Path(path)
+    lines = [(number, line.strip()) for number, line in enumerate(path.read_text().splitlines(), start=1)]
+    lines = [(number, line) for number, line in lines if line]
+    records: list[dict] = []
+    for position, (number, line) in enumerate(lines):
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError as exc:
+            if position == len(lines) - 1:
+                warnings.warn(f"{path}: skipping truncated last line {number} ({exc.msg})", stacklevel=2)
+                break
+            raise ValueError(f"{path}: line {number} is not valid JSON ({exc.msg})") from exc
+        if not isinstance(record, dict):
+            raise ValueError(f"{path}: line {number} must be a JSON object, got {type(record).__name__}")
+        records.append(record)
+    return records
+
+
+_EXTRA_PANELS = (
+    ("(c) rewards", "reward", ("parallax/reward", "stereo/reward")),
+    ("(d) policy entropies", "entropy (nats)", ("parallax/entropy", "stereo/entropy")),
+)
+
+
+def plot_training(records: Sequence[Mapping], path: str | os.PathLike, *,
+                  events: Sequence[tuple[int, str]] = ()) -> Path:
+    """Fig. 3: eye movement and depth errors over training.
+
+    Panels (a) pursuit (blue) and vergence (red) MAE in degrees and (b) depth MAE in metres
+    against ``record['iteration']``; a panel's y axis is logarithmic when all its finite values
+    are positive. Missing, ``None`` or NaN values are gaps. When the records hold any of
+    ``'parallax/reward'``, ``'stereo/reward'``, ``'parallax/entropy'``, ``'stereo/entropy'``,
+    panels (c) rewards and (d) policy entropies (parallax = pursuit, blue; stereo = vergence,
+    red) are added.
+
+    Args:
+        records: metric dicts, each with ``'iteration'`` and some of ``'pursuit_mae_deg'``,
+            ``'vergence_mae_deg'``, ``'depth_mae_m'``.
+        path: the image file to write.
+        events: ``(iteration, label)`` pairs drawn as grey dotted vertical lines.
+
+    Returns:
+        The path written.
+
+    Example:
+        >>> import tempfile
+        >>> records = [{"iteration": i, "pursuit_mae_deg": 1 / (i + 1), "vergence_mae_deg": 2 / (i + 1),
+        ...             "depth_mae_m": None if i < 3 else 0.1} for i in range(10)]
+        >>> plot_training(records, Path(tempfile.mkdtemp()) / "fig3.png").suffix
+        '.png'
+    """
+    x = _check_records(records)
+    checked_events = _check_events(events)
+    extra = any(key in r for r in records for _, _, keys in _EXTRA_PANELS for key in keys)
+    rows = 4 if extra else 2
+    fig = _new_figure((8.0, 2.7 * rows + 0.5))
+    axes = list(fig.subplots(rows, 1, sharex=True, squeeze=False)[:, 0])
+    _error_panels(axes[0], axes[1], x, records)
+    if extra:
+        for ax, (title, ylabel, keys) in zip(axes[2:], _EXTRA_PANELS):
+            drawn = False
+            for key, color in zip(keys, (PURSUIT_COLOR, VERGENCE_COLOR)):
+                y = _series(records, key)
+                if np.isfinite(y).any():
+                    _curve(ax, x, y, color=color, label=key)
+                    drawn = True
+            if drawn:
+                ax.legend(loc="best", fontsize=8)
+            else:
+                _no_data(ax, " / ".join(repr(k) for k in keys))
+            ax.set_ylabel(ylabel)
+            ax.set_title(title, loc="left", fontsize=10)
+            ax.grid(True, alpha=0.3)
+    _draw_events(axes, checked_events)
+    axes[-1].set_xlabel("learner iteration")
+    fig.suptitle("Development of eye movements and depth estimation (Fig. 3)")
+    return _save(fig, path)
+
+
+def plot_perturbation(records: Sequence[Mapping], path: str | os.PathLike, *,
+                      events: Sequence[tuple[int, str]], margin: int | None = None) -> Path:
+    """Fig. 4: eye movement and depth errors around perturbation events.
+
+    Panels (a) and (b) of :func:`plot_training`, restricted to the records with iteration in
+    ``[first event - margin, last event + margin]``; the events are grey dotted lines.
+
+    Args:
+        records: metric dicts as for :func:`plot_training`.
+        path: the image file to write.
+        events: ``(iteration, label)`` pairs, at least one.
+        margin: iterations shown before the first and after the last event; by default the
+            distance between the first and the last event, or 20 % of the run's iteration span
+            when there is one event (or all events are at one iteration); at least 1.
+
+    Returns:
+        The path written.
+
+    Example:
+        >>> import tempfile
+        >>> records = [{"iteration": i, "pursuit_mae_deg": 1.0, "vergence_mae_deg": 1.0 + (i >= 50),
+        ...             "depth_mae_m": 0.1} for i in range(100)]
+        >>> out = plot_perturbation(records, Path(tempfile.mkdtemp()) / "fig4.png", events=[(50, "roll")])
+        >>> out.exists()
+        True
+    """
+    x = _check_records(records)
+    checked_events = _check_events(events)
+    if not checked_events:
+        raise ValueError("events must hold at least one (iteration, label) pair, got none")
+    first = min(it for it, _ in checked_events)
+    last = max(it for it, _ in checked_events)
+    if margin is None:
+        span = last - first if last > first else 0.2 * (float(x.max()) - float(x.min()))
+        margin_value = max(span, 1.0)
+    else:
+        if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not margin >= 0:
+            raise ValueError(f"margin must be a non-negative number of iterations or None, got {margin!r}")
+        margin_value = float(margin)
+    low, high = first - margin_value, last + margin_value
+    keep = (x >= low) & (x <= high)
+    if not keep.any():
+        raise ValueError(f"records has no record with iteration in [{low:g}, {high:g}] "
+                         f"(records span [{x.min():g}, {x.max():g}])")
+    window = [r for r, k in zip(records, keep) if k]
+    fig = _new_figure((8.0, 5.9))
+    ax_eye, ax_depth = fig.subplots(2, 1, sharex=True)
+    _error_panels(ax_eye, ax_depth, x[keep], window)
+    _draw_events([ax_eye, ax_depth], checked_events)
+    ax_depth.set_xlim(low, high)
+    ax_depth.set_xlabel("learner iteration")
+    fig.suptitle("Adaptation to perturbations (Fig. 4)")
+    return _save(fig, path)
+
+
+def recovery(records: Sequence[Mapping], key: str, event_iteration: int, *,
+             baseline_records: int = 5, tolerance: float = 0.1) -> dict:
+    """How an error (larger is worse) reacts to a perturbation at ``event_iteration``.
+
+    Records with iteration ``< event_iteration`` are before the event, the others after it;
+    records whose ``key`` is missing, ``None`` or NaN are ignored. ``baseline`` is the mean of
+    ``key`` over the last ``baseline_records`` records before the event, ``peak`` the largest
+    value after it (the first one on ties, at ``peak_iteration``). The error has recovered at
+    the first record after the peak whose value is ``<= baseline + max(tolerance * |baseline|,
+    1e-12)``.
+
+    Args:
+        records: metric dicts with ``'iteration'`` and ``key``.
+        key: the metric, e.g. ``'vergence_mae_deg'``.
+        event_iteration: the iteration of the perturbation.
+        baseline_records: how many records before the event make the baseline (>= 1; fewer are
+            used when fewer exist).
+        tolerance: relative tolerance above the baseline (>= 0).
+
+    Returns:
+        ``{'key', 'event_iteration', 'baseline', 'peak', 'peak_iteration',
+        'recovered_iteration', 'iterations_to_recover'}``; the last two are ``None`` when the
+        error never recovers, ``iterations_to_recover = recovered_iteration - event_iteration``.
+
+    Example:
+        >>> values = [1, 1, 1, 5, 3, 1.05, 1]
+        >>> records = [{"iteration": 10 * i, "e": v} for i, v in enumerate(values)]
+        >>> r = recovery(records, "e", 30, baseline_records=3)
+        >>> r["peak"], r["peak_iteration"], r["recovered_iteration"], r["iterations_to_recover"]
+        (5.0, 30, 50, 20)
+    """
+    x = _check_records(records)
+    if not isinstance(key, str):
+        raise ValueError(f"key must be a str, got {type(key).__name__}")
+    event = _as_float(event_iteration)
+    if not math.isfinite(event) or isinstance(event_iteration, bool):
+        raise ValueError(f"event_iteration must be a finite iteration number, got {event_iteration!r}")
+    if isinstance(baseline_records, bool) or not isinstance(baseline_records, int) or baseline_records < 1:
+        raise ValueError(f"baseline_records must be an int >= 1, got {baseline_records!r}")
+    if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) or not tolerance >= 0:
+        raise ValueError(f"tolerance must be a non-negative number, got {tolerance!r}")
+    y = _series(records, key)
+    valid = np.isfinite(y)
+    order = np.argsort(x, kind="stable")
+    x, y, valid = x[order], y[order], valid[order]
+    before = valid & (x < event)
+    after = valid & (x >= event)
+    if not before.any():
+        raise ValueError(f"records has no finite {key!r} before event_iteration={event_iteration}")
+    if not after.any():
+        raise ValueError(f"records has no finite {key!r} at or after event_iteration={event_iteration}")
+    baseline = float(y[before][-baseline_records:].mean())
+    x_after, y_after = x[after], y[after]
+    peak_index = int(np.argmax(y_after))
+    threshold = baseline + max(tolerance * abs(baseline), 1e-12)
+    recovered = np.nonzero(y_after[peak_index + 1:] <= threshold)[0]
+
+    def _iteration(value: float) -> int | float:
+        return int(value) if float(value).is_integer() else float(value)
+
+    recovered_iteration = _iteration(x_after[peak_index + 1 + recovered[0]]) if recovered.size else None
+    return {
+        "key": key,
+        "event_iteration": event_iteration,
+        "baseline": baseline,
+        "peak": float(y_after[peak_index]),
+        "peak_iteration": _iteration(x_after[peak_index]),
+        "recovered_iteration": recovered_iteration,
+        "iterations_to_recover": (None if recovered_iteration is None
+                                  else _iteration(recovered_iteration - event)),
+    }
+
+
+# ----------------------------------------------------------------------------------------------
+# evaluation
+
+
+def plot_evaluation(result: Mapping, path: str | os.PathLike) -> Path:
+    """Per-distance breakdown of an evaluation result (:func:`aectorch.evaluate.evaluate`).
+
+    Two panels: (a) pursuit (blue) and vergence (red) MAE in degrees and (b) depth MAE in metres
+    against the object distance; the title gives the overall errors and the number of trials.
+
+    Args:
+        result: a mapping with ``'per_distance'`` (a non-empty list of dicts with
+            ``'distance_m'``, ``'pursuit_mae_deg'``, ``'vergence_mae_deg'``, ``'depth_mae_m'``)
+            and the overall ``'pursuit_mae_deg'``, ``'vergence_mae_deg'``, ``'depth_mae_m'`` and
+            ``'trials'``.
+        path: the image file to write.
+
+    Returns:
+        The path written.
+
+    Example:
+        >>> import tempfile
+        >>> result = {"pursuit_mae_deg": 0.1, "vergence_mae_deg": 0.2, "depth_mae_m": 0.05, "trials": 4,
+        ...           "per_distance": [{"distance_m": d, "pursuit_mae_deg": 0.1, "vergence_mae_deg": 0.2,
+        ...                             "depth_mae_m": 0.05} for d in (0.5, 1.0)]}
+        >>> plot_evaluation(result, Path(tempfile.mkdtemp()) / "eval.png").exists()
+        True
+    """
+    if not isinstance(result, Mapping):
+        raise ValueError(f"result must be a mapping (an evaluation result), got {type(result).__name__}")
+    for key in ("per_distance", "pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m", "trials"):
+        if key not in result:
+            raise ValueError(f"result is missing key {key!r} (has {sorted(result)})")
+    rows = result["per_distance"]
+    if isinstance(rows, (str, bytes, Mapping)) or not isinstance(rows, Sequence) or len(rows) == 0:
+        raise ValueError("result['per_distance'] must be a non-empty list of dicts")
+    for i, row in enumerate(rows):
+        if not isinstance(row, Mapping):
+            raise ValueError(f"result['per_distance'][{i}] must be a dict, got {type(row).__name__}")
+        if not math.isfinite(_as_float(row.get("distance_m"))):
+            raise ValueError(f"result['per_distance'][{i}] needs a finite 'distance_m', got {row.get('distance_m')!r}")
+    rows = sorted(rows, key=lambda r: _as_float(r["distance_m"]))
+    distance = _series(rows, "distance_m")
+    pursuit = _series(rows, "pursuit_mae_deg")
+    vergence = _series(rows, "vergence_mae_deg")
+    depth = _series(rows, "depth_mae_m")
+
+    fig = _new_figure((9.0, 3.8))
+    ax_eye, ax_depth = fig.subplots(1, 2)
+    ax_eye.plot(distance, pursuit, marker="o", color=PURSUIT_COLOR, label="pursuit")
+    ax_eye.plot(distance, vergence, marker="s", color=VERGENCE_COLOR, label="vergence")
+    ax_eye.legend(fontsize=8)
+    ax_eye.set_ylabel("eye movement MAE (deg)")
+    ax_eye.set_title("(a) eye movement error", loc="left", fontsize=10)
+    ax_depth.plot(distance, depth, marker="o", color=DEPTH_COLOR)
+    ax_depth.set_ylabel("depth MAE (m)")
+    ax_depth.set_title("(b) depth estimation error", loc="left", fontsize=10)
+    for ax in (ax_eye, ax_depth):
+        ax.set_xlabel("object distance (m)")
+        ax.grid(True, alpha=0.3)
+        ax.set_ylim(bottom=0)
+    fig.suptitle(
+        f"Evaluation: pursuit {_as_float(result['pursuit_mae_deg']):.3g} deg, "
+        f"vergence {_as_float(result['vergence_mae_deg']):.3g} deg, "
+        f"depth {_as_float(result['depth_mae_m']):.3g} m MAE ({result['trials']} trials)",
+        fontsize=11,
+    )
+    return _save(fig, path)

@@ -1,0 +1,302 @@
+"""Tests of aectorch.figures: PCA of dictionaries, metric reading, recovery and the figures."""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+
+import matplotlib.image
+import numpy as np
+import pytest
+import torch
+from sklearn.decomposition import PCA
+
+from aectorch.figures import (
+    DPI,
+    plot_dictionaries,
+    plot_evaluation,
+    plot_perturbation,
+    plot_training,
+    principal_components,
+    read_metrics,
+    recovery,
+)
+
+torch.set_num_threads(1)
+KEYS = ("parallax/coarse", "parallax/fine", "stereo/coarse", "stereo/fine")
+
+
+def read_png(path):
+    assert path.exists() and path.stat().st_size > 1000
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    image = matplotlib.image.imread(path)
+    assert image.ndim == 3 and image.shape[2] in (3, 4)
+    return image
+
+
+def records_run(n=60, event=None):
+    """A training run: errors decay; depth NaN before iteration 20; optional jump at ``event``."""
+    out = []
+    for i in range(n):
+        it = 100 * i
+        bump = 4.0 if event is not None and it >= event else 0.0
+        out.append({
+            "iteration": it,
+            "pursuit_mae_deg": 2.0 / (1 + i) + 0.1,
+            "vergence_mae_deg": 3.0 / (1 + i) + 0.1 + bump,
+            "depth_mae_m": math.nan if i < 20 else 0.5 / (1 + i),
+        })
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# principal_components
+
+
+def canonical_signs(scores, components):
+    """Flip sklearn's axes with the module's convention: largest-|loading| component positive."""
+    idx = np.abs(components).argmax(axis=1)
+    signs = np.sign(components[np.arange(len(idx)), idx])
+    return scores * signs
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_principal_components_matches_sklearn(dtype):
+    gen = torch.Generator().manual_seed(1)
+    atoms = torch.randn(30, 50, generator=gen, dtype=torch.float64) * torch.linspace(0.2, 3, 30, dtype=torch.float64)[:, None]
+    atoms = atoms.to(dtype)
+    scores, ratio = principal_components(atoms, k=2)
+    assert scores.shape == (50, 2) and ratio.shape == (2,)
+    assert scores.dtype == dtype and ratio.dtype == dtype
+    pca = PCA(n_components=2, svd_solver="full").fit(atoms.double().numpy().T)
+    expected = canonical_signs(pca.transform(atoms.double().numpy().T), pca.components_)
+    tol = 1e-4 if dtype == torch.float32 else 1e-10
+    np.testing.assert_allclose(scores.double().numpy(), expected, atol=tol * 10, rtol=tol)
+    np.testing.assert_allclose(ratio.double().numpy(), pca.explained_variance_ratio_, rtol=tol)
+
+
+def test_principal_components_sign_convention_is_deterministic():
+    gen = torch.Generator().manual_seed(2)
+    atoms = torch.randn(10, 25, generator=gen, dtype=torch.float64)
+    scores, _ = principal_components(atoms, k=3)
+    # a sign flip of the data flips the scores but the convention fixes the axes: scores of -atoms
+    # are the negated scores (each axis's loadings keep their orientation)
+    flipped, _ = principal_components(-atoms, k=3)
+    np.testing.assert_allclose(flipped.numpy(), -scores.numpy(), atol=1e-10)
+    # the largest |loading| of each axis is positive: projections of the centred atoms reproduce it
+    centred = atoms.T - atoms.T.mean(0)
+    loadings = torch.linalg.lstsq(centred, scores).solution  # [P, k], centred @ loadings = scores
+    top = loadings.abs().argmax(0)
+    assert bool((loadings[top, torch.arange(3)] > 0).all())
+
+
+def test_principal_components_recovers_two_dimensional_structure():
+    gen = torch.Generator().manual_seed(3)
+    basis = torch.linalg.qr(torch.randn(40, 2, generator=gen, dtype=torch.float64)).Q  # [P, 2] orthonormal
+    latent = torch.randn(2, 60, generator=gen, dtype=torch.float64) * torch.tensor([[5.0], [2.0]])
+    latent = latent - latent.mean(1, keepdim=True)
+    atoms = basis @ latent + 0.7  # a 2-D plane (offset by a constant atom)
+    scores, ratio = principal_components(atoms, k=2)
+    assert float(ratio.sum()) == pytest.approx(1.0, abs=1e-12)
+    # the scores are the latent coordinates up to a rotation: same Gram matrix
+    np.testing.assert_allclose((scores @ scores.T).numpy(), (latent.T @ latent).numpy(), atol=1e-9)
+    # axes ordered by variance
+    assert float(scores[:, 0].var()) > float(scores[:, 1].var())
+
+
+def test_principal_components_constant_atoms_and_bad_input():
+    scores, ratio = principal_components(torch.ones(5, 4), k=2)
+    assert bool((scores == 0).all()) and bool((ratio == 0).all())
+    with pytest.raises(ValueError, match="atoms"):
+        principal_components(torch.randn(5), k=1)
+    with pytest.raises(ValueError, match="atoms"):
+        principal_components(torch.ones(5, 4, dtype=torch.int64))
+    with pytest.raises(ValueError, match="atoms"):
+        principal_components(torch.tensor([[1.0, math.nan], [0.0, 1.0]]))
+    with pytest.raises(ValueError, match="k must"):
+        principal_components(torch.randn(5, 4), k=5)
+    with pytest.raises(ValueError, match="k must"):
+        principal_components(torch.randn(5, 4), k=0)
+
+
+# ---------------------------------------------------------------------------------------------
+# plot_dictionaries
+
+
+def test_plot_dictionaries_writes_png(tmp_path):
+    gen = torch.Generator().manual_seed(4)
+    keys = KEYS[::3]  # any subset of the four dictionaries (two rows keep the test fast)
+    initial = {k: torch.randn(200, 48, generator=gen) for k in keys}
+    trained = {k: torch.nn.functional.normalize(torch.randn(200, 48, generator=gen, dtype=torch.float64), dim=0)
+               for k in keys}  # dtypes may differ between the two
+    out = plot_dictionaries(initial, trained, tmp_path / "nested" / "fig2.png")
+    assert out == tmp_path / "nested" / "fig2.png"
+    image = read_png(out)
+    h, w = image.shape[:2]
+    assert 800 <= w <= 1100 and 2 * 380 <= h <= 2 * 500  # 2 panels wide, one row per key
+
+
+def test_plot_dictionaries_bad_input(tmp_path):
+    d = {"stereo/fine": torch.randn(20, 30)}
+    with pytest.raises(ValueError, match=r"trained is missing key 'stereo/coarse'"):
+        plot_dictionaries({**d, "stereo/coarse": torch.randn(20, 30)}, d, tmp_path / "b.png")
+    with pytest.raises(ValueError, match=r"initial is missing key 'stereo/coarse'"):
+        plot_dictionaries(d, {**d, "stereo/coarse": torch.randn(20, 30)}, tmp_path / "b.png")
+    with pytest.raises(ValueError, match=r"trained\['stereo/fine'\]"):
+        plot_dictionaries(d, {"stereo/fine": torch.randn(20)}, tmp_path / "b.png")
+    with pytest.raises(ValueError, match="initial"):
+        plot_dictionaries({}, {}, tmp_path / "b.png")
+    assert not (tmp_path / "b.png").exists()
+
+
+# ---------------------------------------------------------------------------------------------
+# read_metrics
+
+
+def test_read_metrics_round_trip_and_truncated_last_line(tmp_path):
+    records = records_run(5)
+    path = tmp_path / "metrics.jsonl"
+    path.write_text("\n".join(json.dumps(r) for r in records) + "\n\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        back = read_metrics(path)
+    assert len(back) == 5
+    for a, b in zip(back, records):
+        assert a.keys() == b.keys()
+        for key in a:
+            assert a[key] == b[key] or (math.isnan(a[key]) and math.isnan(b[key]))
+    path.write_text(path.read_text() + '{"iteration": 600, "pursuit_mae')
+    with pytest.warns(UserWarning, match="truncated"):
+        assert len(read_metrics(path)) == 5
+    path.write_text('{"iteration": 1}\n{"iteration": \n{"iteration": 3}\n')
+    with pytest.raises(ValueError, match="line 2"):
+        read_metrics(path)
+
+
+# ---------------------------------------------------------------------------------------------
+# plot_training / plot_perturbation
+
+
+def test_plot_training_two_panels_with_gaps_and_events(tmp_path):
+    records = records_run()
+    records[30]["pursuit_mae_deg"] = None  # a gap
+    del records[31]["vergence_mae_deg"]    # a missing key is a gap too
+    out = plot_training(records, tmp_path / "fig3.png", events=[(2000, "depth fit"), (4000, "")])
+    h, w = read_png(out).shape[:2]
+    assert 900 <= w <= 1000 and 600 <= h <= 800
+
+
+def test_plot_training_four_panels_when_policy_metrics_exist(tmp_path):
+    records = records_run()
+    for i, r in enumerate(records):
+        r.update({"parallax/reward": -1 + i / 100, "stereo/reward": -2 + i / 50,
+                  "parallax/entropy": 2 - i / 60, "stereo/entropy": math.nan})
+    h, w = read_png(plot_training(records, tmp_path / "four.png")).shape[:2]
+    assert 900 <= w <= 1000 and 1200 <= h <= 1500  # twice the height of the two-panel figure
+
+
+def test_plot_training_all_nan_and_bad_input(tmp_path):
+    records = [{"iteration": i, "depth_mae_m": None} for i in range(5)]
+    read_png(plot_training(records, tmp_path / "empty.png"))
+    with pytest.raises(ValueError, match=r"records\[1\] has no 'iteration'"):
+        plot_training([{"iteration": 0}, {"pursuit_mae_deg": 1.0}], tmp_path / "x.png")
+    with pytest.raises(ValueError, match="records must not be empty"):
+        plot_training([], tmp_path / "x.png")
+    with pytest.raises(ValueError, match=r"events\[0\]"):
+        plot_training(records, tmp_path / "x.png", events=[(None, "bad")])
+    with pytest.raises(ValueError, match="path"):
+        plot_training(records, tmp_path / "no_suffix")
+
+
+def test_plot_perturbation(tmp_path):
+    records = records_run(100, event=5000)
+    out = plot_perturbation(records, tmp_path / "fig4.png", events=[(5000, "left roll")])
+    read_png(out)
+    read_png(plot_perturbation(records, tmp_path / "fig4b.png", events=[(4000, "left"), (6000, "right")], margin=500))
+    with pytest.raises(ValueError, match="events must hold at least one"):
+        plot_perturbation(records, tmp_path / "x.png", events=[])
+    with pytest.raises(ValueError, match="margin"):
+        plot_perturbation(records, tmp_path / "x.png", events=[(5000, "e")], margin=-1)
+    with pytest.raises(ValueError, match="records has no record with iteration in"):
+        plot_perturbation(records, tmp_path / "x.png", events=[(10 ** 6, "late")], margin=10)
+
+
+# ---------------------------------------------------------------------------------------------
+# recovery
+
+
+def synthetic_curve():
+    """Flat 1.0 at iterations 0..90, 5.0 at the event (100), then halving its excess each record."""
+    values = [1.0] * 10 + [1.0 + 4.0 * 0.5 ** j for j in range(10)]
+    # 100: 5, 110: 3, 120: 2, 130: 1.5, 140: 1.25, 150: 1.125, 160: 1.0625, ...
+    return [{"iteration": 10 * i, "vergence_mae_deg": v} for i, v in enumerate(values)]
+
+
+def test_recovery_hand_computed():
+    r = recovery(synthetic_curve(), "vergence_mae_deg", 100)
+    assert r == {
+        "key": "vergence_mae_deg", "event_iteration": 100, "baseline": 1.0, "peak": 5.0,
+        "peak_iteration": 100, "recovered_iteration": 160, "iterations_to_recover": 60,
+    }
+    # a looser tolerance (1.25 <= 1.3) recovers at 140
+    assert recovery(synthetic_curve(), "vergence_mae_deg", 100, tolerance=0.3)["recovered_iteration"] == 140
+    # baseline from the last 2 records before the event only
+    records = synthetic_curve()
+    records[8]["vergence_mae_deg"] = 3.0  # iteration 80
+    r = recovery(records, "vergence_mae_deg", 100, baseline_records=2, tolerance=0.0)
+    assert r["baseline"] == 2.0 and r["recovered_iteration"] == 120 and r["iterations_to_recover"] == 20
+
+
+def test_recovery_never_and_errors():
+    records = synthetic_curve()[:14]  # ends at 1.25 (iteration 130)
+    r = recovery(records, "vergence_mae_deg", 100)
+    assert r["peak"] == 5.0 and r["recovered_iteration"] is None and r["iterations_to_recover"] is None
+    # NaN / None values are ignored
+    records = synthetic_curve()
+    records[16]["vergence_mae_deg"] = None  # iteration 160 -> recovery at 170
+    assert recovery(records, "vergence_mae_deg", 100)["recovered_iteration"] == 170
+    with pytest.raises(ValueError, match="before event_iteration"):
+        recovery(synthetic_curve(), "vergence_mae_deg", 0)
+    with pytest.raises(ValueError, match="after event_iteration"):
+        recovery(synthetic_curve(), "vergence_mae_deg", 1000)
+    with pytest.raises(ValueError, match="no finite 'depth_mae_m'"):
+        recovery(synthetic_curve(), "depth_mae_m", 100)
+    with pytest.raises(ValueError, match="baseline_records"):
+        recovery(synthetic_curve(), "vergence_mae_deg", 100, baseline_records=0)
+    with pytest.raises(ValueError, match="tolerance"):
+        recovery(synthetic_curve(), "vergence_mae_deg", 100, tolerance=-0.1)
+
+
+# ---------------------------------------------------------------------------------------------
+# plot_evaluation
+
+
+def evaluation_result():
+    per = [{"distance_m": d, "pursuit_mae_deg": 0.1 * d, "vergence_mae_deg": 0.2 / d,
+            "depth_mae_m": 0.05 * d} for d in (2.0, 0.5, 1.0, 1.5)]
+    per[0]["depth_mae_m"] = math.nan
+    return {"pursuit_mae_deg": 0.1, "vergence_mae_deg": 0.2, "depth_mae_m": 0.05, "trials": 40,
+            "per_distance": per}
+
+
+def test_plot_evaluation(tmp_path):
+    out = plot_evaluation(evaluation_result(), tmp_path / "eval" / "per_distance.png")
+    h, w = read_png(out).shape[:2]
+    assert 1000 <= w <= 1150 and 400 <= h <= 500
+    bad = evaluation_result()
+    del bad["trials"]
+    with pytest.raises(ValueError, match="result is missing key 'trials'"):
+        plot_evaluation(bad, tmp_path / "x.png")
+    bad = evaluation_result()
+    bad["per_distance"] = []
+    with pytest.raises(ValueError, match=r"result\['per_distance'\]"):
+        plot_evaluation(bad, tmp_path / "x.png")
+    bad = evaluation_result()
+    del bad["per_distance"][2]["distance_m"]
+    with pytest.raises(ValueError, match=r"result\['per_distance'\]\[2\]"):
+        plot_evaluation(bad, tmp_path / "x.png")
+
+
+def test_dpi_is_about_120():
+    assert 100 <= DPI <= 150
