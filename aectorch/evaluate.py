@@ -10,19 +10,26 @@ Learning is frozen and both policies are greedy. Two tests:
   eye at a random vergence offset (uniform in ``+-offset_deg``), then ``steps`` greedy
   iterations run; the vergence error at the last step is summarised as RMSE, median and 4 x IQR
   in degrees and in pixels (at the camera's degrees per pixel).
+
+From the command line, on a checkpoint written by ``train.py`` (see :func:`main`)::
+
+    python -m aectorch.evaluate checkpoint=outputs/run/checkpoint.pt textures=photos/ out=eval.json
 """
 
 from __future__ import annotations
 
+import json
 import math
+import os
+import sys
 from typing import Sequence
 
 import torch
 from torch import Tensor
 
-from aectorch.sim import DEFAULT_DISTANCES_M, ActiveDepthEnv, TextureBank
+from aectorch.sim import DEFAULT_DISTANCES_M, RENDERERS, ActiveDepthEnv, TextureBank
 
-__all__ = ["evaluate", "summarise"]
+__all__ = ["evaluate", "main", "summarise"]
 
 
 def summarise(errors: Tensor) -> dict:
@@ -188,3 +195,130 @@ def evaluate(
         if close is not None:
             close()
     return result
+
+
+USAGE = """usage: python -m aectorch.evaluate checkpoint=<file> out=<file.json> [key=value ...]
+
+Evaluate a trained checkpoint (train.py's checkpoint.pt) frozen and greedy: every texture at
+every distance runs one trial, then the earlier models' vergence test.
+
+keys:
+  checkpoint=<file>      the checkpoint (required)
+  out=<file.json>        where to write the result (required)
+  textures=<folder>      held-out images (default: the default test bank, 40 procedural
+                         textures disjoint from the default training set)
+  renderer=torch|pyrender                    (default: torch)
+  depths=[1.0,2.0,3.0]   distances in metres (default: 1.0 to 3.0 in 0.1 m steps)
+  batch_size=<int>       environments at once (default: 256)
+  seed=<int>             seeds the vergence test's offsets (default: 0)
+  figure=<file.png>      also draw the evaluation figure
+  progress=true|false    show a progress bar (default: true)
+
+Errors print one "error: ..." line and exit with status 2.
+"""
+
+_KEYS = ("checkpoint", "out", "textures", "renderer", "depths", "batch_size", "seed", "figure", "progress")
+
+
+class _UsageError(ValueError):
+    pass
+
+
+def _parse(argv: Sequence[str]) -> dict:
+    from omegaconf import OmegaConf
+
+    args: dict = {}
+    for item in argv:
+        if "=" not in item:
+            raise _UsageError(f"arguments are key=value, got {item!r} (see --help)")
+        key = item.split("=", 1)[0]
+        if key not in _KEYS:
+            raise _UsageError(f"unknown key {key!r}; keys are {', '.join(_KEYS)}")
+        try:
+            args[key] = OmegaConf.to_container(OmegaConf.from_dotlist([item]))[key]
+        except Exception as err:
+            raise _UsageError(f"{key}: cannot parse {item!r}: {str(err).splitlines()[0]}") from err
+    for key in ("checkpoint", "out"):
+        if args.get(key) in (None, ""):
+            raise _UsageError(f"{key}=<file> is required (see --help)")
+    for key in ("checkpoint", "out", "textures", "figure"):
+        if key in args and args[key] is not None and not isinstance(args[key], str):
+            args[key] = str(args[key])
+    renderer = args.setdefault("renderer", "torch")
+    if renderer not in RENDERERS:
+        raise _UsageError(f"renderer must be one of {', '.join(RENDERERS)}, got {renderer!r}")
+    depths = args.setdefault("depths", list(DEFAULT_DISTANCES_M))
+    if isinstance(depths, (int, float)) and not isinstance(depths, bool):
+        depths = args["depths"] = [depths]
+    if (not isinstance(depths, list) or not depths
+            or any(isinstance(d, bool) or not isinstance(d, (int, float)) or not math.isfinite(d) or d <= 0
+                   for d in depths)):
+        raise _UsageError(f"depths must be a list of distances > 0 in metres such as [1.0,2.0], got {depths!r}")
+    for key, default, minimum in (("batch_size", 256, 1), ("seed", 0, 0)):
+        value = args.setdefault(key, default)
+        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+            raise _UsageError(f"{key} must be an int >= {minimum}, got {value!r}")
+    progress = args.setdefault("progress", True)
+    if not isinstance(progress, bool):
+        raise _UsageError(f"progress must be true or false, got {progress!r}")
+    textures = args.get("textures")
+    if textures is not None and not os.path.isdir(textures):
+        raise _UsageError(f"textures: no such folder {textures!r}")
+    if not os.path.isfile(args["checkpoint"]):
+        raise _UsageError(f"checkpoint: no such file {args['checkpoint']!r}")
+    return args
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m aectorch.evaluate checkpoint=... out=... [key=value ...]`` (see ``--help``)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or any(a in ("-h", "--help", "help") for a in argv):
+        print(USAGE, end="")
+        return 0 if argv else 2
+    debug = os.environ.get("AECTORCH_DEBUG", "") not in ("", "0")
+    try:
+        args = _parse(argv)
+        from aectorch.experiment import load_checkpoint, load_learner
+
+        cfg, learner = load_learner(args["checkpoint"])
+        iteration = int(load_checkpoint(args["checkpoint"])["iteration"])
+        if args.get("textures") is None:
+            bank, textures = TextureBank.default("test"), "default test bank"
+        else:
+            try:
+                bank = TextureBank.from_folder(args["textures"], progress=None if args["progress"] else False)
+            except (ValueError, OSError) as err:
+                raise _UsageError(f"textures: {err}") from err
+            textures = args["textures"]
+        result = evaluate(learner, bank, distances_m=args["depths"], renderer=args["renderer"],
+                          batch_size=args["batch_size"], fixation_iterations=cfg.env.fixation_iterations,
+                          shift_m=cfg.env.shift_m, seed=args["seed"], progress=args["progress"])
+    except ValueError as err:
+        if debug:
+            raise
+        print(f"error: {str(err).strip().splitlines()[0]} (AECTORCH_DEBUG=1 for the traceback)",
+              file=sys.stderr)
+        return 2
+    result.update(checkpoint=args["checkpoint"], textures=textures, renderer=args["renderer"], iteration=iteration)
+    with open(args["out"], "w") as f:
+        json.dump(result, f, indent=2)
+        f.write("\n")
+    if args.get("figure"):
+        from aectorch.figures import plot_evaluation
+
+        plot_evaluation(result, args["figure"])
+    rows = [f"{'distance_m':>10} {'pursuit_mae_deg':>16} {'vergence_mae_deg':>17} {'depth_mae_m':>12}"]
+    for row in result["per_distance"] + [dict(result, distance_m="all")]:
+        d = row["distance_m"]
+        rows.append(f"{d if isinstance(d, str) else f'{d:.2f}':>10} {row['pursuit_mae_deg']:>16.4f} "
+                    f"{row['vergence_mae_deg']:>17.4f} {row['depth_mae_m']:>12.4f}")
+    if "vergence_test" in result:
+        deg = result["vergence_test"]["degrees"]
+        rows.append(f"vergence test: RMSE {deg['rmse']:.4f} deg, median {deg['median']:.4f} deg, n {deg['n']}")
+    rows.append(f"{result['trials']} trials, checkpoint iteration {iteration}; written to {args['out']}")
+    print("\n".join(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

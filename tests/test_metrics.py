@@ -139,3 +139,12 @@ def test_rejects_bad_arguments_and_records():
         TrainingMetrics(0)
     with pytest.raises(ValueError, match="environments"):
         TrainingMetrics(B + 1, scales=SCALES).update(_records(1)[0])
+
+
+def test_docstring_example_runs():
+    import doctest
+
+    import aectorch.metrics
+
+    failed, attempted = doctest.testmod(aectorch.metrics, verbose=False)
+    assert attempted > 0 and failed == 0

@@ -1,0 +1,90 @@
+"""python -m aectorch.evaluate: the command-line evaluation of a checkpoint."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+from aectorch.config import to_experiment_config
+from aectorch.evaluate import main
+from aectorch.experiment import run_experiment
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory) -> tuple[Path, Path]:
+    from PIL import Image
+
+    folder = tmp_path_factory.mktemp("eval")
+    textures = folder / "textures"
+    textures.mkdir()
+    rng = np.random.default_rng(1)
+    for i in range(2):
+        Image.fromarray((rng.random((48, 48)) * 255).astype(np.uint8)).save(textures / f"t{i}.png")
+    cfg = to_experiment_config(OmegaConf.from_dotlist([
+        "env.num_envs=5", "env.fixation_iterations=2", "env.distances_m=[1.0,2.0]", "learner.num_atoms=16",
+        "learner.depth_every_trials=10", "train.iterations=8", "train.progress=false", "train.figures=false",
+        "train.tensorboard=false", "eval.enabled=false", f"env.textures={textures}",
+    ]))
+    run_experiment(cfg, folder / "run")
+    return folder / "run" / "checkpoint.pt", textures
+
+
+def test_writes_the_result_json_and_figure(run, tmp_path, capsys):
+    checkpoint, textures = run
+    out, figure = tmp_path / "e.json", tmp_path / "e.png"
+    code = main([f"checkpoint={checkpoint}", f"textures={textures}", f"out={out}", "depths=[1.0,2.5]",
+                 "batch_size=3", "progress=false", f"figure={figure}"])
+    assert code == 0
+    result = json.loads(out.read_text())
+    for key in ("vergence_mae_deg", "pursuit_mae_deg", "depth_mae_m", "per_distance", "trials", "vergence_test"):
+        assert key in result, key
+    assert result["trials"] == 4 and [r["distance_m"] for r in result["per_distance"]] == [1.0, 2.5]
+    assert result["iteration"] == 8 and result["checkpoint"] == str(checkpoint)
+    assert result["textures"] == str(textures) and result["renderer"] == "torch"
+    assert np.isfinite(result["depth_mae_m"]) and figure.is_file()
+    assert "vergence test" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("args, key", [
+    (["textures={t}", "out={o}"], "checkpoint"),
+    (["checkpoint={c}"], "out"),
+    (["checkpoint={c}", "out={o}", "nosuch=1"], "nosuch"),
+    (["checkpoint={c}", "out={o}", "batch_size=0"], "batch_size"),
+    (["checkpoint={c}", "out={o}", "depths=[0.0]"], "depths"),
+    (["checkpoint={c}", "out={o}", "renderer=opengl"], "renderer"),
+    (["checkpoint={c}", "out={o}", "textures=/nonexistent"], "textures"),
+    (["checkpoint={c}.missing", "out={o}"], "checkpoint"),
+    (["checkpoint={c}", "out={o}", "progress=maybe"], "progress"),
+])
+def test_errors_name_the_key(args, key, run, tmp_path, capsys):
+    checkpoint, textures = run
+    out = tmp_path / "e.json"
+    argv = [a.format(c=checkpoint, t=textures, o=out) for a in args]
+    assert main(argv) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and key in errors[0], errors
+    assert not out.exists()
+
+
+def test_corrupt_checkpoint_and_help(tmp_path, capsys):
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"garbage")
+    assert main([f"checkpoint={bad}", f"out={tmp_path / 'e.json'}"]) == 2
+    assert "bad.pt" in capsys.readouterr().err
+    assert main(["--help"]) == 0 and "textures=<folder>" in capsys.readouterr().out
+
+
+def test_module_entry_point_exits_2():
+    done = subprocess.run([sys.executable, "-m", "aectorch.evaluate", "out=x.json"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120,
+                          env=dict(os.environ, PYOPENGL_PLATFORM="osmesa"))
+    assert done.returncode == 2 and done.stderr.startswith("error: checkpoint")
