@@ -162,17 +162,40 @@ def _check_image(images: Tensor, name: str) -> None:
         )
 
 
-def _pyramid_down(x: Tensor, levels: int) -> Tensor:
-    """Reduce a ``[N, 1, H, W]`` tensor ``levels`` times; no checks."""
-    taps = torch.tensor(_BINOMIAL_5, dtype=x.dtype, device=x.device)
-    k_row = taps.view(1, 1, 1, 5)
-    k_col = taps.view(1, 1, 5, 1)
+def _reduce_matrix_1d(n: int, levels: int) -> Tensor:
+    """The 1-D pyramid reduce as a matrix ``[ceil(n / 2**levels), n]`` (float64, CPU)."""
+    taps = torch.tensor(_BINOMIAL_5, dtype=torch.float64)
+    operator = torch.eye(n, dtype=torch.float64)
     for _ in range(levels):
-        # Keeping every second pixel is folded into the convolutions (stride 2 along the filtered
-        # axis): the output pixel j sits on input pixel 2j, so only even indices are computed.
-        x = F.conv2d(F.pad(x, (2, 2, 0, 0), mode="reflect"), k_row, stride=(1, 2))
-        x = F.conv2d(F.pad(x, (0, 0, 2, 2), mode="reflect"), k_col, stride=(2, 1))
-    return x
+        # Rows of `operator` are signals; blur each with reflect-101 borders, keep even samples.
+        rows = F.pad(operator.T.unsqueeze(1), (2, 2), mode="reflect")  # [n, 1, m + 4]
+        operator = F.conv1d(rows, taps.view(1, 1, 5), stride=2).squeeze(1).T  # [ceil(m/2), n]
+    return operator
+
+
+_REDUCE_CACHE: dict[tuple, Tensor] = {}
+
+
+def _reduce_matrix(n: int, levels: int, dtype: torch.dtype, device: torch.device) -> Tensor:
+    if torch.compiler.is_compiling():  # traced (and constant-folded) inside a compiled graph
+        return _reduce_matrix_1d(n, levels).to(dtype=dtype, device=device)
+    key = (n, levels, dtype, device)
+    matrix = _REDUCE_CACHE.get(key)
+    if matrix is None:
+        matrix = _REDUCE_CACHE[key] = _reduce_matrix_1d(n, levels).to(dtype=dtype, device=device)
+    return matrix
+
+
+def _pyramid_down(x: Tensor, levels: int) -> Tensor:
+    """Reduce a ``[N, 1, H, W]`` tensor ``levels`` times; no checks.
+
+    The reduce is linear and separable, so all levels fold into one matrix per axis and the whole
+    pyramid is two matrix products, ``R_h X R_w^T`` (several times faster than per-level
+    single-channel convolutions on CPU).
+    """
+    rows = _reduce_matrix(x.shape[-2], levels, x.dtype, x.device)
+    cols = rows if x.shape[-1] == x.shape[-2] else _reduce_matrix(x.shape[-1], levels, x.dtype, x.device)
+    return rows @ x @ cols.T
 
 
 def pyramid_down(images: Tensor, levels: int) -> Tensor:
