@@ -306,13 +306,15 @@ def run_experiment(
         if writer is not None:
             writer.close()
     train_seconds = elapsed()
-    final = metrics.summary(reset=False)
-    return _finish(cfg, run_dir, learner, env, initial, final, events, train_seconds)
+    return _finish(cfg, run_dir, learner, env, initial, events, train_seconds)
 
 
-def _finish(cfg, run_dir: Path, learner, env, initial, final, events, train_seconds) -> dict:
+def _finish(cfg, run_dir: Path, learner, env, initial, events, train_seconds) -> dict:
     total = cfg.train.iterations
     records = _read_lines(run_dir / "metrics.jsonl")
+    # The last line (always written at the last iteration) holds the final interval's averages.
+    bookkeeping = ("iteration", "env_iterations", "elapsed_s", "roll_left_deg", "roll_right_deg")
+    final = {k: v for k, v in (records[-1] if records else {}).items() if k not in bookkeeping}
     labels = [(when + 1, label) for when, _, label in events]
     summary: dict = {
         "iterations": total,

@@ -105,6 +105,8 @@ def test_train_py_writes_the_run_folder(tmp_path, textures):
     assert evaluation["trials"] == 3
     summary = json.loads((run / "summary.json").read_text())
     assert summary["iterations"] == 12 and "evaluation" in summary
+    assert summary["final"] == {k: v for k, v in lines[-1].items() if k in summary["final"]}
+    assert len(summary["final"]) == len(keys) - 5
     assert [e["iteration"] for e in summary["perturbation"]["events"]] == [7, 10]
 
 
@@ -229,4 +231,4 @@ def test_multirun_makes_one_folder_per_seed(tmp_path, textures):
 @pytest.mark.slow
 def test_compile_runs_on_cpu(tmp_path, textures):
     summary = run_experiment(_cfg(textures, "train.compile=true", "train.iterations=4"), tmp_path / "run")
-    assert summary["iterations"] == 4 and np.isfinite(summary["final"]["parallax/reward"])
+    assert summary["iterations"] == 4 and summary["final"]["parallax/reward"] < 0
