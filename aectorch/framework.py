@@ -41,6 +41,10 @@ from aectorch.depth import DepthMLP, fit_levenberg_marquardt
 
 __all__ = ["CueRecord", "IterationRecord", "JointLearner", "LearnerConfig"]
 
+#: The depth MLP is first fitted once this many trials are stored (fewer cannot hold out a
+#: validation set).
+_MIN_DEPTH_TRIALS = 10
+
 
 @dataclass
 class LearnerConfig:
@@ -60,6 +64,13 @@ class LearnerConfig:
         actions_deg: the action set A of pan increments (paper: +-0.2, +-0.1, +-0.05, 0).
         control: actor-critic hyperparameters shared by pursuit and vergence.
         skip_fixation_boundary: do not learn from the transition between two fixations.
+        reward: what the actor-critics learn from. ``"coding"`` (the paper): R = -(e^C + e^F) of
+            the observation the action led to. ``"improvement"``: R(s') - R(s), the change of the
+            coding reward the action caused. With a critic discount gamma < 1 the two define the
+            same discounted problem (the improvement's return is (1 - gamma) times the coding
+            reward's, minus a constant of the start state), but the improvement leaves out the
+            texture's reward level, the largest term of the TD error's noise. With gamma = 1 the
+            improvement's return telescopes to a constant: use it only with ``critic_discount < 1``.
         depth_hidden: hidden units of the depth MLP (paper: 10).
         depth_every_trials: retrain the depth MLP after every this many finished trials (all B
             environments' trials count).
@@ -77,6 +88,7 @@ class LearnerConfig:
     actions_deg: tuple[float, ...] = (-0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2)
     control: ActorCriticConfig = field(default_factory=ActorCriticConfig)
     skip_fixation_boundary: bool = True
+    reward: str = "coding"
     depth_hidden: int = 10
     depth_every_trials: int = 500
     depth_max_samples: int = 20000
@@ -85,9 +97,15 @@ class LearnerConfig:
     def __post_init__(self) -> None:
         if self.algorithm not in ("mp", "omp"):
             raise ValueError(f"LearnerConfig.algorithm must be 'mp' or 'omp', got {self.algorithm!r}")
+        if self.reward not in ("coding", "improvement"):
+            raise ValueError(f"LearnerConfig.reward must be 'coding' or 'improvement', got {self.reward!r}")
         if self.pooling not in ("mean", "sum"):
             raise ValueError(f"LearnerConfig.pooling must be 'mean' or 'sum', got {self.pooling!r}")
         self.scales = tuple(self.scales)
+        try:
+            self.actions_deg = tuple(float(a) for a in self.actions_deg)
+        except (TypeError, ValueError):
+            raise ValueError(f"LearnerConfig.actions_deg must be a list of numbers (degrees), got {self.actions_deg!r}") from None
         if not self.scales or any(s not in ("coarse", "fine") for s in self.scales):
             raise ValueError(f"LearnerConfig.scales must be a non-empty subset of ('coarse', 'fine'), got {self.scales!r}")
         for name in ("num_atoms", "sparsity", "depth_hidden", "depth_every_trials",
@@ -189,13 +207,14 @@ class JointLearner(nn.Module):
         td_error = None
         previous = self._previous[key]
         if learn and previous is not None:
-            update = agent.update(previous[0], previous[1], reward, features)
+            learned = reward - previous[2] if self.config.reward == "improvement" else reward
+            update = agent.update(previous[0], previous[1], learned, features)
             td_error = update.td_error
         action = agent.act(features, greedy=greedy, generator=self.generator)
         if learn and self.config.dictionary_lr > 0:
             encoder.learn_(out)
         # Without learning there is no transition to complete on the next step.
-        self._previous[key] = (features, action.actions) if learn else None
+        self._previous[key] = (features, action.actions, reward) if learn else None
         counts = torch.stack([
             torch.bincount(c.code.indices.reshape(-1), minlength=encoder.dictionaries[s.name].num_atoms)
             for s, c in zip(encoder.scales, out.codes)
@@ -256,16 +275,17 @@ class JointLearner(nn.Module):
         self.depth_inputs = torch.cat((self.depth_inputs, q_deg.to(self.depth_inputs)))[-keep:]
         self.depth_targets = torch.cat((self.depth_targets, distance_m.to(self.depth_targets)))[-keep:]
         self.trials_seen += q_deg.shape[0]
-        if self.trials_seen - self._trials_at_last_fit < self.config.depth_every_trials:
+        if (self.trials_seen - self._trials_at_last_fit < self.config.depth_every_trials
+                or self.depth_inputs.shape[0] < _MIN_DEPTH_TRIALS):
             return False
         self.fit_depth()
         return True
 
     def fit_depth(self, *, seed: int | None = None):
         """Retrain the depth MLP on the stored trials with Levenberg-Marquardt (from its current weights)."""
-        if self.depth_inputs.shape[0] < 10:
+        if self.depth_inputs.shape[0] < _MIN_DEPTH_TRIALS:
             raise ValueError(
-                f"fit_depth needs at least 10 finished trials, has {self.depth_inputs.shape[0]}"
+                f"fit_depth needs at least {_MIN_DEPTH_TRIALS} finished trials, has {self.depth_inputs.shape[0]}"
             )
         if seed is None:
             seed = int(torch.randint(0, 2**31 - 1, (1,), generator=self.generator))
