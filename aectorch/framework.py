@@ -61,6 +61,11 @@ class LearnerConfig:
         feature_scale: the features f the actor-critics see are ``feature_scale * f``. The
             critic's step is stable only while ``alpha_v * ||f||^2 < 2``; mean-pooled features of
             a 288-atom dictionary have a norm of about 0.1, so 10 brings them near 1.
+        features: what the actor-critics see: ``"pooled"`` (the pooled activities f of eq. 5,
+            times ``feature_scale``) or ``"unit"`` (f / ||f||, times ``feature_scale``). The
+            pooled activities grow while the dictionaries learn (better atoms take larger
+            coefficients), and the critic's and the advantage parameters' steps diverge once
+            ``alpha * ||f||^2 > 2``; unit features keep that bound fixed.
         actions_deg: the action set A of pan increments (paper: +-0.2, +-0.1, +-0.05, 0).
         control: actor-critic hyperparameters shared by pursuit and vergence.
         skip_fixation_boundary: do not learn from the transition between two fixations.
@@ -89,6 +94,7 @@ class LearnerConfig:
     control: ActorCriticConfig = field(default_factory=ActorCriticConfig)
     skip_fixation_boundary: bool = True
     reward: str = "coding"
+    features: str = "pooled"
     depth_hidden: int = 10
     depth_every_trials: int = 500
     depth_max_samples: int = 20000
@@ -97,6 +103,8 @@ class LearnerConfig:
     def __post_init__(self) -> None:
         if self.algorithm not in ("mp", "omp"):
             raise ValueError(f"LearnerConfig.algorithm must be 'mp' or 'omp', got {self.algorithm!r}")
+        if self.features not in ("pooled", "unit"):
+            raise ValueError(f"LearnerConfig.features must be 'pooled' or 'unit', got {self.features!r}")
         if self.reward not in ("coding", "improvement"):
             raise ValueError(f"LearnerConfig.reward must be 'coding' or 'improvement', got {self.reward!r}")
         if self.pooling not in ("mean", "sum"):
@@ -203,7 +211,10 @@ class JointLearner(nn.Module):
              *, learn: bool, greedy: bool) -> CueRecord:
         with torch.no_grad():
             out = encoder(pair[:, 0], pair[:, 1], check=False)
-        features, reward = out.features * self.config.feature_scale, out.reward
+        features, reward = out.features, out.reward
+        if self.config.features == "unit":
+            features = features / torch.linalg.vector_norm(features, dim=-1, keepdim=True).clamp_min(1e-12)
+        features = features * self.config.feature_scale
         td_error = None
         previous = self._previous[key]
         if learn and previous is not None:
