@@ -1,8 +1,11 @@
 """aectorch: active efficient coding in PyTorch.
 
-Batched sparse coding (OMP / MP), learned binocular dictionaries, and (in later
-modules) natural actor-critic eye control and depth learning for a simulated
-HOAP-3 head.
+Batched sparse coding (OMP / MP) with learned binocular dictionaries, natural actor-critic eye
+control, a Levenberg-Marquardt depth MLP and a simulated HOAP-3 head, composed by
+:class:`JointLearner` into the joint learning framework of Wong et al. (2017).
 """
 
+from aectorch.framework import JointLearner, LearnerConfig
+
+__all__ = ["JointLearner", "LearnerConfig"]
 __version__ = "0.1.0"

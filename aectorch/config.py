@@ -42,6 +42,21 @@ __all__ = [
 #: The paper's values (Wong et al. 2017), applied by ``preset=paper``: dotted key -> value.
 PAPER_PRESET: dict[str, Any] = {
     "learner.actions_deg": [-0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2],
+    # What the actor-critics learn from: the coding reward itself, with the average-reward
+    # natural actor-critic of Bhatnagar et al. (2009) in its published form (ActorCriticConfig()).
+    "learner.reward": "coding",
+    "learner.features": "pooled",
+    "learner.control.alpha_v": 0.4,
+    "learner.control.alpha_w": None,
+    "learner.control.alpha_theta": 0.04,
+    "learner.control.xi": 0.01,
+    "learner.control.critic_discount": 1.0,
+    "learner.control.normalize_features": False,
+    "learner.control.actor_init": 0.4,
+    "learner.control.critic_init": 0.05,
+    "learner.control.projection": "ball",
+    # The sequential algorithm: one environment.
+    "env.num_envs": 1,
     "learner.algorithm": "mp",
     "learner.num_atoms": 288,
     "learner.sparsity": 10,
@@ -123,7 +138,7 @@ class EnvConfig:
         dtype: ``"float32"`` or ``"float64"``, of the environment and the learner.
     """
 
-    num_envs: int = 16
+    num_envs: int = 32
     renderer: str = "torch"
     textures: Optional[str] = None
     distances_m: list[float] = field(default_factory=lambda: list(DEFAULT_DISTANCES_M))

@@ -39,7 +39,27 @@ from aectorch.coding import BinocularEncoder
 from aectorch.control import ActorCriticConfig, NaturalActorCritic
 from aectorch.depth import DepthMLP, fit_levenberg_marquardt
 
-__all__ = ["CueRecord", "IterationRecord", "JointLearner", "LearnerConfig"]
+__all__ = ["DEFAULT_ACTIONS_DEG", "PAPER_ACTIONS_DEG", "default_control", "CueRecord", "IterationRecord", "JointLearner", "LearnerConfig"]
+
+#: The default action set: the paper's seven increments plus +-0.5, +-1 and +-2 degrees, so that a
+#: fixation's 30 iterations can reach the 5.7 degrees of pursuit that 1 m needs (the paper's
+#: largest step, 0.2 degrees, needs 29 of them).
+DEFAULT_ACTIONS_DEG = (-2.0, -1.0, -0.5, -0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
+#: The paper's action set A.
+PAPER_ACTIONS_DEG = (-0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2)
+
+
+def default_control() -> ActorCriticConfig:
+    """The actor-critic settings :class:`JointLearner` uses by default (see docs/paper-mapping.md).
+
+    The lineage's z-scored features (Welford) with step sizes for their norm (about sqrt(576)),
+    a near-zero initial policy (uniform), the critic discounted by 0.3 (the lineage's 0.3-0.6;
+    the improvement reward needs gamma < 1), and a fast actor: the advantage parameters w
+    estimate the advantage, the actor follows them with step 10.
+    """
+    return ActorCriticConfig(alpha_v=0.001, alpha_theta=10.0, critic_discount=0.3,
+                             normalize_features=True, actor_init=0.01, critic_init=0.0)
+
 
 #: The depth MLP is first fitted once this many trials are stored (fewer cannot hold out a
 #: validation set).
@@ -48,14 +68,18 @@ _MIN_DEPTH_TRIALS = 10
 
 @dataclass
 class LearnerConfig:
-    """Hyperparameters of :class:`JointLearner` (defaults: the paper's values where it gives them).
+    """Hyperparameters of :class:`JointLearner`.
+
+    Defaults are the paper's values where it gives them and they can reach the targets; where
+    they differ (action set, reward, actor-critic settings) docs/paper-mapping.md says why, and
+    ``preset=paper`` (:data:`aectorch.config.PAPER_PRESET`) restores the paper's values.
 
     Attributes:
         num_atoms: atoms per dictionary, N (paper: 288).
         sparsity: non-zero coefficients per patch (paper: 10).
         algorithm: ``"mp"`` (the paper's matching pursuit) or ``"omp"``.
         scales: foveal scales, ``("coarse", "fine")`` (paper) or one of them.
-        dictionary_lr: dictionary learning rate per iteration (the lineage: 0.01-0.5).
+        dictionary_lr: dictionary learning rate per iteration (the lineage: 0.01-0.5; default 0.1).
         pooling: ``"mean"`` over patches (the lineage; keeps the features' norm near 1, which the
             critic's step size needs) or ``"sum"`` (eq. 3 literally).
         feature_scale: the features f the actor-critics see are ``feature_scale * f``. The
@@ -66,10 +90,12 @@ class LearnerConfig:
             pooled activities grow while the dictionaries learn (better atoms take larger
             coefficients), and the critic's and the advantage parameters' steps diverge once
             ``alpha * ||f||^2 > 2``; unit features keep that bound fixed.
-        actions_deg: the action set A of pan increments (paper: +-0.2, +-0.1, +-0.05, 0).
-        control: actor-critic hyperparameters shared by pursuit and vergence.
+        actions_deg: the action set A of pan increments (paper: +-0.2, +-0.1, +-0.05, 0;
+            default :data:`DEFAULT_ACTIONS_DEG` adds +-0.5, +-1 and +-2).
+        control: actor-critic hyperparameters shared by pursuit and vergence (default
+            :func:`default_control`; ``ActorCriticConfig()`` is the paper's form).
         skip_fixation_boundary: do not learn from the transition between two fixations.
-        reward: what the actor-critics learn from. ``"coding"`` (the paper): R = -(e^C + e^F) of
+        reward: what the actor-critics learn from (default ``"improvement"``). ``"coding"`` (the paper): R = -(e^C + e^F) of
             the observation the action led to. ``"improvement"``: R(s') - R(s), the change of the
             coding reward the action caused. With a critic discount gamma < 1 the two define the
             same discounted problem (the improvement's return is (1 - gamma) times the coding
@@ -87,16 +113,16 @@ class LearnerConfig:
     sparsity: int = 10
     algorithm: str = "mp"
     scales: tuple[str, ...] = ("coarse", "fine")
-    dictionary_lr: float = 0.05
+    dictionary_lr: float = 0.1
     pooling: str = "mean"
     feature_scale: float = 10.0
-    actions_deg: tuple[float, ...] = (-0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2)
-    control: ActorCriticConfig = field(default_factory=ActorCriticConfig)
+    actions_deg: tuple[float, ...] = DEFAULT_ACTIONS_DEG
+    control: ActorCriticConfig = field(default_factory=lambda: default_control())
     skip_fixation_boundary: bool = True
-    reward: str = "coding"
+    reward: str = "improvement"
     features: str = "pooled"
     depth_hidden: int = 10
-    depth_every_trials: int = 500
+    depth_every_trials: int = 256
     depth_max_samples: int = 20000
     depth_max_epochs: int = 200
 
