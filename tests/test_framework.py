@@ -101,3 +101,38 @@ def test_config_rejects_bad_values():
         LearnerConfig(scales=("medium",))
     with pytest.raises(ValueError, match="depth_every_trials"):
         LearnerConfig(depth_every_trials=0)
+
+
+@pytest.mark.parametrize("reward", ["coding", "improvement"])
+def test_the_actor_critics_learn_from_the_configured_reward(reward):
+    # With the critic at 0 and J = 0, the first TD error is (1 - xi) times the reward learned from:
+    # R(s') for "coding", R(s') - R(s) for "improvement".
+    from aectorch.control import ActorCriticConfig
+
+    control = ActorCriticConfig(critic_init=0.0, critic_discount=0.5)
+    env, learner = make(h=3, reward=reward, control=control)
+    first = learner.iteration(env)
+    second = learner.iteration(env)
+    for cue_first, cue_second in ((first.parallax, second.parallax), (first.stereo, second.stereo)):
+        learned = cue_second.reward - (cue_first.reward if reward == "improvement" else 0.0)
+        torch.testing.assert_close(cue_second.td_error, (1 - control.xi) * learned)
+
+
+def test_unit_features_reach_the_actor_critics_normalised():
+    from aectorch.control import ActorCriticConfig
+
+    control = ActorCriticConfig(normalize_features=True)
+    env, learner = make(h=3, features="unit", feature_scale=2.0, control=control)
+    with torch.no_grad():
+        pooled = learner.parallax(*env.parallax_observation().unbind(1)).features
+    learner.iteration(env)
+    learner.iteration(env)  # learns from the first transition: its features join the statistics
+    expected = 2.0 * pooled / pooled.norm(dim=-1, keepdim=True)
+    torch.testing.assert_close(learner.pursuit.feature_mean, expected.mean(0))
+
+
+def test_learner_config_rejects_unknown_reward_and_features():
+    with pytest.raises(ValueError, match="reward"):
+        LearnerConfig(reward="bonus")
+    with pytest.raises(ValueError, match="features"):
+        LearnerConfig(features="raw")
