@@ -24,7 +24,9 @@ import copy
 import json
 import math
 import os
+import signal
 import sys
+import threading
 import tempfile
 import time
 from pathlib import Path
@@ -185,6 +187,19 @@ def _state(learner, env, metrics) -> dict:
     }
 
 
+def _sigterm(signum, frame):
+    raise KeyboardInterrupt(f"terminated by signal {signum}")
+
+
+def _interrupt_on_sigterm():
+    """Make SIGTERM (``kill``, ``timeout``, a batch scheduler) interrupt like Ctrl-C does, so the
+    last completed iteration is checkpointed; returns the previous handler (``None`` when not
+    in the main thread, where handlers cannot be set)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, _sigterm)
+
+
 def run_experiment(
     cfg: ExperimentConfig,
     run_dir: str | os.PathLike,
@@ -256,6 +271,7 @@ def run_experiment(
     elapsed = lambda: elapsed_before + time.perf_counter() - clock  # noqa: E731
     last = (start, _state(learner, env, metrics))  # the last completed iteration
     it = start
+    previous_sigterm = _interrupt_on_sigterm()
     try:
         with metrics_path.open("a") as log:
             for it in range(start, total):
@@ -301,6 +317,8 @@ def run_experiment(
         )
         raise
     finally:
+        if previous_sigterm is not None:
+            signal.signal(signal.SIGTERM, previous_sigterm)
         if bar is not None:
             bar.close()
         if writer is not None:

@@ -150,6 +150,28 @@ def test_interruption_leaves_a_checkpoint_and_resume_completes(tmp_path, texture
     assert cfg.train.iterations == 12 and learner.parallax.dictionaries["coarse"].atoms.shape[1] == 16
 
 
+def test_sigterm_checkpoints_the_last_completed_iteration(tmp_path, textures):
+    # kill, timeout and batch schedulers send SIGTERM: it must not lose the run.
+    import signal
+
+    straight = tmp_path / "straight"
+    run_experiment(_cfg(textures), straight)
+
+    def terminate(done, record):
+        if done == 5:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    before = signal.getsignal(signal.SIGTERM)
+    run = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt, match="signal"):
+        run_experiment(_cfg(textures), run, callback=terminate)
+    assert signal.getsignal(signal.SIGTERM) is before  # the handler is restored
+    assert load_checkpoint(run / "checkpoint.pt")["iteration"] == 4
+    run_experiment(_cfg(textures, f"train.resume={run}"), run)
+    _assert_same_state(load_checkpoint(straight / "checkpoint.pt")["learner"],
+                       load_checkpoint(run / "checkpoint.pt")["learner"])
+
+
 def test_checkpoint_errors_name_the_path(tmp_path):
     with pytest.raises(ValueError, match="no checkpoint at .*missing.pt"):
         load_checkpoint(tmp_path / "missing.pt")
