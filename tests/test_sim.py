@@ -223,6 +223,38 @@ def test_pyrender_window_is_a_crop_of_its_full_frame(scene, head, pyrender_rende
     torch.testing.assert_close(crop, full[..., top : top + h, left : left + w], atol=1.5 / 255, rtol=0)
 
 
+def test_pyrender_compiles_each_shader_once_across_renders_and_window_sizes(scene, head):
+    """Regression: pyrender's program cache missed on every OSMesa draw (its context key is a
+    fresh ctypes pointer each time), compiling and leaking a shader program per image."""
+    from aectorch.sim import PyrenderRenderer
+
+    renderer = PyrenderRenderer(scene)
+    try:
+        poses, plane_x = agreement_poses(head)
+        index = torch.tensor([0, 1, 2])
+
+        def programs():
+            cache = renderer._gl_renderer._renderer._program_cache
+            return len(cache._program_cache)
+
+        first = renderer(poses, plane_x, index, CROPS)
+        count = programs()
+        assert count >= 1
+        for _ in range(3):
+            again = renderer(poses, plane_x, index, CROPS)
+        assert programs() == count
+        torch.testing.assert_close(again, first, atol=0, rtol=0)
+        # Another window size makes a new OSMesa context; rendering there and back still
+        # reuses programs and gives the same pixels.
+        renderer(poses[:1], plane_x[:1], index[:1])
+        back = renderer(poses, plane_x, index, CROPS)
+        renderer(poses, plane_x, index, CROPS)
+        assert programs() == count
+        torch.testing.assert_close(back, first, atol=0, rtol=0)
+    finally:
+        renderer.close()
+
+
 def test_pyrender_renders_odd_widths(head):
     scene = PlaneScene(torch.rand(1, 30, 37), torch.rand(5, 7))
     from aectorch.sim import PyrenderRenderer
