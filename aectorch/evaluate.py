@@ -1,6 +1,7 @@
 """Evaluation of a trained :class:`~aectorch.framework.JointLearner`, separate from training.
 
-Learning is frozen and both policies are greedy. Two tests:
+Learning is frozen and both policies are greedy (``policy="sampled"`` draws the actions as in
+training instead, for analysis). Two tests:
 
 - **the paper's test**: every texture x distance runs one full trial (a leftward and a rightward
   fixation of ``h`` iterations) from the standard start state; the pursuit and vergence errors
@@ -30,6 +31,9 @@ from torch import Tensor
 from aectorch.sim import DEFAULT_DISTANCES_M, RENDERERS, ActiveDepthEnv, TextureBank
 
 __all__ = ["evaluate", "main", "summarise"]
+
+#: Evaluation policies: the argmax action (the protocol) or actions sampled as in training.
+POLICIES = ("greedy", "sampled")
 
 
 def summarise(errors: Tensor) -> dict:
@@ -70,6 +74,7 @@ def evaluate(
     steps: int = 20,
     seed: int = 0,
     progress: bool = False,
+    policy: str = "greedy",
 ) -> dict:
     """Evaluate ``learner`` greedily with all learning frozen; returns a JSON-ready dict.
 
@@ -86,12 +91,18 @@ def evaluate(
         offset_deg, steps: its initial vergence offsets (uniform in +-offset_deg) and step count.
         seed: seeds the vergence test's offsets.
         progress: show a progress bar.
+        policy: ``"greedy"`` (the argmax action; the evaluation protocol) or ``"sampled"``
+            (actions drawn from the softmax policies, as in training, from the learner's own
+            generator), to measure what greediness costs.
 
     Returns:
         ``pursuit_mae_deg``, ``vergence_mae_deg``, ``depth_mae_m`` and full summaries
         (:func:`summarise`) under ``pursuit``, ``vergence``, ``depth``; a per-distance
         breakdown; ``trials``; and ``vergence_test`` when asked.
     """
+    if policy not in POLICIES:
+        raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {policy!r}")
+    greedy = policy == "greedy"
     bank = textures if isinstance(textures, TextureBank) else TextureBank(textures)
     distances = [float(d) for d in distances_m]
     if not distances or any(not math.isfinite(d) or d <= 0 for d in distances):
@@ -120,80 +131,93 @@ def evaluate(
             )
         return envs[key]
 
-    pursuit, vergence, depth_error = [], [], []
-    with torch.no_grad():
-        for start, stop in chunks:
-            env = env_for(stop - start, fixation_iterations)
-            env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
-            learner.forget_transitions()
-            finals_p, finals_v = [], []
-            while True:
-                record = learner.iteration(env, learn=False, greedy=True)
-                if record.fixation_end:
-                    finals_p.append(record.pursuit_error_deg)
-                    finals_v.append(record.vergence_error_deg)
-                if record.trial_end:
-                    break
-            pursuit.append(torch.stack(finals_p, 1))  # [b, 2 fixations]
-            vergence.append(torch.stack(finals_v, 1))
-            depth_error.append(record.depth_prediction_m - record.distance_m)
-            if bar is not None:
-                bar.update(stop - start)
-    pursuit, vergence = torch.cat(pursuit).cpu(), torch.cat(vergence).cpu()
-    depth_error = torch.cat(depth_error).cpu()
-    result = {
-        "pursuit_mae_deg": summarise(pursuit)["mae"],
-        "vergence_mae_deg": summarise(vergence)["mae"],
-        "depth_mae_m": summarise(depth_error)["mae"],
-        "pursuit": summarise(pursuit),
-        "vergence": summarise(vergence),
-        "depth": summarise(depth_error),
-        "trials": total,
-        "textures": len(bank),
-        "distances_m": distances,
-        "per_distance": [],
-    }
-    for d in distances:
-        mask = (distance - d).abs() < 1e-9
-        result["per_distance"].append({
-            "distance_m": d,
-            "pursuit_mae_deg": summarise(pursuit[mask])["mae"],
-            "vergence_mae_deg": summarise(vergence[mask])["mae"],
-            "depth_mae_m": summarise(depth_error[mask])["mae"],
-        })
-
-    if vergence_test:
-        generator = torch.Generator().manual_seed(seed)
-        finals = []
+    def run() -> dict:
+        """The two tests (the closure keeps evaluate's prepared arguments)."""
+        pursuit, vergence, depth_error = [], [], []
         with torch.no_grad():
             for start, stop in chunks:
-                env = env_for(stop - start, steps)
+                env = env_for(stop - start, fixation_iterations)
                 env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
-                left = env.optimal_left_pan_deg()
-                offsets = (torch.rand(stop - start, generator=generator, dtype=torch.float64) * 2 - 1) * offset_deg
-                right = env.optimal_right_pan_deg(left) + offsets.to(device=device, dtype=dtype)
-                env.set_pan_deg(torch.stack((left, right), -1))
                 learner.forget_transitions()
-                for _ in range(steps):
-                    record = learner.iteration(env, learn=False, greedy=True)
-                finals.append(record.vergence_error_deg.cpu())
+                finals_p, finals_v = [], []
+                while True:
+                    record = learner.iteration(env, learn=False, greedy=greedy)
+                    if record.fixation_end:
+                        finals_p.append(record.pursuit_error_deg)
+                        finals_v.append(record.vergence_error_deg)
+                    if record.trial_end:
+                        break
+                pursuit.append(torch.stack(finals_p, 1))  # [b, 2 fixations]
+                vergence.append(torch.stack(finals_v, 1))
+                depth_error.append(record.depth_prediction_m - record.distance_m)
                 if bar is not None:
                     bar.update(stop - start)
-        final = torch.cat(finals)
-        per_pixel = env.camera.degrees_per_pixel
-        deg = summarise(final)
-        result["vergence_test"] = {
-            "offset_deg": offset_deg,
-            "steps": steps,
-            "degrees": deg,
-            "pixels": {k: (v / per_pixel if k != "n" else v) for k, v in deg.items()},
+        pursuit, vergence = torch.cat(pursuit).cpu(), torch.cat(vergence).cpu()
+        depth_error = torch.cat(depth_error).cpu()
+        result = {
+            "pursuit_mae_deg": summarise(pursuit)["mae"],
+            "vergence_mae_deg": summarise(vergence)["mae"],
+            "depth_mae_m": summarise(depth_error)["mae"],
+            "pursuit": summarise(pursuit),
+            "vergence": summarise(vergence),
+            "depth": summarise(depth_error),
+            "trials": total,
+            "textures": len(bank),
+            "distances_m": distances,
+            "per_distance": [],
         }
-    if bar is not None:
-        bar.close()
-    for env in envs.values():
-        close = getattr(env.renderer, "close", None)
-        if close is not None:
-            close()
+        for d in distances:
+            mask = (distance - d).abs() < 1e-9
+            result["per_distance"].append({
+                "distance_m": d,
+                "pursuit_mae_deg": summarise(pursuit[mask])["mae"],
+                "vergence_mae_deg": summarise(vergence[mask])["mae"],
+                "depth_mae_m": summarise(depth_error[mask])["mae"],
+            })
+
+        if vergence_test:
+            generator = torch.Generator().manual_seed(seed)
+            finals = []
+            with torch.no_grad():
+                for start, stop in chunks:
+                    env = env_for(stop - start, steps)
+                    env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
+                    left = env.optimal_left_pan_deg()
+                    offsets = (torch.rand(stop - start, generator=generator, dtype=torch.float64) * 2 - 1) * offset_deg
+                    right = env.optimal_right_pan_deg(left) + offsets.to(device=device, dtype=dtype)
+                    env.set_pan_deg(torch.stack((left, right), -1))
+                    learner.forget_transitions()
+                    for _ in range(steps):
+                        record = learner.iteration(env, learn=False, greedy=greedy)
+                    finals.append(record.vergence_error_deg.cpu())
+                    if bar is not None:
+                        bar.update(stop - start)
+            final = torch.cat(finals)
+            per_pixel = env.camera.degrees_per_pixel
+            deg = summarise(final)
+            result["vergence_test"] = {
+                "offset_deg": offset_deg,
+                "steps": steps,
+                "degrees": deg,
+                "pixels": {k: (v / per_pixel if k != "n" else v) for k, v in deg.items()},
+            }
+        return result
+
+    # Sampled actions come from the learner's generator: seed it from ``seed`` for the
+    # evaluation and give the learner its own state back afterwards.
+    saved_generator = learner.generator.get_state()
+    learner.generator.manual_seed(seed)
+    try:
+        result = run()
+    finally:
+        learner.generator.set_state(saved_generator)
+        if bar is not None:
+            bar.close()
+        for env in envs.values():
+            close = getattr(env.renderer, "close", None)
+            if close is not None:
+                close()
+    result["policy"] = policy
     return result
 
 
@@ -213,11 +237,14 @@ keys:
   seed=<int>             seeds the vergence test's offsets (default: 0)
   figure=<file.png>      also draw the evaluation figure
   progress=true|false    show a progress bar (default: true)
+  policy=greedy|sampled  argmax actions (the protocol; default) or actions sampled from the
+                         policies as in training, to see what greediness costs
 
 Errors print one "error: ..." line and exit with status 2.
 """
 
-_KEYS = ("checkpoint", "out", "textures", "renderer", "depths", "batch_size", "seed", "figure", "progress")
+_KEYS = ("checkpoint", "out", "textures", "renderer", "depths", "batch_size", "seed", "figure", "progress",
+         "policy")
 
 
 class _UsageError(ValueError):
@@ -258,6 +285,9 @@ def _parse(argv: Sequence[str]) -> dict:
         value = args.setdefault(key, default)
         if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
             raise _UsageError(f"{key} must be an int >= {minimum}, got {value!r}")
+    policy = args.setdefault("policy", "greedy")
+    if policy not in POLICIES:
+        raise _UsageError(f"policy must be one of {', '.join(POLICIES)}, got {policy!r}")
     progress = args.setdefault("progress", True)
     if not isinstance(progress, bool):
         raise _UsageError(f"progress must be true or false, got {progress!r}")
@@ -292,7 +322,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             textures = args["textures"]
         result = evaluate(learner, bank, distances_m=args["depths"], renderer=args["renderer"],
                           batch_size=args["batch_size"], fixation_iterations=cfg.env.fixation_iterations,
-                          shift_m=cfg.env.shift_m, seed=args["seed"], progress=args["progress"])
+                          shift_m=cfg.env.shift_m, seed=args["seed"], progress=args["progress"],
+                          policy=args["policy"])
     except ValueError as err:
         if debug:
             raise

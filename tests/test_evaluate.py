@@ -62,3 +62,24 @@ def test_evaluate_rejects_bad_arguments():
         evaluate(learner, bank, distances_m=[0.0])
     with pytest.raises(ValueError, match="batch_size"):
         evaluate(learner, bank, batch_size=0)
+
+
+def test_sampled_policy_differs_from_greedy_and_leaves_the_learner_as_it_was():
+    bank = TextureBank(torch.rand(2, 64, 64, generator=torch.Generator().manual_seed(2)))
+    learner = JointLearner(LearnerConfig(num_atoms=32), generator=torch.Generator().manual_seed(0))
+    before = copy.deepcopy(learner.state_dict())
+    generator_before = learner.generator.get_state()
+    kwargs = dict(distances_m=[1.0, 2.0], fixation_iterations=3, steps=3)
+    greedy = evaluate(learner, bank, **kwargs)
+    sampled = evaluate(learner, bank, policy="sampled", **kwargs)
+    again = evaluate(learner, bank, policy="sampled", **kwargs)
+    assert greedy["policy"] == "greedy" and sampled["policy"] == "sampled"
+    assert sampled["pursuit"] != greedy["pursuit"]  # an untrained policy is far from greedy
+    assert sampled["pursuit"] == again["pursuit"]  # seeded by ``seed``, not by the learner's state
+    after = learner.state_dict()
+    assert torch.equal(learner.generator.get_state(), generator_before)
+    for key, value in before.items():
+        if isinstance(value, torch.Tensor):
+            assert torch.equal(value, after[key]), key
+    with pytest.raises(ValueError, match="policy must be one of greedy, sampled"):
+        evaluate(learner, bank, policy="argmax")

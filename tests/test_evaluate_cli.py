@@ -50,6 +50,7 @@ def test_writes_the_result_json_and_figure(run, tmp_path, capsys):
     assert result["trials"] == 4 and [r["distance_m"] for r in result["per_distance"]] == [1.0, 2.5]
     assert result["iteration"] == 8 and result["checkpoint"] == str(checkpoint)
     assert result["textures"] == str(textures) and result["renderer"] == "torch"
+    assert result["policy"] == "greedy"
     assert np.isfinite(result["depth_mae_m"]) and figure.is_file()
     assert "vergence test" in capsys.readouterr().out
 
@@ -64,6 +65,7 @@ def test_writes_the_result_json_and_figure(run, tmp_path, capsys):
     (["checkpoint={c}", "out={o}", "textures=/nonexistent"], "textures"),
     (["checkpoint={c}.missing", "out={o}"], "checkpoint"),
     (["checkpoint={c}", "out={o}", "progress=maybe"], "progress"),
+    (["checkpoint={c}", "out={o}", "policy=argmax"], "policy"),
 ])
 def test_errors_name_the_key(args, key, run, tmp_path, capsys):
     checkpoint, textures = run
