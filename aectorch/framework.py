@@ -38,6 +38,7 @@ from torch import Tensor, nn
 from aectorch.coding import BinocularEncoder
 from aectorch.control import ActorCriticConfig, NaturalActorCritic
 from aectorch.depth import DepthMLP, fit_levenberg_marquardt
+from aectorch.profiling import stage
 
 __all__ = ["DEFAULT_ACTIONS_DEG", "PAPER_ACTIONS_DEG", "default_control", "CueRecord", "IterationRecord", "JointLearner", "LearnerConfig"]
 
@@ -235,27 +236,30 @@ class JointLearner(nn.Module):
     # -- one cue -------------------------------------------------------------------------------
     def _cue(self, key: str, encoder: BinocularEncoder, agent: NaturalActorCritic, pair: Tensor,
              *, learn: bool, greedy: bool) -> CueRecord:
-        with torch.no_grad():
+        with stage("encode"), torch.no_grad():
             out = encoder(pair[:, 0], pair[:, 1], check=False)
-        features, reward = out.features, out.reward
-        if self.config.features == "unit":
-            features = features / torch.linalg.vector_norm(features, dim=-1, keepdim=True).clamp_min(1e-12)
-        features = features * self.config.feature_scale
-        td_error = None
-        previous = self._previous[key]
-        if learn and previous is not None:
-            learned = reward - previous[2] if self.config.reward == "improvement" else reward
-            update = agent.update(previous[0], previous[1], learned, features)
-            td_error = update.td_error
-        action = agent.act(features, greedy=greedy, generator=self.generator)
+        with stage("rl"):
+            features, reward = out.features, out.reward
+            if self.config.features == "unit":
+                features = features / torch.linalg.vector_norm(features, dim=-1, keepdim=True).clamp_min(1e-12)
+            features = features * self.config.feature_scale
+            td_error = None
+            previous = self._previous[key]
+            if learn and previous is not None:
+                learned = reward - previous[2] if self.config.reward == "improvement" else reward
+                update = agent.update(previous[0], previous[1], learned, features)
+                td_error = update.td_error
+            action = agent.act(features, greedy=greedy, generator=self.generator)
         if learn and self.config.dictionary_lr > 0:
-            encoder.learn_(out)
+            with stage("dictionary"):
+                encoder.learn_(out)
         # Without learning there is no transition to complete on the next step.
         self._previous[key] = (features, action.actions, reward) if learn else None
-        counts = torch.stack([
-            torch.bincount(c.code.indices.reshape(-1), minlength=encoder.dictionaries[s.name].num_atoms)
-            for s, c in zip(encoder.scales, out.codes)
-        ])
+        with stage("metrics"):
+            counts = torch.stack([
+                torch.bincount(c.code.indices.reshape(-1), minlength=encoder.dictionaries[s.name].num_atoms)
+                for s, c in zip(encoder.scales, out.codes)
+            ])
         return CueRecord(reward, out.errors, td_error, action.entropy, action.actions,
                          action.increments_deg, counts)
 
@@ -270,19 +274,24 @@ class JointLearner(nn.Module):
                 step does not learn from a transition it did not see.
             greedy: take the most probable action instead of sampling.
         """
-        parallax = self._cue("m", self.parallax, self.pursuit, env.parallax_observation(),
-                             learn=learn, greedy=greedy)
-        env.apply_pursuit(parallax.increments_deg)
-        stereo = self._cue("s", self.stereo, self.vergence, env.stereo_observation(),
-                           learn=learn, greedy=greedy)
-        info = env.apply_vergence(stereo.increments_deg)
+        with stage("render"):
+            pair = env.parallax_observation()
+        parallax = self._cue("m", self.parallax, self.pursuit, pair, learn=learn, greedy=greedy)
+        with stage("env"):
+            env.apply_pursuit(parallax.increments_deg)
+        with stage("render"):
+            pair = env.stereo_observation()
+        stereo = self._cue("s", self.stereo, self.vergence, pair, learn=learn, greedy=greedy)
+        with stage("env"):
+            info = env.apply_vergence(stereo.increments_deg)
         if info.fixation_end and self.config.skip_fixation_boundary:
             self._previous = {"m": None, "s": None}
         prediction, retrained = None, False
         if info.trial_end:
-            prediction = self.predict_depth(info.q_deg)
-            if learn:
-                retrained = self._add_trials(info.q_deg, info.distance_m)
+            with stage("depth"):
+                prediction = self.predict_depth(info.q_deg)
+                if learn:
+                    retrained = self._add_trials(info.q_deg, info.distance_m)
         return IterationRecord(
             parallax=parallax,
             stereo=stereo,

@@ -1,0 +1,310 @@
+"""Env-iterations per second of the whole training loop, with a stage breakdown and a FLOP floor.
+
+One env-iteration is one environment doing both cues of one iteration: rendering, foveal
+patches, sparse coding, rewards, actions, dictionary and policy learning (and, amortised, the
+depth MLP's Levenberg-Marquardt refits). ``JointLearner.iteration`` with B environments does B
+env-iterations. Measured with the default configuration (``LearnerConfig()``, MP, 288 atoms,
+two scales, 13 actions) for every combination of:
+
+  * B (``--batches``, default 1, 16, 64, 256);
+  * ``eager`` or ``compile`` (``train.compile=true``: ``torch.compile`` of both encoders);
+  * the ``torch`` or the ``pyrender`` (OSMesa) renderer;
+  * 1 or 2 threads (each thread count in its own subprocess, with ``OMP_NUM_THREADS`` and
+    llvmpipe's ``LP_NUM_THREADS`` set before torch or OpenGL start).
+
+Per configuration: ``--warmup`` untimed iterations (compilation happens there), then
+``--iterations`` iterations timed one by one; env-iterations/s = B / median iteration time.
+Also recorded:
+
+  * **peak memory**: the rise of the process's peak resident set (VmHWM, reset through
+    ``/proc/self/clear_refs`` before each configuration) over its resident set before the
+    environments and learner are built; on CUDA, ``torch.cuda.max_memory_allocated``;
+  * **stage breakdown** (``aectorch.profiling.StageTimer`` over the timed iterations): render,
+    encode (split, in eager mode, into patches and sparse coding by timing
+    ``extract_patches`` alone on the same images), RL, dictionary update, env kinematics,
+    metrics; the depth LM refit is timed once on 2000 stored trials and amortised over the
+    256 trials x 60 iterations between refits;
+  * **FLOPs per env-iteration** (``torch.utils.flop_counter.FlopCounterMode`` over one
+    iteration at B = 64: matrix products, which dominate) and the **floor** they imply at the
+    machine's sustained float32 matmul rate, measured in the same run on the loop's own
+    largest product ([B x 113 patches, 200] x [200, 288]).
+
+Usage:
+    python benchmarks/train_step.py                    # the full sweep (about 20 minutes on 2 cores)
+    python benchmarks/train_step.py --quick            # B = 1, 16, 64; 1 thread; eager and compile
+    python benchmarks/train_step.py --device cuda --renderers torch --batches 256 4096 16384
+
+Writes a table to stdout and JSON to benchmarks/results/train_step.json (--json).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+FIT_TRIALS = 2000          # stored trials the amortised depth refit is timed on
+REFIT_EVERY_TRIALS = 256   # LearnerConfig.depth_every_trials
+TRIAL_ITERATIONS = 60      # 2 fixations x h = 30
+
+
+def _rss_mb(field: str = "VmRSS") -> float:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def _reset_peak() -> None:
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:  # pragma: no cover - not Linux
+        pass
+
+
+def matmul_rate(batch: int, device: str, repeats: int = 20) -> float:
+    """Sustained float32 FLOP/s of the loop's largest product at this B."""
+    import torch
+
+    a = torch.randn(batch * 113, 200, device=device)
+    b = torch.randn(200, 288, device=device)
+    out = torch.empty(batch * 113, 288, device=device)
+    times = []
+    for _ in range(repeats + 2):
+        if device == "cuda":
+            torch.cuda.synchronize()
+        t = time.perf_counter()
+        for _ in range(10):
+            torch.mm(a, b, out=out)
+        if device == "cuda":
+            torch.cuda.synchronize()
+        times.append((time.perf_counter() - t) / 10)
+    return 2 * a.shape[0] * 200 * 288 / statistics.median(times[2:])
+
+
+def flops_per_env_iteration(device: str) -> float:
+    """Matrix-product FLOPs of one learning iteration at B = 64, per environment."""
+    import torch
+    from torch.utils.flop_counter import FlopCounterMode
+
+    from aectorch.framework import JointLearner, LearnerConfig
+    from aectorch.sim import ActiveDepthEnv
+
+    batch = 64
+    env = ActiveDepthEnv(batch, seed=0, device=device)
+    learner = JointLearner(LearnerConfig(), generator=torch.Generator().manual_seed(0), device=device)
+    learner.iteration(env)  # so that the next one also updates the actor-critics
+    with FlopCounterMode(display=False) as counter:
+        learner.iteration(env)
+    return counter.get_total_flops() / batch
+
+
+def depth_refit_seconds(device: str) -> float:
+    """One Levenberg-Marquardt refit of the depth MLP on FIT_TRIALS stored trials."""
+    import torch
+
+    from aectorch.framework import JointLearner, LearnerConfig
+
+    learner = JointLearner(LearnerConfig(), generator=torch.Generator().manual_seed(0), device=device)
+    g = torch.Generator().manual_seed(1)
+    d = 1 + 2 * torch.rand(FIT_TRIALS, generator=g, dtype=torch.float64)
+    pursuit = torch.rad2deg(torch.atan(0.1 / d))
+    vergence = torch.rad2deg(2 * torch.atan(0.03 / d))
+    q = torch.stack((-pursuit, vergence, pursuit, vergence), -1) + 0.05 * torch.randn(FIT_TRIALS, 4, generator=g, dtype=torch.float64)
+    learner.depth_inputs = q.to(learner.depth_inputs)
+    learner.depth_targets = d.to(learner.depth_targets)
+    start = time.perf_counter()
+    learner.fit_depth(seed=0)
+    return time.perf_counter() - start
+
+
+def measure(renderer: str, batch: int, mode: str, iterations: int, warmup: int, device: str) -> dict:
+    import torch
+
+    from aectorch.coding import extract_patches
+    from aectorch.experiment import _compile
+    from aectorch.framework import JointLearner, LearnerConfig
+    from aectorch.profiling import StageTimer
+    from aectorch.sim import ActiveDepthEnv
+
+    if device == "cuda":
+        torch.cuda.reset_peak_memory_stats()
+        base_cuda = torch.cuda.memory_allocated()
+    base = _rss_mb()
+    _reset_peak()
+    env = ActiveDepthEnv(batch, renderer=renderer, seed=0, device=device)
+    learner = JointLearner(LearnerConfig(), generator=torch.Generator().manual_seed(0), device=device)
+    if mode == "compile":
+        _compile(learner)
+    compile_start = time.perf_counter()
+    for _ in range(warmup):
+        learner.iteration(env)
+    warmup_s = time.perf_counter() - compile_start
+    times = []
+    with StageTimer(device if device == "cuda" else None) as timer:
+        for _ in range(iterations):
+            if device == "cuda":
+                torch.cuda.synchronize()
+            start = time.perf_counter()
+            learner.iteration(env)
+            if device == "cuda":
+                torch.cuda.synchronize()
+            times.append(time.perf_counter() - start)
+    median = statistics.median(times)
+    per_iteration = {name: seconds / iterations for name, seconds in timer.seconds.items()}
+    stages = {name: per_iteration.get(name, 0.0) for name in ("render", "encode", "rl", "dictionary", "env", "metrics")}
+    if mode == "eager":
+        # Split "encode" into patches and sparse coding (+ pooling, errors) on the same images.
+        pair = env.stereo_observation()
+        patch_times = []
+        for _ in range(max(3, min(iterations, 10))):
+            start = time.perf_counter()
+            for scale in learner.stereo.scales:
+                extract_patches(pair[:, 0], pair[:, 1], scale, check_finite=False)
+            if device == "cuda":
+                torch.cuda.synchronize()
+            patch_times.append(time.perf_counter() - start)
+        patches = min(2 * statistics.median(patch_times), stages["encode"])
+        stages["patches"], stages["coding"] = patches, stages.pop("encode") - patches
+    else:
+        stages["encode (compiled)"] = stages.pop("encode")
+    row = {
+        "renderer": renderer, "B": batch, "mode": mode, "device": device,
+        "threads": torch.get_num_threads(),
+        "median_iteration_s": median,
+        "env_iterations_per_s": batch / median,
+        "warmup_s": warmup_s,
+        "stage_s_per_iteration": stages,
+        "stage_s_per_iteration_sum": sum(stages.values()),
+        "peak_rss_mb": _rss_mb("VmHWM") - base,
+    }
+    if device == "cuda":
+        row["peak_cuda_mb"] = (torch.cuda.max_memory_allocated() - base_cuda) / 2**20
+    close = getattr(env.renderer, "close", None)
+    if close is not None:
+        close()
+    return row
+
+
+def worker(args) -> dict:
+    os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+    sys.path.insert(0, str(ROOT))
+    import torch
+
+    threads = int(os.environ["OMP_NUM_THREADS"])
+    torch.set_num_threads(threads)
+    rows = []
+    for renderer in args.renderers:
+        for batch in args.batches:
+            for mode in args.modes:
+                if renderer == "pyrender" and batch > args.pyrender_max_batch:
+                    continue
+                row = measure(renderer, batch, mode, args.iterations, args.warmup, args.device)
+                print(f"  {threads} thread(s) {renderer:8s} B={batch:5d} {mode:7s} "
+                      f"{row['env_iterations_per_s']:9.1f} env-it/s", file=sys.stderr, flush=True)
+                rows.append(row)
+    extra = {
+        "matmul_flops_per_s": {str(b): matmul_rate(b, args.device) for b in args.batches},
+        "depth_refit_s": depth_refit_seconds(args.device),
+    }
+    if threads == args.threads[0]:
+        extra["flops_per_env_iteration"] = flops_per_env_iteration(args.device)
+    return {"threads": threads, "rows": rows, **extra}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--batches", type=int, nargs="+", default=[1, 16, 64, 256])
+    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--modes", nargs="+", default=["eager", "compile"], choices=["eager", "compile"])
+    parser.add_argument("--renderers", nargs="+", default=["torch", "pyrender"], choices=["torch", "pyrender"])
+    parser.add_argument("--iterations", type=int, default=20, help="timed iterations per configuration")
+    parser.add_argument("--warmup", type=int, default=3, help="untimed iterations first (compilation)")
+    parser.add_argument("--pyrender-max-batch", type=int, default=256,
+                        help="skip pyrender above this B (its cost is per frame)")
+    parser.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    parser.add_argument("--quick", action="store_true", help="B = 1, 16, 64 on 1 thread, 10 timed iterations")
+    parser.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "train_step.json")
+    parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.quick:
+        args.batches, args.threads, args.iterations = [1, 16, 64], [1], 10
+    if args.worker:
+        print(json.dumps(worker(args)))
+        return
+
+    results = []
+    for threads in args.threads:
+        env = dict(os.environ, OMP_NUM_THREADS=str(threads), LP_NUM_THREADS=str(threads),
+                   MKL_NUM_THREADS=str(threads), PYOPENGL_PLATFORM=os.environ.get("PYOPENGL_PLATFORM", "osmesa"))
+        command = [sys.executable, __file__, "--worker", "--iterations", str(args.iterations),
+                   "--warmup", str(args.warmup), "--device", args.device,
+                   "--pyrender-max-batch", str(args.pyrender_max_batch),
+                   "--batches", *map(str, args.batches), "--modes", *args.modes,
+                   "--renderers", *args.renderers, "--threads", *map(str, args.threads)]
+        print(f"{threads} thread(s) ...", file=sys.stderr, flush=True)
+        result = subprocess.run(command, env=env, stdout=subprocess.PIPE, text=True)
+        if result.returncode != 0:
+            raise SystemExit(f"worker with {threads} thread(s) failed (exit {result.returncode})")
+        results.append(json.loads(result.stdout.strip().splitlines()[-1]))
+
+    rows = [row for r in results for row in r["rows"]]
+    flops = next(r["flops_per_env_iteration"] for r in results if "flops_per_env_iteration" in r)
+    rates = {(r["threads"], int(b)): v for r in results for b, v in r["matmul_flops_per_s"].items()}
+    refit = {r["threads"]: r["depth_refit_s"] for r in results}
+    baseline = {r["threads"]: r["env_iterations_per_s"] for r in rows
+                if r["renderer"] == "pyrender" and r["B"] == 1 and r["mode"] == "eager"}
+    for row in rows:
+        rate = rates[(row["threads"], row["B"])]
+        row["floor_env_iterations_per_s"] = rate / flops
+        row["fraction_of_floor"] = row["env_iterations_per_s"] / row["floor_env_iterations_per_s"]
+        row["depth_lm_s_per_env_iteration"] = refit[row["threads"]] / (REFIT_EVERY_TRIALS * TRIAL_ITERATIONS)
+        if row["threads"] in baseline:
+            row["speedup_vs_pyrender_B1"] = row["env_iterations_per_s"] / baseline[row["threads"]]
+
+    print(f"\nEnv-iterations per second (median of {args.iterations} iterations after {args.warmup} warm-up), "
+          f"device {args.device}; {flops / 1e6:.1f} MFLOP (matrix products) per env-iteration\n")
+    print("| renderer | B | mode | threads | env-it/s | x pyrender B=1 | floor env-it/s | of floor | peak MB |")
+    print("|---|---:|---|---:|---:|---:|---:|---:|---:|")
+    for row in rows:
+        speed = row.get("speedup_vs_pyrender_B1")
+        memory = row.get("peak_cuda_mb", row["peak_rss_mb"])
+        print(f"| {row['renderer']} | {row['B']} | {row['mode']} | {row['threads']} | "
+              f"{row['env_iterations_per_s']:,.1f} | {'' if speed is None else f'{speed:.1f}x'} | "
+              f"{row['floor_env_iterations_per_s']:,.0f} | {100 * row['fraction_of_floor']:.1f} % | {memory:,.0f} |")
+    print("\nStage breakdown, ms per env-iteration (stage time of one learner iteration / B)\n")
+    names = ["render", "patches", "coding", "encode (compiled)", "rl", "dictionary", "env", "metrics"]
+    print("| renderer | B | mode | threads | " + " | ".join(names) + " | depth LM (amortised) |")
+    print("|---|---:|---|---:|" + "---:|" * (len(names) + 1))
+    for row in rows:
+        stages = row["stage_s_per_iteration"]
+        cells = [f"{1e3 * stages[n] / row['B']:.3f}" if n in stages else "" for n in names]
+        print(f"| {row['renderer']} | {row['B']} | {row['mode']} | {row['threads']} | " + " | ".join(cells)
+              + f" | {1e3 * row['depth_lm_s_per_env_iteration']:.4f} |")
+
+    sys.path.insert(0, str(ROOT))
+    from benchmarks.machine import machine_info
+
+    report = {
+        "benchmark": "train_step",
+        "machine": machine_info(),
+        "iterations": args.iterations,
+        "warmup": args.warmup,
+        "flops_per_env_iteration": flops,
+        "matmul_flops_per_s": {f"{t} threads, B={b}": v for (t, b), v in rates.items()},
+        "depth_refit_s": refit,
+        "rows": rows,
+    }
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(report, indent=2) + "\n")
+    print(f"\nwrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()
