@@ -225,6 +225,12 @@ class JointLearner(nn.Module):
         self.depth = DepthMLP(in_features=4, hidden=config.depth_hidden, out_features=1).to(
             device=device, dtype=dtype
         )
+        # Unused until the first fit, which starts from Nguyen-Widrow weights drawn from a seed of
+        # ``generator``; zero them rather than leave torch's global random state in them, so that
+        # a seed fixes the whole learner state (and checkpoints) even with other RNG use around.
+        with torch.no_grad():
+            for parameter in self.depth.parameters():
+                parameter.zero_()
         # Learning state that is not a parameter: previous transitions and the depth data.
         self._previous: dict[str, tuple[Tensor, Tensor] | None] = {"m": None, "s": None}
         self.register_buffer("depth_inputs", torch.zeros(0, 4, dtype=dtype, device=device))

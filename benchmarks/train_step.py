@@ -34,7 +34,8 @@ Usage:
     python benchmarks/train_step.py --quick            # B = 1, 16, 64; 1 thread; eager and compile
     python benchmarks/train_step.py --device cuda --renderers torch --batches 256 4096 16384
 
-Writes a table to stdout and JSON to benchmarks/results/train_step.json (--json).
+Writes a table to stdout, JSON to benchmarks/results/train_step.json (--json) and the plots to
+docs/figures/train_step.png (--plot; ``--plot-only <json>`` redraws them).
 """
 
 from __future__ import annotations
@@ -218,6 +219,46 @@ def worker(args) -> dict:
     return {"threads": threads, "rows": rows, **extra}
 
 
+def plot(report: dict, path: Path) -> None:
+    """Throughput against B (left) and the stage breakdown per env-iteration (right)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = report["rows"]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.6))
+    styles = {("torch", "eager"): ("C0", "-"), ("torch", "compile"): ("C0", "--"),
+              ("pyrender", "eager"): ("C3", "-"), ("pyrender", "compile"): ("C3", "--")}
+    for (renderer, mode), (colour, line) in styles.items():
+        for threads, marker in ((1, "o"), (2, "s")):
+            points = sorted((r["B"], r["env_iterations_per_s"]) for r in rows
+                            if r["renderer"] == renderer and r["mode"] == mode and r["threads"] == threads)
+            if points:
+                left.plot(*zip(*points), color=colour, linestyle=line, marker=marker,
+                          label=f"{renderer}, {mode}, {threads} thread{'s' if threads > 1 else ''}")
+    left.set(xscale="log", yscale="log", xlabel="environments B", ylabel="env-iterations / s",
+             title="(a) training-loop throughput")
+    left.grid(True, which="both", alpha=0.3)
+    left.legend(fontsize=7)
+    names = ["render", "patches", "coding", "encode (compiled)", "rl", "dictionary", "env", "metrics"]
+    chosen = [r for r in rows if r["threads"] == 1 and r["renderer"] == "torch"]
+    labels = [f"B={r['B']}\n{r['mode']}" for r in chosen]
+    bottom = [0.0] * len(chosen)
+    for i, name in enumerate(names):
+        heights = [1e3 * r["stage_s_per_iteration"].get(name, 0.0) / r["B"] for r in chosen]
+        if any(heights):
+            right.bar(range(len(chosen)), heights, bottom=bottom, label=name, color=f"C{i}")
+            bottom = [b + h for b, h in zip(bottom, heights)]
+    right.set_xticks(range(len(chosen)), labels, fontsize=7)
+    right.set(ylabel="ms per env-iteration", title="(b) where the time goes (torch renderer, 1 thread)")
+    right.legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 16, 64, 256])
@@ -231,8 +272,16 @@ def main() -> None:
     parser.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     parser.add_argument("--quick", action="store_true", help="B = 1, 16, 64 on 1 thread, 10 timed iterations")
     parser.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "train_step.json")
+    parser.add_argument("--plot", type=Path, default=ROOT / "docs" / "figures" / "train_step.png",
+                        help="where to draw throughput vs B and the stage breakdown")
+    parser.add_argument("--plot-only", type=Path, default=None, metavar="JSON",
+                        help="only redraw --plot from an earlier run's JSON")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.plot_only is not None:
+        plot(json.loads(args.plot_only.read_text()), args.plot)
+        print(f"wrote {args.plot}")
+        return
     if args.quick:
         args.batches, args.threads, args.iterations = [1, 16, 64], [1], 10
     if args.worker:
@@ -303,7 +352,8 @@ def main() -> None:
     }
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=2) + "\n")
-    print(f"\nwrote {args.json}")
+    plot(report, args.plot)
+    print(f"\nwrote {args.json} and {args.plot}")
 
 
 if __name__ == "__main__":
