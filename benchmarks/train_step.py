@@ -7,18 +7,21 @@ env-iterations. Measured with the default configuration (``LearnerConfig()``, MP
 two scales, 13 actions) for every combination of:
 
   * B (``--batches``, default 1, 16, 64, 256);
-  * ``eager`` or ``compile`` (``train.compile=true``: ``torch.compile`` of both encoders);
+  * ``eager`` or ``compile`` (``train.compile=true``: ``torch.compile`` of both encoders and of
+    the torch renderer);
   * the ``torch`` or the ``pyrender`` (OSMesa) renderer;
-  * 1 or 2 threads (each thread count in its own subprocess, with ``OMP_NUM_THREADS`` and
-    llvmpipe's ``LP_NUM_THREADS`` set before torch or OpenGL start).
+  * 1 or 2 threads (``OMP_NUM_THREADS`` and llvmpipe's ``LP_NUM_THREADS`` set before torch or
+    OpenGL start).
+
+Every configuration runs in a fresh subprocess.
 
 Per configuration: ``--warmup`` untimed iterations (compilation happens there), then
 ``--iterations`` iterations timed one by one; env-iterations/s = B / median iteration time.
 Also recorded:
 
-  * **peak memory**: the rise of the process's peak resident set (VmHWM, reset through
-    ``/proc/self/clear_refs`` before each configuration) over its resident set before the
-    environments and learner are built; on CUDA, ``torch.cuda.max_memory_allocated``;
+  * **peak memory**: the rise of the process's peak resident set (VmHWM) over its resident set
+    after the imports, before the environments and learner are built (so it includes the 100
+    training textures, 100 MB, and compiled code); on CUDA, ``torch.cuda.max_memory_allocated``;
   * **stage breakdown** (``aectorch.profiling.StageTimer`` over the timed iterations): render,
     encode (split, in eager mode, into patches and sparse coding by timing
     ``extract_patches`` alone on the same images), RL, dictionary update, env kinematics,
@@ -142,7 +145,7 @@ def measure(renderer: str, batch: int, mode: str, iterations: int, warmup: int, 
     env = ActiveDepthEnv(batch, renderer=renderer, seed=0, device=device)
     learner = JointLearner(LearnerConfig(), generator=torch.Generator().manual_seed(0), device=device)
     if mode == "compile":
-        _compile(learner)
+        _compile(learner, env)
     compile_start = time.perf_counter()
     for _ in range(warmup):
         learner.iteration(env)
@@ -194,29 +197,22 @@ def measure(renderer: str, batch: int, mode: str, iterations: int, warmup: int, 
 
 
 def worker(args) -> dict:
+    """One configuration (or, with --extras, the FLOP count, matmul rates and the depth refit)."""
     os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
     sys.path.insert(0, str(ROOT))
     import torch
 
     threads = int(os.environ["OMP_NUM_THREADS"])
     torch.set_num_threads(threads)
-    rows = []
-    for renderer in args.renderers:
-        for batch in args.batches:
-            for mode in args.modes:
-                if renderer == "pyrender" and batch > args.pyrender_max_batch:
-                    continue
-                row = measure(renderer, batch, mode, args.iterations, args.warmup, args.device)
-                print(f"  {threads} thread(s) {renderer:8s} B={batch:5d} {mode:7s} "
-                      f"{row['env_iterations_per_s']:9.1f} env-it/s", file=sys.stderr, flush=True)
-                rows.append(row)
-    extra = {
-        "matmul_flops_per_s": {str(b): matmul_rate(b, args.device) for b in args.batches},
-        "depth_refit_s": depth_refit_seconds(args.device),
-    }
-    if threads == args.threads[0]:
-        extra["flops_per_env_iteration"] = flops_per_env_iteration(args.device)
-    return {"threads": threads, "rows": rows, **extra}
+    if args.extras:
+        return {
+            "threads": threads,
+            "matmul_flops_per_s": {str(b): matmul_rate(b, args.device) for b in args.batches},
+            "depth_refit_s": depth_refit_seconds(args.device),
+            "flops_per_env_iteration": flops_per_env_iteration(args.device),
+        }
+    (renderer,), (batch,), (mode,) = args.renderers, args.batches, args.modes
+    return measure(renderer, batch, mode, args.iterations, args.warmup, args.device)
 
 
 def plot(report: dict, path: Path) -> None:
@@ -277,6 +273,7 @@ def main() -> None:
     parser.add_argument("--plot-only", type=Path, default=None, metavar="JSON",
                         help="only redraw --plot from an earlier run's JSON")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--extras", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.plot_only is not None:
         plot(json.loads(args.plot_only.read_text()), args.plot)
@@ -288,25 +285,34 @@ def main() -> None:
         print(json.dumps(worker(args)))
         return
 
-    results = []
-    for threads in args.threads:
+    def run(threads: int, *options: str) -> dict:
+        # Every configuration in a fresh process: its peak memory is its own, and neither
+        # compiled code nor allocator caches carry over from the one before.
         env = dict(os.environ, OMP_NUM_THREADS=str(threads), LP_NUM_THREADS=str(threads),
                    MKL_NUM_THREADS=str(threads), PYOPENGL_PLATFORM=os.environ.get("PYOPENGL_PLATFORM", "osmesa"))
         command = [sys.executable, __file__, "--worker", "--iterations", str(args.iterations),
-                   "--warmup", str(args.warmup), "--device", args.device,
-                   "--pyrender-max-batch", str(args.pyrender_max_batch),
-                   "--batches", *map(str, args.batches), "--modes", *args.modes,
-                   "--renderers", *args.renderers, "--threads", *map(str, args.threads)]
-        print(f"{threads} thread(s) ...", file=sys.stderr, flush=True)
+                   "--warmup", str(args.warmup), "--device", args.device, *options]
         result = subprocess.run(command, env=env, stdout=subprocess.PIPE, text=True)
         if result.returncode != 0:
-            raise SystemExit(f"worker with {threads} thread(s) failed (exit {result.returncode})")
-        results.append(json.loads(result.stdout.strip().splitlines()[-1]))
+            raise SystemExit(f"worker {' '.join(options)} with {threads} thread(s) failed (exit {result.returncode})")
+        return json.loads(result.stdout.strip().splitlines()[-1])
 
-    rows = [row for r in results for row in r["rows"]]
-    flops = next(r["flops_per_env_iteration"] for r in results if "flops_per_env_iteration" in r)
-    rates = {(r["threads"], int(b)): v for r in results for b, v in r["matmul_flops_per_s"].items()}
-    refit = {r["threads"]: r["depth_refit_s"] for r in results}
+    rows, extras = [], []
+    for threads in args.threads:
+        extras.append(run(threads, "--extras", "--batches", *map(str, args.batches)))
+        for renderer in args.renderers:
+            for batch in args.batches:
+                if renderer == "pyrender" and batch > args.pyrender_max_batch:
+                    continue
+                for mode in args.modes:
+                    row = run(threads, "--renderers", renderer, "--batches", str(batch), "--modes", mode)
+                    print(f"  {threads} thread(s) {renderer:8s} B={batch:5d} {mode:7s} "
+                          f"{row['env_iterations_per_s']:9.1f} env-it/s", file=sys.stderr, flush=True)
+                    rows.append(row)
+
+    flops = extras[0]["flops_per_env_iteration"]
+    rates = {(r["threads"], int(b)): v for r in extras for b, v in r["matmul_flops_per_s"].items()}
+    refit = {r["threads"]: r["depth_refit_s"] for r in extras}
     baseline = {r["threads"]: r["env_iterations_per_s"] for r in rows
                 if r["renderer"] == "pyrender" and r["B"] == 1 and r["mode"] == "eager"}
     for row in rows:

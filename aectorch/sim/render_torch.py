@@ -183,7 +183,8 @@ def render_planes(
     if dtype == torch.float64 or layers * tex_h <= _ATLAS_ROWS_FLOAT32:
         # The atlas row of each sample: object texture or background (the last layer).
         layer = torch.where(on_object, index.to(dtype), float(layers - 1))
-        if torch.is_grad_enabled() and (u.requires_grad or v.requires_grad):
+        if torch.compiler.is_compiling() or (torch.is_grad_enabled() and (u.requires_grad or v.requires_grad)):
+            # (compiled: inductor fuses the stack; the in-place writes below do not trace)
             gx = u * (2.0 / tex_w) - 1.0
             gy = (layer * tex_h + v) * (2.0 / (layers * tex_h)) - 1.0
             grid = torch.stack((gx, gy), dim=-1)
