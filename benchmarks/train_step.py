@@ -36,6 +36,7 @@ Usage:
     python benchmarks/train_step.py                    # the full sweep (about 20 minutes on 2 cores)
     python benchmarks/train_step.py --quick            # B = 1, 16, 64; 1 thread; eager and compile
     python benchmarks/train_step.py --device cuda --renderers torch --batches 256 4096 16384
+    python benchmarks/train_step.py --leak 10000 --batches 16 --json benchmarks/results/train_step_leak.json
 
 Writes a table to stdout, JSON to benchmarks/results/train_step.json (--json) and the plots to
 docs/figures/train_step.png (--plot; ``--plot-only <json>`` redraws them).
@@ -196,6 +197,35 @@ def measure(renderer: str, batch: int, mode: str, iterations: int, warmup: int, 
     return row
 
 
+def leak(iterations: int, batch: int, device: str, samples: int = 50) -> dict:
+    """Resident memory over a long run: is there growth beyond the bounded depth store?"""
+    import torch
+
+    from aectorch.framework import JointLearner, LearnerConfig
+    from aectorch.sim import ActiveDepthEnv
+
+    env = ActiveDepthEnv(batch, seed=0, device=device)
+    learner = JointLearner(LearnerConfig(), generator=torch.Generator().manual_seed(0), device=device)
+    every = max(1, iterations // samples)
+    trace = []
+    start = time.perf_counter()
+    for i in range(1, iterations + 1):
+        learner.iteration(env)
+        if i % every == 0 or i == iterations:
+            trace.append((i, _rss_mb(), torch.cuda.memory_allocated() / 2**20 if device == "cuda" else None))
+    half = [(i, m) for i, m, _ in trace if i > iterations // 2]
+    n = len(half)
+    mean_i = sum(i for i, _ in half) / n
+    mean_m = sum(m for _, m in half) / n
+    slope = (sum((i - mean_i) * (m - mean_m) for i, m in half)
+             / max(sum((i - mean_i) ** 2 for i, _ in half), 1e-12))
+    return {"iterations": iterations, "B": batch, "seconds": time.perf_counter() - start,
+            "rss_mb": [[i, m] for i, m, _ in trace],
+            "cuda_mb": [[i, c] for i, _, c in trace] if device == "cuda" else None,
+            "slope_mb_per_1000_iterations_second_half": 1000 * slope,
+            "depth_samples_stored": int(learner.depth_inputs.shape[0])}
+
+
 def worker(args) -> dict:
     """One configuration (or, with --extras, the FLOP count, matmul rates and the depth refit)."""
     os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
@@ -204,6 +234,8 @@ def worker(args) -> dict:
 
     threads = int(os.environ["OMP_NUM_THREADS"])
     torch.set_num_threads(threads)
+    if args.leak:
+        return leak(args.leak, args.batches[0], args.device)
     if args.extras:
         return {
             "threads": threads,
@@ -274,6 +306,9 @@ def main() -> None:
                         help="only redraw --plot from an earlier run's JSON")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--extras", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--leak", type=int, default=0, metavar="ITERATIONS",
+                        help="instead of the sweep: resident memory over this many iterations at the "
+                             "first --batches B, one thread (JSON to --json)")
     args = parser.parse_args()
     if args.plot_only is not None:
         plot(json.loads(args.plot_only.read_text()), args.plot)
@@ -281,6 +316,21 @@ def main() -> None:
         return
     if args.quick:
         args.batches, args.threads, args.iterations = [1, 16, 64], [1], 10
+    if args.leak and not args.worker:
+        env = dict(os.environ, OMP_NUM_THREADS="1", PYOPENGL_PLATFORM=os.environ.get("PYOPENGL_PLATFORM", "osmesa"))
+        command = [sys.executable, __file__, "--worker", "--leak", str(args.leak), "--device", args.device,
+                   "--batches", str(args.batches[0])]
+        result = subprocess.run(command, env=env, stdout=subprocess.PIPE, text=True, check=True)
+        report = json.loads(result.stdout.strip().splitlines()[-1])
+        rss = report["rss_mb"]
+        print(f"B = {report['B']}: {report['iterations']} iterations in {report['seconds']:.0f} s; resident "
+              f"{rss[0][1]:.0f} MB at iteration {rss[0][0]}, {max(m for _, m in rss):.0f} MB at most, "
+              f"{rss[-1][1]:.0f} MB at the end; second-half slope "
+              f"{report['slope_mb_per_1000_iterations_second_half']:+.2f} MB per 1000 iterations")
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({"benchmark": "train_step --leak", **report}, indent=2) + "\n")
+        print(f"wrote {args.json}")
+        return
     if args.worker:
         print(json.dumps(worker(args)))
         return
