@@ -8,7 +8,7 @@ from aectorch.coding.dictionary import (
 )
 from aectorch.coding.encoder import BinocularEncoder, EncoderOutput
 from aectorch.coding.patches import COARSE, FINE, FovealPatches, Scale, extract_patches, pyramid_down
-from aectorch.coding.pursuit import gram_matrix, matching_pursuit, omp
+from aectorch.coding.pursuit import gram_matrix, matching_pursuit, omp, use_backend
 from aectorch.coding.sparse_code import SparseCode
 
 __all__ = [
@@ -28,4 +28,5 @@ __all__ = [
     "pooled_activity",
     "pyramid_down",
     "reconstruction_error",
+    "use_backend",
 ]

@@ -1,0 +1,121 @@
+"""The fused CPU pursuit kernel (``pursuit_cpu.cpp``), built on first use.
+
+`omp` and `matching_pursuit` run on CPU through the operator ``torch.ops.aectorch.pursuit``
+when it is available: one C++ loop per signal instead of ~20-45 tensor ops per pursuit step
+(docs/performance.md measures both). It is compiled once per machine with
+`torch.utils.cpp_extension` (g++ and ninja, both of which `torch.compile` on CPU needs too)
+into a cache folder, keyed by the source, the torch version and the CPU, and loaded from there
+afterwards in well under a second. ``scripts/setup.sh`` builds it at install time.
+
+If it cannot be built (no compiler, say), the pursuits fall back to the pure-torch code with one
+warning that says why; results agree within float rounding (tests/test_pursuit.py). Set
+``AECTORCH_NATIVE=0`` to never use it, and ``AECTORCH_CACHE`` to move the cache
+(default ``~/.cache/aectorch``).
+
+Example:
+    >>> from aectorch.coding import native
+    >>> isinstance(native.available(), bool)
+    True
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import platform
+import sys
+import threading
+import warnings
+from pathlib import Path
+
+import torch
+
+__all__ = ["available", "load", "pursuit", "SOURCE"]
+
+#: The C++ source of the kernel.
+SOURCE = Path(__file__).with_name("pursuit_cpu.cpp")
+
+_lock = threading.Lock()
+_state: dict[str, object] = {}
+
+
+def _cpu_signature() -> str:
+    # -march=native code must not run on another CPU: the build folder is keyed by its flags.
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+        flags = next((line for line in text.splitlines() if line.startswith("flags")), "")
+    except OSError:
+        flags = ""
+    return platform.machine() + flags
+
+
+def _build_dir() -> tuple[str, Path]:
+    key = hashlib.sha256(
+        SOURCE.read_bytes() + torch.__version__.encode() + sys.version.encode() + _cpu_signature().encode()
+    ).hexdigest()[:16]
+    root = Path(os.environ.get("AECTORCH_CACHE", Path.home() / ".cache" / "aectorch"))
+    return f"aectorch_pursuit_{key}", root / "native" / key
+
+
+def load(verbose: bool = False) -> bool:
+    """Build (once per machine) and load the kernel; True if ``torch.ops.aectorch.pursuit`` works.
+
+    Never raises: a failure is reported once as a `RuntimeWarning` and the pursuits use torch.
+    """
+    with _lock:
+        if "ok" in _state:
+            return bool(_state["ok"])
+        _state["ok"] = False
+        if os.environ.get("AECTORCH_NATIVE", "1").strip().lower() in ("0", "false", "no", "off"):
+            return False
+        try:
+            from torch.utils import cpp_extension
+
+            name, folder = _build_dir()
+            folder.mkdir(parents=True, exist_ok=True)
+            library = folder / f"{name}.so"
+            if not library.exists():
+                print("aectorch: compiling the fused CPU pursuit kernel (once per machine, "
+                      "about a minute)...", file=sys.stderr, flush=True)
+            # No fused multiply-add contraction: residual updates round like torch's addcmul, so an
+            # exactly cancelled correlation is 0 here too (not the product's rounding error).
+            flags = ["-O3", "-ffp-contract=off"]
+            if platform.machine() in ("x86_64", "AMD64"):
+                flags.append("-march=native")
+            cpp_extension.load(
+                name=name, sources=[str(SOURCE)], build_directory=str(folder), extra_cflags=flags,
+                is_python_module=False, verbose=verbose,
+            )
+            _register_fake()
+            _state["ok"] = True
+        except Exception as exc:  # noqa: BLE001 - any build or load failure means: use torch
+            warnings.warn(
+                f"aectorch: the fused CPU pursuit kernel is not available ({type(exc).__name__}: "
+                f"{str(exc).strip().splitlines()[-1] if str(exc).strip() else exc!r}); omp and "
+                "matching_pursuit use the slower pure-torch code. Set AECTORCH_NATIVE=0 to silence "
+                "this.", RuntimeWarning, stacklevel=3)
+        return bool(_state["ok"])
+
+
+def available() -> bool:
+    """Whether the kernel is loaded (building it on the first call)."""
+    return load()
+
+
+def _register_fake() -> None:
+    @torch.library.register_fake("aectorch::pursuit")
+    def _(signals, dictionary, gram, k, orthogonal, block):
+        m = signals.shape[0]
+        return signals.new_empty(m, k, dtype=torch.long), signals.new_empty(m, k)
+
+
+def pursuit(signals: torch.Tensor, dictionary: torch.Tensor, gram: torch.Tensor, k: int,
+            orthogonal: bool, block: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(indices [M, k], coefficients [M, k])`` of MP or OMP on CPU signals `[M, P]`.
+
+    Raises:
+        RuntimeError: the kernel could not be built or loaded (see `load`).
+    """
+    if not load():
+        raise RuntimeError("the fused CPU pursuit kernel is not available (see aectorch.coding.native.load)")
+    return torch.ops.aectorch.pursuit(signals, dictionary, gram, k, orthogonal, block)
