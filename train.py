@@ -11,8 +11,9 @@ checkpoint.pt, figures/, evaluation.json and summary.json. See docs/training.md.
     python train.py train.resume=/tmp/x train.iterations=1000   # continue a run in place
     python train.py -m seed=0,1,2                     # multirun sweep
 
-Invalid values exit with status 2 and one ``error: ...`` line; set ``AECTORCH_DEBUG=1``
-for the full traceback.
+Invalid values and bad files exit with status 2 and one ``error: ...`` line, a run stopped by
+the watchdog (`aectorch.watchdog`) with status 3; set ``AECTORCH_DEBUG=1`` for the full
+traceback.
 """
 
 from __future__ import annotations
@@ -52,18 +53,41 @@ def _command_line_keys() -> set[str]:
 def _prepare(raw: DictConfig) -> ExperimentConfig:
     """Validate everything before any work; on resume, take the run's own iterations/progress
     unless the command line gives them."""
-    from aectorch.experiment import load_checkpoint
+    from aectorch.experiment import checkpoint_config, load_checkpoint
 
     cfg = to_experiment_config(raw)
     validate_resources(cfg)
     if cfg.train.resume is not None:
-        stored = to_experiment_config(load_checkpoint(Path(cfg.train.resume) / "checkpoint.pt")["config"])
+        path = Path(cfg.train.resume) / "checkpoint.pt"
+        stored = checkpoint_config(load_checkpoint(path), path)
         given = _command_line_keys()
         for key in ("iterations", "progress"):
             if f"train.{key}" not in given:
                 setattr(cfg.train, key, getattr(stored.train, key))
+        _check_resume_overrides(cfg, stored, given)
         validate_resources(stored)
     return cfg
+
+
+def _check_resume_overrides(cfg: ExperimentConfig, stored: ExperimentConfig, given: set[str]) -> None:
+    """A resumed run is the stored run: a command-line value that contradicts it is an error, not
+    silently ignored (only train.iterations/progress/resume and watchdog.* may change)."""
+    from omegaconf import OmegaConf
+
+    from aectorch.config import to_container
+    from aectorch.experiment import RESUME_KEYS
+
+    mine, theirs = OmegaConf.create(to_container(cfg)), OmegaConf.create(to_container(stored))
+    for key in sorted(given):
+        if key.startswith(("hydra.", "watchdog")) or key in {f"train.{k}" for k in RESUME_KEYS} \
+                or key in ("preset", "experiment"):
+            continue
+        ours, run = OmegaConf.select(mine, key), OmegaConf.select(theirs, key)
+        if ours != run:
+            raise ValueError(
+                f"{key}={ours!r} contradicts the resumed run's {key}={run!r}: train.resume continues "
+                f"{cfg.train.resume} with its own config (only train.iterations, train.progress and "
+                "watchdog.* may be given); start a new run to change it")
 
 
 @hydra.main(version_base=None, config_name="train")
@@ -76,8 +100,18 @@ def main(raw: DictConfig) -> dict:
         # Exit here, inside the job: Hydra would add its own "Error executing job" line.
         _fail(str(err).strip().splitlines()[0])
     from aectorch.experiment import run_experiment
+    from aectorch.watchdog import WatchdogError
 
-    return run_experiment(cfg, Path(HydraConfig.get().runtime.output_dir))
+    try:
+        return run_experiment(cfg, Path(HydraConfig.get().runtime.output_dir))
+    except WatchdogError:
+        if _debug():
+            raise
+        sys.exit(3)  # the message and the checkpoint's iteration are printed already
+    except ValueError as err:  # a file found bad while building (an image, a checkpoint's state)
+        if _debug():
+            raise
+        _fail(str(err).strip().splitlines()[0])
 
 
 def _one_line(err: BaseException) -> str:

@@ -25,6 +25,7 @@ import torch
 
 from aectorch.framework import LearnerConfig
 from aectorch.sim import DEFAULT_DISTANCES_M, RENDERERS
+from aectorch.watchdog import WatchdogConfig
 
 __all__ = [
     "EnvConfig",
@@ -34,6 +35,7 @@ __all__ = [
     "PerturbationConfig",
     "ROLL_PERTURBATION",
     "TrainConfig",
+    "WatchdogConfig",
     "register_configs",
     "to_experiment_config",
     "validate_resources",
@@ -192,6 +194,9 @@ class TrainConfig:
         progress: show tqdm progress bars.
         figures: draw the figures into ``figures/`` at the end.
         tensorboard: write TensorBoard events into ``tb/``.
+        deterministic: ``torch.use_deterministic_algorithms(True, warn_only=True)`` for the
+            run (and cuBLAS's workspace setting on CUDA): the same seed and config give the same
+            run on the same machine.
     """
 
     iterations: int = 3000
@@ -203,6 +208,7 @@ class TrainConfig:
     progress: bool = True
     figures: bool = True
     tensorboard: bool = True
+    deterministic: bool = True
 
     def __post_init__(self) -> None:
         owner = "train"
@@ -210,7 +216,7 @@ class TrainConfig:
         _require_int(owner, "log_every", self.log_every, 1)
         _require_int(owner, "checkpoint_every", self.checkpoint_every, 1)
         _require_int(owner, "threads", self.threads, 1)
-        for name in ("compile", "progress", "figures", "tensorboard"):
+        for name in ("compile", "progress", "figures", "tensorboard", "deterministic"):
             _require_bool(owner, name, getattr(self, name))
         if self.resume is not None and (not isinstance(self.resume, str) or not self.resume):
             raise ValueError(f"{owner}.resume must be null or a run folder, got {self.resume!r}")
@@ -309,6 +315,8 @@ class ExperimentConfig:
         train: the loop, logs and checkpoints (:class:`TrainConfig`).
         eval: the final evaluation on held-out textures (:class:`EvalConfig`).
         perturbation: the roll perturbation (:class:`PerturbationConfig`).
+        watchdog: the health checks after every iteration (`aectorch.watchdog.WatchdogConfig`;
+            on resume taken from the command line, since it changes nothing that is learned).
         seed: seeds the learner's generator (initial dictionaries and policies, actions) and the
             environments' (textures, distances) (>= 0).
     """
@@ -318,6 +326,7 @@ class ExperimentConfig:
     train: TrainConfig = field(default_factory=TrainConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
     perturbation: PerturbationConfig = field(default_factory=PerturbationConfig)
+    watchdog: WatchdogConfig = field(default_factory=WatchdogConfig)
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -346,26 +355,42 @@ def to_container(cfg: ExperimentConfig) -> dict:
     return OmegaConf.to_container(OmegaConf.structured(cfg), resolve=True)
 
 
-def _has_images(folder: str) -> bool:
+def _images(folder: str) -> list[str]:
     from aectorch.sim.textures import IMAGE_EXTENSIONS
 
     extensions = {e.lower() if e.startswith(".") else f".{e.lower()}" for e in IMAGE_EXTENSIONS}
-    return any(
-        entry.is_file() and not entry.name.startswith(".") and os.path.splitext(entry.name)[1].lower() in extensions
-        for entry in os.scandir(folder)
+    return sorted(
+        entry.path for entry in os.scandir(folder)
+        if entry.is_file() and not entry.name.startswith(".") and os.path.splitext(entry.name)[1].lower() in extensions
     )
 
 
+def _check_images(name: str, folder: str) -> None:
+    """Every image of the folder opens (its header and data structure, without decoding it all)."""
+    from PIL import Image
+
+    files = _images(folder)
+    if not files:
+        raise ValueError(f"{name}: the folder {folder!r} holds no images")
+    for file in files:
+        try:
+            with Image.open(file) as image:
+                image.verify()
+        except Exception as err:  # PIL raises many types for broken files
+            raise ValueError(f"{name}: cannot read the image {file!r} ({type(err).__name__}: {err}); "
+                             "remove or replace it") from err
+
+
 def validate_resources(cfg: ExperimentConfig) -> None:
-    """Check what the dataclasses cannot: folders exist and hold images, the renderer imports,
-    the resume folder has a checkpoint. Raises ``ValueError`` naming the field."""
+    """Check what the dataclasses cannot: folders exist and hold readable images, the renderer
+    imports, the resume folder has a checkpoint. Raises ``ValueError`` naming the field (and the
+    file)."""
     for name, folder in (("env.textures", cfg.env.textures), ("eval.textures", cfg.eval.textures)):
         if folder is None:
             continue
         if not os.path.isdir(folder):
             raise ValueError(f"{name}: no such folder {folder!r}")
-        if not _has_images(folder):
-            raise ValueError(f"{name}: the folder {folder!r} holds no images")
+        _check_images(name, folder)
     if cfg.env.renderer == "pyrender":
         try:
             import pyrender  # noqa: F401

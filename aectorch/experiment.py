@@ -4,6 +4,8 @@
 and a run folder. It writes into the folder
 
 - ``config.yaml``: the resolved config;
+- ``provenance.json``: the aectorch, torch and Python versions, the git commit, device, CPU and
+  host of the run, one entry per session (the first run and every resume; `aectorch.provenance`);
 - ``metrics.jsonl``: one JSON line every ``train.log_every`` iterations (`aectorch.metrics`);
 - ``tb/``: the same scalars as TensorBoard events;
 - ``checkpoint.pt``: every ``train.checkpoint_every`` iterations, at the end and when
@@ -37,7 +39,9 @@ import torch
 from aectorch.config import ExperimentConfig, to_container, to_experiment_config, validate_resources
 from aectorch.framework import IterationRecord, JointLearner
 from aectorch.metrics import CUES, TrainingMetrics
+from aectorch.provenance import provenance
 from aectorch.sim import ActiveDepthEnv, TextureBank
+from aectorch.watchdog import Watchdog, WatchdogError
 
 __all__ = [
     "CHECKPOINT_FORMAT",
@@ -45,15 +49,18 @@ __all__ = [
     "build_learner",
     "build_textures",
     "dictionaries",
+    "checkpoint_config",
     "load_checkpoint",
     "load_learner",
+    "restore",
     "resume_config",
     "run_experiment",
     "save_checkpoint",
 ]
 
 CHECKPOINT_FORMAT = 1
-#: Keys kept from the command line when a run is resumed; everything else is the run's own.
+#: Keys of ``train`` kept from the command line when a run is resumed (and the whole ``watchdog``
+#: section, which changes nothing that is learned); everything else is the run's own.
 RESUME_KEYS = ("iterations", "progress", "resume")
 
 
@@ -146,20 +153,42 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
     return payload
 
 
+def checkpoint_config(payload: dict, path: str | os.PathLike) -> ExperimentConfig:
+    """The validated config stored in a checkpoint; ``ValueError`` naming ``path`` if this version
+    of aectorch cannot read it."""
+    try:
+        return to_experiment_config(payload["config"])
+    except Exception as err:  # unknown keys, wrong types, impossible values
+        raise ValueError(f"the checkpoint {str(path)!r} holds a config this aectorch cannot use "
+                         f"({type(err).__name__}: {str(err).strip().splitlines()[0]})") from err
+
+
+def restore(target, state: dict, path: str | os.PathLike, what: str) -> None:
+    """``target.load_state_dict(state)``; ``ValueError`` naming ``path`` when they do not fit."""
+    try:
+        target.load_state_dict(state)
+    except Exception as err:  # missing/unexpected keys, shape mismatches
+        raise ValueError(f"the {what} state in {str(path)!r} does not fit its config "
+                         f"({type(err).__name__}: {str(err).strip().splitlines()[0]}); was it written "
+                         "by an incompatible aectorch version?") from err
+
+
 def load_learner(checkpoint_path: str | os.PathLike, device=None) -> tuple[ExperimentConfig, JointLearner]:
     """The config and the trained learner of a checkpoint (on ``device``, default the run's)."""
     payload = load_checkpoint(checkpoint_path)
-    cfg = to_experiment_config(payload["config"])
+    cfg = checkpoint_config(payload, checkpoint_path)
     learner = build_learner(cfg, device=device)
-    learner.load_state_dict(payload["learner"])
+    restore(learner, payload["learner"], checkpoint_path, "learner")
     return cfg, learner
 
 
 def resume_config(cfg: ExperimentConfig, checkpoint: dict) -> ExperimentConfig:
     """The stored config of ``checkpoint`` with ``train.iterations/progress/resume`` of ``cfg``."""
-    stored = to_container(to_experiment_config(checkpoint["config"]))
+    where = Path(cfg.train.resume) / "checkpoint.pt" if cfg.train.resume else "the checkpoint"
+    stored = to_container(checkpoint_config(checkpoint, where))
     for key in RESUME_KEYS:
         stored["train"][key] = getattr(cfg.train, key)
+    stored["watchdog"] = to_container(cfg)["watchdog"]
     return to_experiment_config(stored)
 
 
@@ -182,11 +211,12 @@ def _truncate_metrics(path: Path, iteration: int) -> None:
     path.write_text("".join(line + "\n" for line in kept))
 
 
-def _state(learner, env, metrics) -> dict:
+def _state(learner, env, metrics, watchdog) -> dict:
     return {
         "learner": copy.deepcopy(learner.state_dict()),
         "env": env.state_dict(),
         "metrics": metrics.state_dict(),
+        "watchdog": watchdog.state_dict(),
     }
 
 
@@ -222,6 +252,20 @@ def run_experiment(
     from omegaconf import OmegaConf
 
     validate_resources(cfg)
+    previous = (torch.are_deterministic_algorithms_enabled(), torch.is_deterministic_algorithms_warn_only_enabled())
+    if cfg.train.deterministic:
+        if torch.device(cfg.env.device).type == "cuda":
+            os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")  # cuBLAS's condition for it
+        torch.use_deterministic_algorithms(True, warn_only=True)
+    try:
+        return _run(cfg, run_dir, callback)
+    finally:  # a process-wide switch: leave it as the caller had it
+        torch.use_deterministic_algorithms(previous[0], warn_only=previous[1])
+
+
+def _run(cfg: ExperimentConfig, run_dir, callback) -> dict:
+    from omegaconf import OmegaConf
+
     torch.set_num_threads(cfg.train.threads)
     checkpoint = None
     if cfg.train.resume is not None:
@@ -235,10 +279,14 @@ def run_experiment(
     env = build_env(cfg)
     learner = build_learner(cfg)
     metrics = TrainingMetrics(cfg.env.num_envs, scales=cfg.learner.scales)
+    watchdog = Watchdog(cfg.watchdog, total)
     if checkpoint is not None:
-        learner.load_state_dict(checkpoint["learner"])
-        env.load_state_dict(checkpoint["env"])
-        metrics.load_state_dict(checkpoint["metrics"])
+        path = run_dir / "checkpoint.pt"
+        restore(learner, checkpoint["learner"], path, "learner")
+        restore(env, checkpoint["env"], path, "environment")
+        restore(metrics, checkpoint["metrics"], path, "metrics")
+        if "watchdog" in checkpoint:
+            restore(watchdog, checkpoint["watchdog"], path, "watchdog")
         start = int(checkpoint["iteration"])
         initial = checkpoint["initial_dictionaries"]
         elapsed_before = float(checkpoint["elapsed_s"])
@@ -247,6 +295,11 @@ def run_experiment(
         start, initial, elapsed_before = 0, dictionaries(learner), 0.0
     config_dict = to_container(cfg)
     (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(config_dict)))
+    session = {**provenance(cfg.env.device), "start_iteration": start}
+    provenance_path = run_dir / "provenance.json"
+    sessions = json.loads(provenance_path.read_text())["sessions"] if checkpoint is not None \
+        and provenance_path.exists() else []
+    _write_json(provenance_path, {"sessions": sessions + [session]})
     metrics_path = run_dir / "metrics.jsonl"
     if checkpoint is None:
         metrics_path.write_text("")
@@ -272,7 +325,7 @@ def run_experiment(
         bar = tqdm(total=total, initial=start, desc="training", unit="it", dynamic_ncols=True)
     clock = time.perf_counter()
     elapsed = lambda: elapsed_before + time.perf_counter() - clock  # noqa: E731
-    last = (start, _state(learner, env, metrics))  # the last completed iteration
+    last = (start, _state(learner, env, metrics, watchdog))  # the last completed (healthy) iteration
     it = start
     previous_sigterm = _interrupt_on_sigterm()
     try:
@@ -288,6 +341,7 @@ def run_experiment(
                 done = it + 1
                 if callback is not None:
                     callback(done, record)
+                watchdog.check(done, record, learner)  # raises in mode "stop": `last` is healthy
                 if done % cfg.train.log_every == 0 or done == total:
                     roll = env.roll_deg[0].tolist()
                     line = {"iteration": done, "env_iterations": done * cfg.env.num_envs,
@@ -303,21 +357,29 @@ def run_experiment(
                         bar.set_postfix(pursuit=f"{line['pursuit_mae_deg']:.3f}",
                                         vergence=f"{line['vergence_mae_deg']:.3f}",
                                         depth=f"{line['depth_mae_m']:.3f}", refresh=False)
-                state = _state(learner, env, metrics)
+                state = _state(learner, env, metrics, watchdog)
                 if done % cfg.train.checkpoint_every == 0 or done == total:
                     save_checkpoint(run_dir / "checkpoint.pt", payload(done, state, elapsed()))
                 last = (done, state)
                 if bar is not None:
                     bar.update(1)
-    except BaseException:
+    except BaseException as err:
         done, state = last
         if done > start or checkpoint is None:
             save_checkpoint(run_dir / "checkpoint.pt", payload(done, state, elapsed()))
-        print(
-            f"\ninterrupted after iteration {done} of {total}; checkpoint written to "
-            f"{run_dir / 'checkpoint.pt'}\nresume with: python train.py train.resume={run_dir}",
-            file=sys.stderr,
-        )
+        if isinstance(err, WatchdogError):
+            print(
+                f"\n{err}\nstopped; {run_dir / 'checkpoint.pt'} holds iteration {done}, the last healthy "
+                f"one. Resuming it repeats the same computation; watchdog.mode=warn continues past the "
+                f"check: python train.py train.resume={run_dir} watchdog.mode=warn",
+                file=sys.stderr,
+            )
+        else:
+            print(
+                f"\ninterrupted after iteration {done} of {total}; checkpoint written to "
+                f"{run_dir / 'checkpoint.pt'}\nresume with: python train.py train.resume={run_dir}",
+                file=sys.stderr,
+            )
         raise
     finally:
         if previous_sigterm is not None:
@@ -327,10 +389,10 @@ def run_experiment(
         if writer is not None:
             writer.close()
     train_seconds = elapsed()
-    return _finish(cfg, run_dir, learner, env, initial, events, train_seconds)
+    return _finish(cfg, run_dir, learner, env, initial, events, train_seconds, session)
 
 
-def _finish(cfg, run_dir: Path, learner, env, initial, events, train_seconds) -> dict:
+def _finish(cfg, run_dir: Path, learner, env, initial, events, train_seconds, session: dict) -> dict:
     total = cfg.train.iterations
     records = _read_lines(run_dir / "metrics.jsonl")
     # The last line (always written at the last iteration) holds the final interval's averages.
@@ -343,6 +405,7 @@ def _finish(cfg, run_dir: Path, learner, env, initial, events, train_seconds) ->
         "train_seconds": train_seconds,
         "iterations_per_s": total / max(train_seconds, 1e-9),
         "final": {k: _json_value(v) for k, v in final.items()},
+        "provenance": session,
     }
     figures = None
     if cfg.train.figures:

@@ -1,0 +1,190 @@
+"""A watchdog for long training runs: non-finite values and divergence, caught when they happen.
+
+`Watchdog.check` runs after every learner iteration of `aectorch.experiment.run_experiment`
+and looks for
+
+- **non-finite values** in the iteration's rewards, reconstruction errors, TD errors and policy
+  entropies, and in every floating-point parameter and buffer of the learner (dictionaries,
+  actor and critic weights, the depth MLP and its stored trials): one fused reduction and one
+  host sync per iteration;
+- **a TD error exploding**: a cue's mean |TD error| in one iteration above
+  ``td_error_max``;
+- **the policy entropy collapsing early**: a cue's mean entropy below ``entropy_min_nats`` within
+  the first ``entropy_grace_fraction`` of the run (later, a near-deterministic policy is what
+  learning is for);
+- **dead atoms**: more than ``dead_atoms_max_fraction`` of a dictionary's atoms never chosen in a
+  window of ``dead_atoms_window`` iterations.
+
+With ``mode="stop"`` the first problem raises `WatchdogError`; the run's interruption handler
+then writes the checkpoint of the last iteration that passed (so the fault is not in it) and the
+message says how to resume. With ``mode="warn"`` each kind of problem is reported once as a
+`RuntimeWarning` and the run goes on; ``mode="off"`` skips the checks.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+__all__ = ["WATCHDOG_MODES", "Watchdog", "WatchdogConfig", "WatchdogError"]
+
+WATCHDOG_MODES = ("stop", "warn", "off")
+
+
+class WatchdogError(RuntimeError):
+    """A training run found unhealthy by the `Watchdog` (``mode="stop"``)."""
+
+
+@dataclass
+class WatchdogConfig:
+    """What the watchdog checks after every iteration, and what it does about a problem.
+
+    Attributes:
+        mode: ``"stop"`` (raise `WatchdogError`; the checkpoint keeps the last healthy
+            iteration), ``"warn"`` (a warning per kind of problem, the run goes on) or ``"off"``.
+        td_error_max: a cue's mean |TD error| over the environments above this (> 0) is a
+            diverging critic. The coding rewards are O(1), so are healthy TD errors.
+        entropy_min_nats: a cue's mean policy entropy below this (>= 0) ...
+        entropy_grace_fraction: ... within this first fraction of ``train.iterations`` ([0, 1])
+            is an early collapse of exploration.
+        dead_atoms_window: iterations (>= 1) over which atom selections are counted.
+        dead_atoms_max_fraction: more than this fraction ((0, 1]) of a dictionary's atoms chosen
+            never in a window means the dictionary is dying.
+    """
+
+    mode: str = "stop"
+    td_error_max: float = 100.0
+    entropy_min_nats: float = 1e-3
+    entropy_grace_fraction: float = 0.1
+    dead_atoms_window: int = 500
+    dead_atoms_max_fraction: float = 0.5
+
+    def __post_init__(self) -> None:
+        owner = "watchdog"
+        if self.mode not in WATCHDOG_MODES:
+            raise ValueError(f"{owner}.mode must be one of {WATCHDOG_MODES}, got {self.mode!r}")
+        checks = (
+            ("td_error_max", lambda v: v > 0, "a number > 0"),
+            ("entropy_min_nats", lambda v: v >= 0, "a number >= 0"),
+            ("entropy_grace_fraction", lambda v: 0 <= v <= 1, "a number in [0, 1]"),
+            ("dead_atoms_max_fraction", lambda v: 0 < v <= 1, "a number in (0, 1]"),
+        )
+        for name, ok, expected in checks:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+                    or not ok(value):
+                raise ValueError(f"{owner}.{name} must be {expected}, got {value!r}")
+        window = self.dead_atoms_window
+        if isinstance(window, bool) or not isinstance(window, int) or window < 1:
+            raise ValueError(f"{owner}.dead_atoms_window must be an int >= 1, got {window!r}")
+
+
+class Watchdog:
+    """Checks a `JointLearner` and its `IterationRecord` after every iteration (see the module).
+
+    Args:
+        config: `WatchdogConfig`.
+        iterations: the run's total learner iterations (for the entropy grace period).
+
+    Example:
+        >>> import torch
+        >>> from aectorch.framework import JointLearner, LearnerConfig
+        >>> from aectorch.sim import ActiveDepthEnv, TextureBank
+        >>> from aectorch.watchdog import Watchdog, WatchdogConfig
+        >>> env = ActiveDepthEnv(2, textures=TextureBank.procedural(4, size=(64, 64), seed=0), seed=0)
+        >>> learner = JointLearner(LearnerConfig(num_atoms=16), generator=torch.Generator().manual_seed(0))
+        >>> dog = Watchdog(WatchdogConfig(), iterations=100)
+        >>> dog.check(1, learner.iteration(env), learner)
+        []
+    """
+
+    def __init__(self, config: WatchdogConfig, iterations: int) -> None:
+        self.config = config
+        self.iterations = iterations
+        self.warned: set[str] = set()
+        self._counts: dict[str, torch.Tensor] = {}
+        self._window_start = 0
+
+    def _state_tensors(self, learner: nn.Module) -> list[tuple[str, torch.Tensor]]:
+        named = list(learner.named_parameters()) + list(learner.named_buffers())
+        return [(name, t) for name, t in named if t.is_floating_point() and t.numel() > 0]
+
+    def check(self, iteration: int, record, learner: nn.Module) -> list[str]:
+        """The problems after completed iteration ``iteration`` (1-based); raises in ``stop`` mode.
+
+        Returns:
+            One message per problem found (empty when healthy, or when ``mode="off"``).
+        """
+        cfg = self.config
+        if cfg.mode == "off":
+            return []
+        cues = {"parallax": record.parallax, "stereo": record.stereo}
+        named: list[tuple[str, torch.Tensor]] = []
+        for cue, c in cues.items():
+            named += [(f"{cue} reward", c.reward), (f"{cue} reconstruction error", c.errors),
+                      (f"{cue} policy entropy", c.entropy)]
+            if c.td_error is not None:
+                named.append((f"{cue} TD error", c.td_error))
+        named += [(f"learner.{name}", t) for name, t in self._state_tensors(learner)]
+        # One reduction per tensor, one host sync for all of them.
+        device = named[0][1].device
+        finite = torch.stack([t.detach().isfinite().all().to(device) for _, t in named]).tolist()
+        problems = [("nonfinite", f"non-finite values (NaN or inf) in {name} at iteration {iteration}")
+                    for (name, _), ok in zip(named, finite) if not ok]
+        if not problems:
+            problems += self._divergence(iteration, cues)
+        messages = [text for _, text in problems]
+        if not problems:
+            return messages
+        if cfg.mode == "stop":
+            raise WatchdogError(f"watchdog: {messages[0]}" + (
+                f" (and {len(messages) - 1} more problem(s))" if len(messages) > 1 else ""))
+        for kind, text in problems:
+            if kind not in self.warned:
+                self.warned.add(kind)
+                warnings.warn(f"watchdog: {text} (reported once; watchdog.mode=warn)", RuntimeWarning,
+                              stacklevel=2)
+        return messages
+
+    def _divergence(self, iteration: int, cues: dict) -> list[tuple[str, str]]:
+        cfg = self.config
+        out = []
+        for cue, c in cues.items():
+            if c.td_error is not None:
+                td = float(c.td_error.detach().abs().double().mean())
+                if td > cfg.td_error_max:
+                    out.append(("td_error", f"{cue} mean |TD error| {td:.4g} > watchdog.td_error_max "
+                                            f"{cfg.td_error_max:g} at iteration {iteration}: the critic diverges"))
+            if iteration <= cfg.entropy_grace_fraction * self.iterations:
+                entropy = float(c.entropy.detach().double().mean())
+                if entropy < cfg.entropy_min_nats:
+                    out.append(("entropy", f"{cue} policy entropy {entropy:.3g} nats < watchdog.entropy_min_nats "
+                                           f"{cfg.entropy_min_nats:g} at iteration {iteration}, within the first "
+                                           f"{cfg.entropy_grace_fraction:g} of the run: exploration collapsed"))
+            counts = c.atom_counts.detach().cpu()
+            self._counts[cue] = counts if cue not in self._counts else self._counts[cue] + counts
+        if iteration - self._window_start >= cfg.dead_atoms_window:
+            for cue, counts in self._counts.items():
+                for scale, row in enumerate(counts):
+                    dead = float((row == 0).double().mean())
+                    if dead > cfg.dead_atoms_max_fraction:
+                        out.append(("dead_atoms", f"{cue} dictionary (scale {scale}): {dead:.0%} of the atoms "
+                                                  f"never chosen in iterations {self._window_start + 1}-{iteration} "
+                                                  f"> watchdog.dead_atoms_max_fraction "
+                                                  f"{cfg.dead_atoms_max_fraction:g}"))
+            self._counts, self._window_start = {}, iteration
+        return out
+
+    def state_dict(self) -> dict:
+        """What a resumed run needs to check exactly as an uninterrupted one would."""
+        return {"warned": sorted(self.warned), "counts": {k: v.clone() for k, v in self._counts.items()},
+                "window_start": self._window_start}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.warned = set(state["warned"])
+        self._counts = {k: v.clone() for k, v in state["counts"].items()}
+        self._window_start = int(state["window_start"])

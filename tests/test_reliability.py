@@ -1,0 +1,255 @@
+"""Reliability: reproducible runs, whole-checkpoint equality on resume, the watchdog, provenance,
+and bad files / contradictory options stopped before any work with one line."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from aectorch.experiment import load_checkpoint, run_experiment, save_checkpoint
+from aectorch.framework import JointLearner, LearnerConfig
+from aectorch.sim import ActiveDepthEnv, TextureBank
+from aectorch.watchdog import Watchdog, WatchdogConfig, WatchdogError
+
+from test_train import _cfg, _lines, _train, _without_time, TINY  # noqa: F401  (shared fixtures)
+from test_train import textures  # noqa: F401
+
+
+def _assert_equal_everywhere(a, b, path="checkpoint"):
+    """Every tensor and value of two checkpoints is equal (NaN equal to NaN), except the wall
+    time and the config's record of where the run was resumed from."""
+    assert type(a) is type(b), path
+    if isinstance(a, torch.Tensor):
+        assert a.dtype == b.dtype and a.shape == b.shape, path
+        assert torch.equal(a, b) or (a.is_floating_point() and torch.equal(a.isnan(), b.isnan())
+                                     and torch.equal(a.nan_to_num(), b.nan_to_num())), path
+    elif isinstance(a, dict):
+        assert a.keys() == b.keys(), path
+        for key in a:
+            if key != "elapsed_s" and f"{path}.{key}" != "checkpoint.config.train.resume":
+                _assert_equal_everywhere(a[key], b[key], f"{path}.{key}")
+    elif isinstance(a, (list, tuple)):
+        assert len(a) == len(b), path
+        for i, (x, y) in enumerate(zip(a, b)):
+            _assert_equal_everywhere(x, y, f"{path}[{i}]")
+    elif isinstance(a, float) and math.isnan(a):
+        assert math.isnan(b), path
+    else:
+        assert a == b, path
+
+
+# -- reproducible -----------------------------------------------------------------------------------
+def test_same_seed_and_config_give_the_same_run(tmp_path, textures):
+    one, two = tmp_path / "one", tmp_path / "two"
+    run_experiment(_cfg(textures), one)
+    run_experiment(_cfg(textures), two)
+    assert _without_time(_lines(one)) == _without_time(_lines(two))
+    _assert_equal_everywhere(load_checkpoint(one / "checkpoint.pt"), load_checkpoint(two / "checkpoint.pt"))
+    other = tmp_path / "other"
+    run_experiment(_cfg(textures, "seed=1"), other)  # and the seed matters
+    assert _without_time(_lines(one)) != _without_time(_lines(other))
+
+
+def test_planned_stop_and_sigterm_resume_to_the_same_checkpoint_tensors(tmp_path, textures):
+    straight = tmp_path / "straight"
+    run_experiment(_cfg(textures), straight)
+    reference = load_checkpoint(straight / "checkpoint.pt")
+    # a planned stop at 6 of 12, then resumed
+    planned = tmp_path / "planned"
+    run_experiment(_cfg(textures, "train.iterations=6"), planned)
+    run_experiment(_cfg(textures, f"train.resume={planned}"), planned)
+    # SIGTERM in the middle (after iteration 7 completed), then resumed
+    killed = tmp_path / "killed"
+
+    def terminate(done, record):
+        if done == 8:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    with pytest.raises(KeyboardInterrupt):
+        run_experiment(_cfg(textures), killed, callback=terminate)
+    assert load_checkpoint(killed / "checkpoint.pt")["iteration"] == 7
+    run_experiment(_cfg(textures, f"train.resume={killed}"), killed)
+    for run in (planned, killed):
+        _assert_equal_everywhere(reference, load_checkpoint(run / "checkpoint.pt"))
+        # metrics continue without duplicates or gaps
+        assert _without_time(_lines(run)) == _without_time(_lines(straight))
+
+
+def test_tensorboard_continues_without_duplicates_or_gaps(tmp_path, textures):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    run = tmp_path / "run"
+    cfg = ["train.tensorboard=true"]
+    run_experiment(_cfg(textures, *cfg, "train.iterations=6"), run)
+    run_experiment(_cfg(textures, *cfg, f"train.resume={run}"), run)
+    events = EventAccumulator(str(run / "tb"))
+    events.Reload()
+    steps = [e.step for e in events.Scalars("pursuit_mae_deg")]
+    assert steps == list(range(2, 13, 2))
+
+
+# -- provenance --------------------------------------------------------------------------------------
+def test_run_folder_records_versions_commit_and_device(tmp_path, textures):
+    run = tmp_path / "run"
+    run_experiment(_cfg(textures, "train.iterations=4"), run)
+    sessions = json.loads((run / "provenance.json").read_text())["sessions"]
+    assert len(sessions) == 1
+    info = sessions[0]
+    import aectorch
+
+    assert info["aectorch"] == aectorch.__version__ and info["torch"] == torch.__version__
+    assert info["device"] == "cpu" and info["start_iteration"] == 0
+    assert info["deterministic_algorithms"] is True
+    assert info["git"] is None or len(info["git"]["commit"]) == 40
+    assert not torch.are_deterministic_algorithms_enabled()  # restored for the caller
+    run_experiment(_cfg(textures, f"train.resume={run}", "train.iterations=6"), run)
+    sessions = json.loads((run / "provenance.json").read_text())["sessions"]
+    assert [s["start_iteration"] for s in sessions] == [0, 4]
+    assert json.loads((run / "summary.json").read_text())["provenance"]["start_iteration"] == 4
+
+
+# -- the watchdog ------------------------------------------------------------------------------------
+def test_watchdog_stops_on_nan_and_keeps_the_last_healthy_checkpoint(tmp_path, textures, monkeypatch):
+    learners = []  # the run's learner, captured as it is built (its real __init__ runs)
+    build = JointLearner.__init__
+
+    def capture(self, *args, **kwargs):
+        build(self, *args, **kwargs)
+        learners.append(self)
+
+    def poison(done, record):  # what a diverging update does: one atom goes NaN
+        if done == 5:
+            with torch.no_grad():
+                learners[0].stereo.dictionaries["fine"].atoms[3, 7] = float("nan")
+
+    monkeypatch.setattr(JointLearner, "__init__", capture)
+    run = tmp_path / "run"
+    with pytest.raises(WatchdogError, match=r"non-finite values \(NaN or inf\) in learner\.stereo\.dictionaries\.fine\.atoms at iteration 5"):
+        run_experiment(_cfg(textures), run, callback=poison)
+    checkpoint = load_checkpoint(run / "checkpoint.pt")
+    assert checkpoint["iteration"] == 4
+    assert all(bool(t.isfinite().all()) for t in checkpoint["learner"].values()
+               if isinstance(t, torch.Tensor) and t.is_floating_point() and t.numel())
+
+
+def _record_and_learner():
+    env = ActiveDepthEnv(2, textures=TextureBank.procedural(4, size=(64, 64), seed=0), seed=0,
+                         fixation_iterations=3)
+    learner = JointLearner(LearnerConfig(num_atoms=16), generator=torch.Generator().manual_seed(0))
+    learner.iteration(env)
+    return learner.iteration(env), learner  # the second has TD errors
+
+
+def test_watchdog_detects_divergence_and_collapse():
+    record, learner = _record_and_learner()
+    healthy = Watchdog(WatchdogConfig(), iterations=100)
+    assert healthy.check(1, record, learner) == []
+    exploding = record._replace(parallax=record.parallax._replace(td_error=torch.full((2,), 1e4)))
+    with pytest.raises(WatchdogError, match="parallax mean |TD error| 1e\\+04 > watchdog.td_error_max"):
+        Watchdog(WatchdogConfig(), iterations=100).check(2, exploding, learner)
+    collapsed = record._replace(stereo=record.stereo._replace(entropy=torch.zeros(2)))
+    with pytest.raises(WatchdogError, match="stereo policy entropy 0 nats"):
+        Watchdog(WatchdogConfig(), iterations=100).check(5, collapsed, learner)
+    # after the grace period a deterministic policy is fine
+    assert Watchdog(WatchdogConfig(), iterations=100).check(50, collapsed, learner) == []
+    # dead atoms: counted over a window
+    dog = Watchdog(WatchdogConfig(dead_atoms_window=3), iterations=100)
+    counts = torch.zeros_like(record.parallax.atom_counts)
+    counts[:, :4] = 10  # 12 of 16 atoms never chosen
+    dying = record._replace(parallax=record.parallax._replace(atom_counts=counts))
+    assert dog.check(1, dying, learner) == [] and dog.check(2, dying, learner) == []
+    with pytest.raises(WatchdogError, match=r"parallax dictionary \(scale 0\): 75% of the atoms never chosen"):
+        dog.check(3, dying, learner)
+    nan_reward = record._replace(stereo=record.stereo._replace(reward=torch.tensor([0.0, float("nan")])))
+    with pytest.raises(WatchdogError, match="non-finite values .* in stereo reward at iteration 7"):
+        Watchdog(WatchdogConfig(), iterations=100).check(7, nan_reward, learner)
+
+
+def test_watchdog_warn_mode_warns_once_per_kind_and_off_mode_is_silent():
+    record, learner = _record_and_learner()
+    exploding = record._replace(parallax=record.parallax._replace(td_error=torch.full((2,), 1e4)))
+    dog = Watchdog(WatchdogConfig(mode="warn"), iterations=100)
+    with pytest.warns(RuntimeWarning, match="TD error"):
+        assert len(dog.check(1, exploding, learner)) == 1
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert len(dog.check(2, exploding, learner)) == 1  # reported, not warned again
+        assert Watchdog(WatchdogConfig(mode="off"), iterations=100).check(1, exploding, learner) == []
+    restored = Watchdog(WatchdogConfig(mode="warn"), iterations=100)
+    restored.load_state_dict(dog.state_dict())
+    assert restored.warned == {"td_error"}
+
+
+@pytest.mark.parametrize("field, value", [
+    ("mode", "loud"), ("td_error_max", 0), ("entropy_min_nats", -1.0), ("entropy_grace_fraction", 2.0),
+    ("dead_atoms_window", 0), ("dead_atoms_max_fraction", 0.0),
+])
+def test_watchdog_config_rejects_bad_values(field, value):
+    with pytest.raises(ValueError, match=f"watchdog.{field} must be"):
+        WatchdogConfig(**{field: value})
+
+
+def test_train_py_exits_3_with_one_watchdog_line_and_a_checkpoint(tmp_path, textures):
+    run = tmp_path / "run"
+    # A threshold below any TD error: the first learning step trips it.
+    done = _train(*TINY, f"env.textures={textures}", "eval.enabled=false", "watchdog.td_error_max=1e-30",
+                  f"hydra.run.dir={run}", cwd=tmp_path)
+    assert done.returncode == 3, done.stderr[-3000:]
+    assert "Traceback" not in done.stderr
+    lines = [line for line in done.stderr.splitlines() if line.startswith("watchdog:")]
+    assert len(lines) == 1 and "TD error" in lines[0] and "watchdog.td_error_max" in lines[0]
+    assert "watchdog.mode=warn" in done.stderr
+    assert load_checkpoint(run / "checkpoint.pt")["iteration"] >= 1
+
+
+# -- bad files and contradictions stop before any work ----------------------------------------------
+def test_unreadable_or_missing_images_are_named(tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (empty / "notes.txt").write_text("no images here")
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    from PIL import Image
+
+    Image.fromarray(np.zeros((8, 8), np.uint8)).save(broken / "good.png")
+    (broken / "bad.png").write_bytes(b"\x89PNG\r\n\x1a\n this is not a png")
+    for folder, expected in ((tmp_path / "missing", "no such folder"), (empty, "holds no images"),
+                             (broken, "cannot read the image")):
+        run = tmp_path / f"run-{folder.name}"
+        done = _train(f"env.textures={folder}", f"hydra.run.dir={run}", cwd=tmp_path)
+        assert done.returncode == 2, done.stderr[-2000:]
+        errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+        assert len(errors) == 1 and "env.textures" in errors[0] and expected in errors[0], done.stderr
+        assert "Traceback" not in done.stderr
+        assert not (run / "checkpoint.pt").exists() and not (run / "metrics.jsonl").exists()
+        if folder is broken:
+            assert "bad.png" in errors[0]
+
+
+def test_resume_rejects_contradicting_options_and_incompatible_checkpoints(tmp_path, textures):
+    run = tmp_path / "run"
+    run_experiment(_cfg(textures, "train.iterations=4"), run)
+    common = [*TINY, f"env.textures={textures}", "eval.enabled=false", f"train.resume={run}"]
+    done = _train(*common, "env.num_envs=7", cwd=tmp_path)
+    assert done.returncode == 2
+    errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "env.num_envs=7 contradicts the resumed run's env.num_envs=5" in errors[0]
+    assert load_checkpoint(run / "checkpoint.pt")["iteration"] == 4  # nothing was touched
+    # A checkpoint whose learner state does not fit its config (another aectorch version, say).
+    payload = load_checkpoint(run / "checkpoint.pt")
+    payload["learner"] = {k: v for k, v in payload["learner"].items() if "stereo" not in k}
+    save_checkpoint(run / "checkpoint.pt", payload)
+    done = _train(*common, cwd=tmp_path)
+    assert done.returncode == 2, done.stderr[-2000:]
+    errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "learner state" in errors[0] and "checkpoint.pt" in errors[0], done.stderr
+    assert "Traceback" not in done.stderr
