@@ -5,6 +5,8 @@ SHELL := /bin/bash
 VENV_PY := .venv/bin/python
 ARGS ?=
 PYTEST_ARGS ?=
+# LEROBOT=0 skips the LeRobot bridge's tests (they run in their own .venv-lerobot).
+LEROBOT ?= 1
 
 .PHONY: setup train test bench clean
 
@@ -15,11 +17,15 @@ train: setup
 	PYOPENGL_PLATFORM=osmesa $(VENV_PY) train.py $(ARGS)
 
 test: setup
-	PYOPENGL_PLATFORM=osmesa OMP_WAIT_POLICY=PASSIVE $(VENV_PY) -m pytest -q $(PYTEST_ARGS)
+	PYOPENGL_PLATFORM=osmesa OMP_WAIT_POLICY=PASSIVE $(VENV_PY) -m pytest -q --ignore=tests/lerobot $(PYTEST_ARGS)
+ifneq ($(LEROBOT),0)
+	bash scripts/setup_lerobot.sh
+	PYOPENGL_PLATFORM=osmesa OMP_WAIT_POLICY=PASSIVE .venv-lerobot/bin/python -m pytest -q -p no:cacheprovider tests/lerobot $(PYTEST_ARGS)
+endif
 
 bench: setup
 	$(VENV_PY) benchmarks/omp.py
 
 clean:
-	rm -rf .venv .pytest_cache .hypothesis build dist *.egg-info
+	rm -rf .venv .venv-lerobot .pytest_cache .hypothesis build dist *.egg-info
 	find . -path ./.git -prune -o -type d -name __pycache__ -prune -exec rm -rf {} +

@@ -79,15 +79,15 @@ def _check_resume_overrides(cfg: ExperimentConfig, stored: ExperimentConfig, giv
 
     mine, theirs = OmegaConf.create(to_container(cfg)), OmegaConf.create(to_container(stored))
     for key in sorted(given):
-        if key.startswith(("hydra.", "watchdog")) or key in {f"train.{k}" for k in RESUME_KEYS} \
+        if key.startswith(("hydra.", "watchdog", "record")) or key in {f"train.{k}" for k in RESUME_KEYS} \
                 or key in ("preset", "experiment"):
             continue
         ours, run = OmegaConf.select(mine, key), OmegaConf.select(theirs, key)
         if ours != run:
             raise ValueError(
                 f"{key}={ours!r} contradicts the resumed run's {key}={run!r}: train.resume continues "
-                f"{cfg.train.resume} with its own config (only train.iterations, train.progress and "
-                "watchdog.* may be given); start a new run to change it")
+                f"{cfg.train.resume} with its own config (only train.iterations, train.progress, "
+                "watchdog.* and record.* may be given); start a new run to change it")
 
 
 @hydra.main(version_base=None, config_name="train")

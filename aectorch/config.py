@@ -33,6 +33,7 @@ __all__ = [
     "ExperimentConfig",
     "PAPER_PRESET",
     "PerturbationConfig",
+    "RecordConfig",
     "ROLL_PERTURBATION",
     "TrainConfig",
     "WatchdogConfig",
@@ -305,6 +306,26 @@ class PerturbationConfig:
 
 
 @dataclass
+class RecordConfig:
+    """Recording training as a LeRobotDataset (`aectorch.integrations.lerobot`; needs LeRobot).
+
+    Attributes:
+        lerobot: a new folder to record into (``null``: no recording). Every finished fixation of
+            the recorded environments becomes an episode. On resume it is taken from the command
+            line (a resumed run records into a new folder, or not at all).
+        envs: how many of the ``env.num_envs`` environments to record (the first ones, >= 1).
+    """
+
+    lerobot: Optional[str] = None
+    envs: int = 1
+
+    def __post_init__(self) -> None:
+        if self.lerobot is not None and (not isinstance(self.lerobot, str) or not self.lerobot):
+            raise ValueError(f"record.lerobot must be null or a new folder, got {self.lerobot!r}")
+        _require_int("record", "envs", self.envs, 1)
+
+
+@dataclass
 class ExperimentConfig:
     """The whole experiment: world, learner, training loop, final evaluation, perturbation.
 
@@ -315,6 +336,7 @@ class ExperimentConfig:
         train: the loop, logs and checkpoints (:class:`TrainConfig`).
         eval: the final evaluation on held-out textures (:class:`EvalConfig`).
         perturbation: the roll perturbation (:class:`PerturbationConfig`).
+        record: recording the training as a LeRobotDataset (:class:`RecordConfig`).
         watchdog: the health checks after every iteration (`aectorch.watchdog.WatchdogConfig`;
             on resume taken from the command line, since it changes nothing that is learned).
         seed: seeds the learner's generator (initial dictionaries and policies, actions) and the
@@ -327,9 +349,12 @@ class ExperimentConfig:
     eval: EvalConfig = field(default_factory=EvalConfig)
     perturbation: PerturbationConfig = field(default_factory=PerturbationConfig)
     watchdog: WatchdogConfig = field(default_factory=WatchdogConfig)
+    record: RecordConfig = field(default_factory=RecordConfig)
     seed: int = 0
 
     def __post_init__(self) -> None:
+        if self.record.envs > self.env.num_envs:
+            raise ValueError(f"record.envs={self.record.envs} exceeds env.num_envs={self.env.num_envs}")
         if not _is_int(self.seed) or self.seed < 0:
             raise ValueError(f"seed must be an int >= 0, got {self.seed!r}")
 
@@ -396,6 +421,14 @@ def validate_resources(cfg: ExperimentConfig) -> None:
             import pyrender  # noqa: F401
         except Exception as err:  # ImportError, or OpenGL failing to find a platform
             raise ValueError(f"env.renderer='pyrender' cannot be used: {type(err).__name__}: {err}") from err
+    if cfg.record.lerobot is not None:
+        if os.path.exists(cfg.record.lerobot):
+            raise ValueError(f"record.lerobot: {cfg.record.lerobot!r} exists already; give a new folder")
+        try:
+            import lerobot  # noqa: F401
+        except ImportError as err:
+            raise ValueError("record.lerobot needs LeRobot, which is not installed here: run train.py with "
+                             ".venv-lerobot/bin/python (bash scripts/setup_lerobot.sh makes it)") from err
     if cfg.train.resume is not None:
         checkpoint = os.path.join(cfg.train.resume, "checkpoint.pt")
         if not os.path.isfile(checkpoint):

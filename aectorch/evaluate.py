@@ -28,6 +28,7 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
+from aectorch._cli import UsageError, parse_key_values
 from aectorch.sim import DEFAULT_DISTANCES_M, RENDERERS, ActiveDepthEnv, TextureBank
 
 __all__ = ["evaluate", "main", "summarise"]
@@ -247,55 +248,35 @@ _KEYS = ("checkpoint", "out", "textures", "renderer", "depths", "batch_size", "s
          "policy")
 
 
-class _UsageError(ValueError):
-    pass
-
-
 def _parse(argv: Sequence[str]) -> dict:
-    from omegaconf import OmegaConf
 
-    args: dict = {}
-    for item in argv:
-        if "=" not in item:
-            raise _UsageError(f"arguments are key=value, got {item!r} (see --help)")
-        key = item.split("=", 1)[0]
-        if key not in _KEYS:
-            raise _UsageError(f"unknown key {key!r}; keys are {', '.join(_KEYS)}")
-        try:
-            args[key] = OmegaConf.to_container(OmegaConf.from_dotlist([item]))[key]
-        except Exception as err:
-            raise _UsageError(f"{key}: cannot parse {item!r}: {str(err).splitlines()[0]}") from err
-    for key in ("checkpoint", "out"):
-        if args.get(key) in (None, ""):
-            raise _UsageError(f"{key}=<file> is required (see --help)")
-    for key in ("checkpoint", "out", "textures", "figure"):
-        if key in args and args[key] is not None and not isinstance(args[key], str):
-            args[key] = str(args[key])
+    args = parse_key_values(argv, _KEYS, required=("checkpoint", "out"),
+                            paths=("checkpoint", "out", "textures", "figure"))
     renderer = args.setdefault("renderer", "torch")
     if renderer not in RENDERERS:
-        raise _UsageError(f"renderer must be one of {', '.join(RENDERERS)}, got {renderer!r}")
+        raise UsageError(f"renderer must be one of {', '.join(RENDERERS)}, got {renderer!r}")
     depths = args.setdefault("depths", list(DEFAULT_DISTANCES_M))
     if isinstance(depths, (int, float)) and not isinstance(depths, bool):
         depths = args["depths"] = [depths]
     if (not isinstance(depths, list) or not depths
             or any(isinstance(d, bool) or not isinstance(d, (int, float)) or not math.isfinite(d) or d <= 0
                    for d in depths)):
-        raise _UsageError(f"depths must be a list of distances > 0 in metres such as [1.0,2.0], got {depths!r}")
+        raise UsageError(f"depths must be a list of distances > 0 in metres such as [1.0,2.0], got {depths!r}")
     for key, default, minimum in (("batch_size", 256, 1), ("seed", 0, 0)):
         value = args.setdefault(key, default)
         if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-            raise _UsageError(f"{key} must be an int >= {minimum}, got {value!r}")
+            raise UsageError(f"{key} must be an int >= {minimum}, got {value!r}")
     policy = args.setdefault("policy", "greedy")
     if policy not in POLICIES:
-        raise _UsageError(f"policy must be one of {', '.join(POLICIES)}, got {policy!r}")
+        raise UsageError(f"policy must be one of {', '.join(POLICIES)}, got {policy!r}")
     progress = args.setdefault("progress", True)
     if not isinstance(progress, bool):
-        raise _UsageError(f"progress must be true or false, got {progress!r}")
+        raise UsageError(f"progress must be true or false, got {progress!r}")
     textures = args.get("textures")
     if textures is not None and not os.path.isdir(textures):
-        raise _UsageError(f"textures: no such folder {textures!r}")
+        raise UsageError(f"textures: no such folder {textures!r}")
     if not os.path.isfile(args["checkpoint"]):
-        raise _UsageError(f"checkpoint: no such file {args['checkpoint']!r}")
+        raise UsageError(f"checkpoint: no such file {args['checkpoint']!r}")
     return args
 
 
@@ -318,7 +299,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             try:
                 bank = TextureBank.from_folder(args["textures"], progress=None if args["progress"] else False)
             except (ValueError, OSError) as err:
-                raise _UsageError(f"textures: {err}") from err
+                raise UsageError(f"textures: {err}") from err
             textures = args["textures"]
         result = evaluate(learner, bank, distances_m=args["depths"], renderer=args["renderer"],
                           batch_size=args["batch_size"], fixation_iterations=cfg.env.fixation_iterations,

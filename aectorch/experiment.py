@@ -60,7 +60,7 @@ __all__ = [
 
 CHECKPOINT_FORMAT = 1
 #: Keys of ``train`` kept from the command line when a run is resumed (and the whole ``watchdog``
-#: section, which changes nothing that is learned); everything else is the run's own.
+#: and ``record`` sections, which change nothing that is learned); everything else is the run's own.
 RESUME_KEYS = ("iterations", "progress", "resume")
 
 
@@ -188,7 +188,8 @@ def resume_config(cfg: ExperimentConfig, checkpoint: dict) -> ExperimentConfig:
     stored = to_container(checkpoint_config(checkpoint, where))
     for key in RESUME_KEYS:
         stored["train"][key] = getattr(cfg.train, key)
-    stored["watchdog"] = to_container(cfg)["watchdog"]
+    mine = to_container(cfg)
+    stored["watchdog"], stored["record"] = mine["watchdog"], mine["record"]
     return to_experiment_config(stored)
 
 
@@ -313,6 +314,12 @@ def _run(cfg: ExperimentConfig, run_dir, callback) -> dict:
     if cfg.train.compile:
         _compile(learner, env)
     events = cfg.perturbation.events(total)
+    recorder, stepped = None, env  # the environment the learner steps (observed when recording)
+    if cfg.record.lerobot is not None:
+        from aectorch.integrations.lerobot import LeRobotRecorder
+
+        recorder = LeRobotRecorder(cfg.record.lerobot, env, envs=cfg.record.envs)
+        stepped = recorder.wrap(env)
 
     def payload(iteration: int, state: dict, elapsed: float) -> dict:
         return {"format": CHECKPOINT_FORMAT, "config": config_dict, "iteration": iteration,
@@ -336,7 +343,9 @@ def _run(cfg: ExperimentConfig, run_dir, callback) -> dict:
                         env.set_roll(torch.tensor(roll))
                         if bar is not None:
                             bar.write(f"iteration {it}: {label} by {cfg.perturbation.roll_deg} deg")
-                record = learner.iteration(env)
+                record = learner.iteration(stepped)
+                if recorder is not None:
+                    recorder.after_iteration(record)
                 metrics.update(record)
                 done = it + 1
                 if callback is not None:
@@ -382,6 +391,8 @@ def _run(cfg: ExperimentConfig, run_dir, callback) -> dict:
             )
         raise
     finally:
+        if recorder is not None:
+            recorder.close()  # the episodes saved so far stay a valid dataset
         if previous_sigterm is not None:
             signal.signal(signal.SIGTERM, previous_sigterm)
         if bar is not None:

@@ -253,3 +253,25 @@ def test_resume_rejects_contradicting_options_and_incompatible_checkpoints(tmp_p
     errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and "learner state" in errors[0] and "checkpoint.pt" in errors[0], done.stderr
     assert "Traceback" not in done.stderr
+
+
+def test_recording_without_lerobot_says_where_it_lives(tmp_path, textures):
+    try:
+        import lerobot  # noqa: F401
+    except ImportError:
+        pass
+    else:  # .venv-lerobot: the recording itself is tested in tests/lerobot
+        return
+    done = _train(*TINY, f"env.textures={textures}", f"record.lerobot={tmp_path / 'ds'}",
+                  f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
+    assert done.returncode == 2
+    errors = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "record.lerobot needs LeRobot" in errors[0] and ".venv-lerobot" in errors[0]
+    import subprocess
+    import sys
+
+    run = tmp_path / "tiny"
+    run_experiment(_cfg(textures, "train.iterations=2"), run)
+    done = subprocess.run([sys.executable, "-m", "aectorch.record", f"checkpoint={run / 'checkpoint.pt'}",
+                           f"out={tmp_path / 'cli'}"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2 and "needs LeRobot" in done.stderr and "Traceback" not in done.stderr
