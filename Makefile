@@ -8,7 +8,7 @@ PYTEST_ARGS ?=
 # LEROBOT=0 skips the LeRobot bridge's tests (they run in their own .venv-lerobot).
 LEROBOT ?= 1
 
-.PHONY: setup train test bench clean
+.PHONY: setup train test bench docs clean
 
 setup:
 	bash scripts/setup.sh
@@ -23,9 +23,12 @@ ifneq ($(LEROBOT),0)
 	PYOPENGL_PLATFORM=osmesa OMP_WAIT_POLICY=PASSIVE .venv-lerobot/bin/python -m pytest -q -p no:cacheprovider tests/lerobot $(PYTEST_ARGS)
 endif
 
+docs: setup
+	NO_MKDOCS_2_WARNING=1 .venv/bin/mkdocs build --strict
+
 bench: setup
 	$(VENV_PY) benchmarks/omp.py
 
 clean:
-	rm -rf .venv .venv-lerobot .pytest_cache .hypothesis build dist *.egg-info
+	rm -rf .venv .venv-lerobot site .pytest_cache .hypothesis build dist *.egg-info
 	find . -path ./.git -prune -o -type d -name __pycache__ -prune -exec rm -rf {} +

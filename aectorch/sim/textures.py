@@ -127,8 +127,8 @@ class TextureBank:
         >>> idx = bank.sample_indices(3, g)
         >>> bank[idx].shape
         torch.Size([3, 32, 48])
-        >>> bank.names[:2]
-        ['pink-0-0', 'pink-0-1']
+        >>> bank.names[:2] == ["pink-0-0", "pink-0-1"]
+        True
     """
 
     def __init__(
@@ -385,8 +385,8 @@ class TextureBank:
             FileNotFoundError: `spec` is neither a keyword nor an existing path.
 
         Example:
-            >>> TextureBank.from_spec("default", split="test", size=8).names[:1]
-            ['pink-2018-0']
+            >>> TextureBank.from_spec("default", split="test", size=8).names[0]
+            'pink-2018-0'
         """
         if not isinstance(spec, (str, os.PathLike)):
             raise TypeError(
