@@ -6,7 +6,10 @@ pixels, as the sensory coding model sees them. P = 200, N = 288, k = 10, float32
 The dictionary is random and unit-norm, as at the start of training.
 
 Compared, each in the same process, median of --repeats runs:
-  * aectorch ``omp`` and ``matching_pursuit``, eager and ``torch.compile``-d;
+  * aectorch ``omp`` and ``matching_pursuit`` with their default backend (the fused C++ kernel,
+    ``aectorch.coding.native``), eager and ``torch.compile``-d (the operator inside the graph);
+  * the same with ``backend="torch"`` (``*_torch``: the pure-torch code, the CUDA path and the
+    fallback), eager and compiled;
   * scikit-learn ``orthogonal_mp_gram`` with the Gram matrix precomputed
     (what a user would otherwise call), ``Xy = D^T X`` included in its time.
 The fraction of patches whose support set equals scikit-learn's is reported
@@ -26,6 +29,7 @@ Writes a table to stdout and JSON to benchmarks/results/omp.json (--json).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import statistics
 import sys
@@ -146,8 +150,14 @@ def breakdown(repeats: int, block: int) -> list[dict]:
             F.embedding_bag(support, gram, per_sample_weights=weights, mode="sum"), c, value=-1.0
         ),
         "one trivial op (dispatch cost)": lambda: tiny.mul(1.0),
-        "whole MP block (k = 10)": lambda: matching_pursuit(x, dictionary, K, gram=gram, check=False, block_size=block),
-        "whole OMP block (k = 10)": lambda: omp(x, dictionary, K, gram=gram, check=False, block_size=block),
+        "whole MP block (k = 10)": lambda: matching_pursuit(
+            x, dictionary, K, gram=gram, check=False, block_size=block, backend="torch"),
+        "whole OMP block (k = 10)": lambda: omp(
+            x, dictionary, K, gram=gram, check=False, block_size=block, backend="torch"),
+        "whole MP block, fused C++ kernel": lambda: matching_pursuit(
+            x, dictionary, K, gram=gram, check=False, block_size=block, backend="native"),
+        "whole OMP block, fused C++ kernel": lambda: omp(
+            x, dictionary, K, gram=gram, check=False, block_size=block, backend="native"),
     }
     rows = []
     with torch.inference_mode():
@@ -192,11 +202,18 @@ def main() -> None:
     print(f"making {max(args.sizes)} photo patches ...", flush=True)
     all_signals = photo_patches(max(args.sizes))
 
+    # Each (function, backend, size) is its own graph: 4 sizes x 2 backends pass dynamo's default
+    # limit of 8 recompilations per function, which fullgraph=True turns into an error.
+    torch._dynamo.config.recompile_limit = 64
+    torch_omp = functools.partial(omp, backend="torch")
+    torch_mp = functools.partial(matching_pursuit, backend="torch")
     compiled = {}
     if not args.no_compile:
         compiled = {
             "omp": torch.compile(omp, fullgraph=True, dynamic=False),
             "mp": torch.compile(matching_pursuit, fullgraph=True, dynamic=False),
+            "omp_torch": torch.compile(torch_omp, fullgraph=True, dynamic=False),
+            "mp_torch": torch.compile(torch_mp, fullgraph=True, dynamic=False),
         }
     rows = []
     for threads in args.threads:
@@ -213,6 +230,8 @@ def main() -> None:
                 candidates = {
                     "omp": lambda: omp(x, dictionary, K, gram=gram, check=False),
                     "mp": lambda: matching_pursuit(x, dictionary, K, gram=gram, check=False),
+                    "omp_torch": lambda: torch_omp(x, dictionary, K, gram=gram, check=False),
+                    "mp_torch": lambda: torch_mp(x, dictionary, K, gram=gram, check=False),
                 }
                 for name, fn in compiled.items():
                     cfn = fn
