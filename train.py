@@ -10,6 +10,7 @@ checkpoint.pt, figures/, evaluation.json and summary.json. See docs/training.md.
     python train.py preset=paper +experiment=roll_perturbation
     python train.py train.resume=/tmp/x train.iterations=1000   # continue a run in place
     python train.py -m seed=0,1,2                     # multirun sweep
+    torchrun --standalone --nproc_per_node=2 train.py env.num_envs=16   # 2 processes x 16 envs
 
 Invalid values and bad files exit with status 2 and one ``error: ...`` line, a run stopped by
 the watchdog (`aectorch.watchdog`) with status 3; set ``AECTORCH_DEBUG=1`` for the full
@@ -123,9 +124,21 @@ def _one_line(err: BaseException) -> str:
     return text
 
 
+def _other_ranks_write_elsewhere() -> None:
+    """Under torchrun only rank 0 writes the run folder (aectorch.distributed): Hydra's own folder
+    and files of the other ranks go to a temporary folder, so a run makes one folder."""
+    import tempfile
+
+    rank = int(os.environ.get("RANK", "0"))
+    if rank > 0:
+        sys.argv = [a for a in sys.argv if not a.startswith(("hydra.run.dir=", "hydra.output_subdir="))]
+        sys.argv += [f"hydra.run.dir={tempfile.mkdtemp(prefix=f'aectorch-rank{rank}-')}", "hydra.output_subdir=null"]
+
+
 if __name__ == "__main__":
     # Let Hydra re-raise instead of printing and exiting 1, so config errors can be reported here.
     os.environ["HYDRA_FULL_ERROR"] = "1"
+    _other_ranks_write_elsewhere()
     try:
         main()
     except (HydraException, OmegaConfBaseException) as err:  # bad override: type, unknown key

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Sequence
+import os
+import sys
+from typing import Callable, Sequence
 
-__all__ = ["UsageError", "parse_key_values"]
+__all__ = ["UsageError", "parse_key_values", "run_main"]
 
 
 class UsageError(ValueError):
@@ -38,3 +40,20 @@ def parse_key_values(argv: Sequence[str], keys: Sequence[str], required: Sequenc
         if key in args and args[key] is not None and not isinstance(args[key], str):
             args[key] = str(args[key])
     return args
+
+
+def run_main(argv: Sequence[str] | None, usage: str, run: Callable[[list[str]], int]) -> int:
+    """``--help`` (or no arguments) prints ``usage``; otherwise ``run(argv)``, whose bad-input errors
+    (``ValueError``, ``ImportError``, ``OSError``) become one ``error:`` line and status 2 unless
+    ``AECTORCH_DEBUG=1`` asks for the traceback."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or any(a in ("-h", "--help", "help") for a in argv):
+        print(usage, end="")
+        return 0 if argv else 2
+    try:
+        return run(argv)
+    except (ValueError, ImportError, OSError) as err:
+        if os.environ.get("AECTORCH_DEBUG", "") not in ("", "0"):
+            raise
+        print(f"error: {str(err).strip().splitlines()[0]} (AECTORCH_DEBUG=1 for the traceback)", file=sys.stderr)
+        return 2

@@ -28,7 +28,7 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
-from aectorch._cli import UsageError, parse_key_values
+from aectorch._cli import UsageError, parse_key_values, run_main
 from aectorch.sim import DEFAULT_DISTANCES_M, RENDERERS, ActiveDepthEnv, TextureBank
 
 __all__ = ["evaluate", "main", "summarise"]
@@ -282,35 +282,27 @@ def _parse(argv: Sequence[str]) -> dict:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m aectorch.evaluate checkpoint=... out=... [key=value ...]`` (see ``--help``)."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or any(a in ("-h", "--help", "help") for a in argv):
-        print(USAGE, end="")
-        return 0 if argv else 2
-    debug = os.environ.get("AECTORCH_DEBUG", "") not in ("", "0")
-    try:
-        args = _parse(argv)
-        from aectorch.experiment import load_checkpoint, load_learner
+    return run_main(argv, USAGE, _evaluate)
 
-        cfg, learner = load_learner(args["checkpoint"])
-        iteration = int(load_checkpoint(args["checkpoint"])["iteration"])
-        if args.get("textures") is None:
-            bank, textures = TextureBank.default("test"), "default test bank"
-        else:
-            try:
-                bank = TextureBank.from_folder(args["textures"], progress=None if args["progress"] else False)
-            except (ValueError, OSError) as err:
-                raise UsageError(f"textures: {err}") from err
-            textures = args["textures"]
-        result = evaluate(learner, bank, distances_m=args["depths"], renderer=args["renderer"],
-                          batch_size=args["batch_size"], fixation_iterations=cfg.env.fixation_iterations,
-                          shift_m=cfg.env.shift_m, seed=args["seed"], progress=args["progress"],
-                          policy=args["policy"])
-    except ValueError as err:
-        if debug:
-            raise
-        print(f"error: {str(err).strip().splitlines()[0]} (AECTORCH_DEBUG=1 for the traceback)",
-              file=sys.stderr)
-        return 2
+
+def _evaluate(argv: list[str]) -> int:
+    args = _parse(argv)
+    from aectorch.experiment import load_checkpoint, load_learner
+
+    cfg, learner = load_learner(args["checkpoint"])
+    iteration = int(load_checkpoint(args["checkpoint"])["iteration"])
+    if args.get("textures") is None:
+        bank, textures = TextureBank.default("test"), "default test bank"
+    else:
+        try:
+            bank = TextureBank.from_folder(args["textures"], progress=None if args["progress"] else False)
+        except (ValueError, OSError) as err:
+            raise UsageError(f"textures: {err}") from err
+        textures = args["textures"]
+    result = evaluate(learner, bank, distances_m=args["depths"], renderer=args["renderer"],
+                      batch_size=args["batch_size"], fixation_iterations=cfg.env.fixation_iterations,
+                      shift_m=cfg.env.shift_m, seed=args["seed"], progress=args["progress"],
+                      policy=args["policy"])
     result.update(checkpoint=args["checkpoint"], textures=textures, renderer=args["renderer"], iteration=iteration)
     with open(args["out"], "w") as f:
         json.dump(result, f, indent=2)

@@ -73,8 +73,9 @@ def build_textures(folder: str | None, split: str, cfg: ExperimentConfig) -> Tex
     return TextureBank.from_folder(folder, progress=None if cfg.train.progress else False, **kwargs)
 
 
-def build_env(cfg: ExperimentConfig) -> ActiveDepthEnv:
-    """The training environments of ``cfg.env``, seeded from ``cfg.seed``."""
+def build_env(cfg: ExperimentConfig, shard=None) -> ActiveDepthEnv:
+    """The training environments of ``cfg.env``, seeded from ``cfg.seed`` (this rank's slice of the
+    whole batch under `aectorch.distributed`)."""
     e = cfg.env
     return ActiveDepthEnv(
         e.num_envs,
@@ -88,16 +89,18 @@ def build_env(cfg: ExperimentConfig) -> ActiveDepthEnv:
         seed=cfg.seed,
         device=e.device,
         dtype=e.torch_dtype,
+        batch_slice=None if shard is None else (shard.start, shard.total),
     )
 
 
-def build_learner(cfg: ExperimentConfig, device: str | torch.device | None = None) -> JointLearner:
+def build_learner(cfg: ExperimentConfig, device: str | torch.device | None = None, shard=None) -> JointLearner:
     """A fresh :class:`JointLearner` of ``cfg.learner``, its generator seeded from ``cfg.seed``."""
     return JointLearner(
         cfg.learner,
         generator=torch.Generator().manual_seed(cfg.seed),
         dtype=cfg.env.torch_dtype,
         device=cfg.env.device if device is None else device,
+        shard=shard,
     )
 
 
@@ -212,10 +215,11 @@ def _truncate_metrics(path: Path, iteration: int) -> None:
     path.write_text("".join(line + "\n" for line in kept))
 
 
-def _state(learner, env, metrics, watchdog) -> dict:
+def _state(learner, env, metrics, watchdog, shard=None) -> dict:
+    # Under torch.distributed the learners are identical; the environments are each rank's own.
     return {
         "learner": copy.deepcopy(learner.state_dict()),
-        "env": env.state_dict(),
+        "env": env.state_dict() if shard is None else shard.gather_objects(env.state_dict()),
         "metrics": metrics.state_dict(),
         "watchdog": watchdog.state_dict(),
     }
@@ -250,8 +254,6 @@ def run_experiment(
             (1-based count of completed iterations); an exception it raises interrupts the run
             like Ctrl-C does (a checkpoint of the last completed iteration is written first).
     """
-    from omegaconf import OmegaConf
-
     validate_resources(cfg)
     previous = (torch.are_deterministic_algorithms_enabled(), torch.is_deterministic_algorithms_warn_only_enabled())
     if cfg.train.deterministic:
@@ -265,8 +267,20 @@ def run_experiment(
 
 
 def _run(cfg: ExperimentConfig, run_dir, callback) -> dict:
+    from aectorch import distributed
+
+    shard = distributed.setup(cfg.env.num_envs, cfg.env.device)
+    try:
+        return _train(cfg, run_dir, callback, shard)
+    finally:
+        distributed.teardown()
+
+
+def _train(cfg: ExperimentConfig, run_dir, callback, shard) -> dict:
     from omegaconf import OmegaConf
 
+    main = shard is None or shard.is_main  # the process that writes the run folder
+    batch = cfg.env.num_envs if shard is None else shard.total
     torch.set_num_threads(cfg.train.threads)
     checkpoint = None
     if cfg.train.resume is not None:
@@ -274,40 +288,52 @@ def _run(cfg: ExperimentConfig, run_dir, callback) -> dict:
         checkpoint = load_checkpoint(run_dir / "checkpoint.pt")
         cfg = resume_config(cfg, checkpoint)
     run_dir = Path(run_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
+    if main:
+        run_dir.mkdir(parents=True, exist_ok=True)
     total = cfg.train.iterations
 
-    env = build_env(cfg)
-    learner = build_learner(cfg)
-    metrics = TrainingMetrics(cfg.env.num_envs, scales=cfg.learner.scales)
+    env = build_env(cfg, shard)
+    learner = build_learner(cfg, shard=shard)
+    metrics = TrainingMetrics(batch, scales=cfg.learner.scales)
     watchdog = Watchdog(cfg.watchdog, total)
     if checkpoint is not None:
         path = run_dir / "checkpoint.pt"
         restore(learner, checkpoint["learner"], path, "learner")
-        restore(env, checkpoint["env"], path, "environment")
+        env_state = checkpoint["env"]
+        if shard is not None or isinstance(env_state, list):
+            world = 1 if shard is None else shard.world_size
+            if not isinstance(env_state, list) or len(env_state) != world:
+                raise ValueError(f"the checkpoint {str(path)!r} holds the environments of "
+                                 f"{len(env_state) if isinstance(env_state, list) else 1} process(es); "
+                                 f"resume it with as many (this run has {world})")
+            env_state = env_state[0 if shard is None else shard.rank]
+        restore(env, env_state, path, "environment")
         restore(metrics, checkpoint["metrics"], path, "metrics")
         if "watchdog" in checkpoint:
             restore(watchdog, checkpoint["watchdog"], path, "watchdog")
         start = int(checkpoint["iteration"])
         initial = checkpoint["initial_dictionaries"]
         elapsed_before = float(checkpoint["elapsed_s"])
-        print(f"resuming {run_dir} at iteration {start} of {total}", file=sys.stderr)
+        if main:
+            print(f"resuming {run_dir} at iteration {start} of {total}", file=sys.stderr)
     else:
         start, initial, elapsed_before = 0, dictionaries(learner), 0.0
     config_dict = to_container(cfg)
-    (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(config_dict)))
-    session = {**provenance(cfg.env.device), "start_iteration": start}
-    provenance_path = run_dir / "provenance.json"
-    sessions = json.loads(provenance_path.read_text())["sessions"] if checkpoint is not None \
-        and provenance_path.exists() else []
-    _write_json(provenance_path, {"sessions": sessions + [session]})
+    session = {**provenance(cfg.env.device), "start_iteration": start,
+               "world_size": 1 if shard is None else shard.world_size}
     metrics_path = run_dir / "metrics.jsonl"
-    if checkpoint is None:
-        metrics_path.write_text("")
-    else:
-        _truncate_metrics(metrics_path, start)
+    if main:
+        (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(config_dict)))
+        provenance_path = run_dir / "provenance.json"
+        sessions = json.loads(provenance_path.read_text())["sessions"] if checkpoint is not None \
+            and provenance_path.exists() else []
+        _write_json(provenance_path, {"sessions": sessions + [session]})
+        if checkpoint is None:
+            metrics_path.write_text("")
+        else:
+            _truncate_metrics(metrics_path, start)
     writer = None
-    if cfg.train.tensorboard:
+    if cfg.train.tensorboard and main:
         from torch.utils.tensorboard import SummaryWriter
 
         writer = SummaryWriter(log_dir=str(run_dir / "tb"), purge_step=start + 1 if start else None)
@@ -315,7 +341,7 @@ def _run(cfg: ExperimentConfig, run_dir, callback) -> dict:
         _compile(learner, env)
     events = cfg.perturbation.events(total)
     recorder, stepped = None, env  # the environment the learner steps (observed when recording)
-    if cfg.record.lerobot is not None:
+    if cfg.record.lerobot is not None and main:
         from aectorch.integrations.lerobot import LeRobotRecorder
 
         recorder = LeRobotRecorder(cfg.record.lerobot, env, envs=cfg.record.envs)
@@ -326,17 +352,17 @@ def _run(cfg: ExperimentConfig, run_dir, callback) -> dict:
                 **state, "initial_dictionaries": initial, "elapsed_s": elapsed}
 
     bar = None
-    if cfg.train.progress:
+    if cfg.train.progress and main:
         from tqdm.auto import tqdm
 
         bar = tqdm(total=total, initial=start, desc="training", unit="it", dynamic_ncols=True)
     clock = time.perf_counter()
     elapsed = lambda: elapsed_before + time.perf_counter() - clock  # noqa: E731
-    last = (start, _state(learner, env, metrics, watchdog))  # the last completed (healthy) iteration
+    last = (start, _state(learner, env, metrics, watchdog, shard))  # the last completed (healthy) iteration
     it = start
     previous_sigterm = _interrupt_on_sigterm()
     try:
-        with metrics_path.open("a") as log:
+        with (metrics_path if main else Path(os.devnull)).open("a") as log:
             for it in range(start, total):
                 for when, roll, label in events:
                     if it == when:
@@ -346,6 +372,8 @@ def _run(cfg: ExperimentConfig, run_dir, callback) -> dict:
                 record = learner.iteration(stepped)
                 if recorder is not None:
                     recorder.after_iteration(record)
+                if shard is not None:  # every rank sees the whole batch's record
+                    record = shard.gather_record(record)
                 metrics.update(record)
                 done = it + 1
                 if callback is not None:
@@ -353,7 +381,7 @@ def _run(cfg: ExperimentConfig, run_dir, callback) -> dict:
                 watchdog.check(done, record, learner)  # raises in mode "stop": `last` is healthy
                 if done % cfg.train.log_every == 0 or done == total:
                     roll = env.roll_deg[0].tolist()
-                    line = {"iteration": done, "env_iterations": done * cfg.env.num_envs,
+                    line = {"iteration": done, "env_iterations": done * batch,
                             "elapsed_s": elapsed(), "roll_left_deg": roll[0], "roll_right_deg": roll[1],
                             **metrics.summary()}
                     log.write(json.dumps({k: _json_value(v) for k, v in line.items()}) + "\n")
@@ -366,14 +394,16 @@ def _run(cfg: ExperimentConfig, run_dir, callback) -> dict:
                         bar.set_postfix(pursuit=f"{line['pursuit_mae_deg']:.3f}",
                                         vergence=f"{line['vergence_mae_deg']:.3f}",
                                         depth=f"{line['depth_mae_m']:.3f}", refresh=False)
-                state = _state(learner, env, metrics, watchdog)
-                if done % cfg.train.checkpoint_every == 0 or done == total:
+                state = _state(learner, env, metrics, watchdog, shard)
+                if main and (done % cfg.train.checkpoint_every == 0 or done == total):
                     save_checkpoint(run_dir / "checkpoint.pt", payload(done, state, elapsed()))
                 last = (done, state)
                 if bar is not None:
                     bar.update(1)
     except BaseException as err:
         done, state = last
+        if not main:
+            raise
         if done > start or checkpoint is None:
             save_checkpoint(run_dir / "checkpoint.pt", payload(done, state, elapsed()))
         if isinstance(err, WatchdogError):
@@ -400,6 +430,8 @@ def _run(cfg: ExperimentConfig, run_dir, callback) -> dict:
         if writer is not None:
             writer.close()
     train_seconds = elapsed()
+    if not main:
+        return {}
     return _finish(cfg, run_dir, learner, env, initial, events, train_seconds, session)
 
 
@@ -410,9 +442,10 @@ def _finish(cfg, run_dir: Path, learner, env, initial, events, train_seconds, se
     bookkeeping = ("iteration", "env_iterations", "elapsed_s", "roll_left_deg", "roll_right_deg")
     final = {k: v for k, v in (records[-1] if records else {}).items() if k not in bookkeeping}
     labels = [(when + 1, label) for when, _, label in events]
+    world = session.get("world_size", 1)
     summary: dict = {
         "iterations": total,
-        "env_iterations": total * cfg.env.num_envs,
+        "env_iterations": total * cfg.env.num_envs * world,
         "train_seconds": train_seconds,
         "iterations_per_s": total / max(train_seconds, 1e-9),
         "final": {k: _json_value(v) for k, v in final.items()},

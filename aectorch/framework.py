@@ -190,6 +190,10 @@ class JointLearner(nn.Module):
         config: hyperparameters (:class:`LearnerConfig`).
         generator: seeds the initial dictionaries and policies and draws the actions.
         device, dtype: of every learner.
+        shard: this process's part of a batch split across processes
+            (`aectorch.distributed.Shard`; the environment gets the same slice): the learning
+            steps reduce over every process, the depth MLP trains on every process's trials and
+            actions are drawn for the whole batch, so all processes keep identical learners.
 
     Example:
         >>> import torch
@@ -208,8 +212,10 @@ class JointLearner(nn.Module):
         generator: torch.Generator | None = None,
         device: torch.device | str | None = None,
         dtype: torch.dtype = torch.float32,
+        shard=None,
     ) -> None:
         super().__init__()
+        self.shard = shard
         self.config = config = config or LearnerConfig()
         self.generator = generator or torch.Generator().manual_seed(0)
         kwargs = dict(num_atoms=config.num_atoms, sparsity=config.sparsity, algorithm=config.algorithm,
@@ -251,14 +257,20 @@ class JointLearner(nn.Module):
             features = features * self.config.feature_scale
             td_error = None
             previous = self._previous[key]
+            shard = self.shard
+            reduce = None if shard is None else shard.sum
             if learn and previous is not None:
                 learned = reward - previous[2] if self.config.reward == "improvement" else reward
-                update = agent.update(previous[0], previous[1], learned, features)
+                update = agent.update(previous[0], previous[1], learned, features, reduce=reduce)
                 td_error = update.td_error
-            action = agent.act(features, greedy=greedy, generator=self.generator)
+            if shard is None or greedy:
+                action = agent.act(features, greedy=greedy, generator=self.generator)
+            else:  # the numbers one process with the whole batch would draw; this rank's rows
+                u = torch.rand(shard.total, 1, generator=self.generator, dtype=features.dtype, device=features.device)
+                action = agent.act(features, uniform=shard.draw(u)[:, 0])
         if learn and self.config.dictionary_lr > 0:
             with stage("dictionary"):
-                encoder.learn_(out)
+                encoder.learn_(out, reduce=reduce)
         # Without learning there is no transition to complete on the next step.
         self._previous[key] = (features, action.actions, reward) if learn else None
         with stage("metrics"):
@@ -323,6 +335,8 @@ class JointLearner(nn.Module):
         return torch.where(self.depth_trained, estimate, torch.full_like(estimate, math.nan))
 
     def _add_trials(self, q_deg: Tensor, distance_m: Tensor) -> bool:
+        if self.shard is not None:  # every process's trials, in the whole batch's order
+            q_deg, distance_m = self.shard.gather(q_deg), self.shard.gather(distance_m)
         keep = self.config.depth_max_samples
         self.depth_inputs = torch.cat((self.depth_inputs, q_deg.to(self.depth_inputs)))[-keep:]
         self.depth_targets = torch.cat((self.depth_targets, distance_m.to(self.depth_targets)))[-keep:]

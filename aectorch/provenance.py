@@ -21,7 +21,7 @@ from pathlib import Path
 
 import torch
 
-__all__ = ["git_commit", "provenance"]
+__all__ = ["cpu_model", "git_commit", "provenance"]
 
 _ROOT = Path(__file__).resolve().parents[1]
 
@@ -38,7 +38,8 @@ def git_commit(folder: str | Path = _ROOT) -> dict | None:
     return {"commit": sha, "dirty": bool(status.strip())}
 
 
-def _cpu_model() -> str:
+def cpu_model() -> str:
+    """The CPU's model name from /proc/cpuinfo (``platform.processor()`` is often empty on Linux)."""
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("model name"):
@@ -61,7 +62,7 @@ def provenance(device: str | torch.device) -> dict:
         "python": sys.version.split()[0],
         "platform": platform.platform(),
         "host": socket.gethostname(),
-        "cpu": _cpu_model(),
+        "cpu": cpu_model(),
         "device": str(device),
         "threads": torch.get_num_threads(),
         "deterministic_algorithms": torch.are_deterministic_algorithms_enabled(),

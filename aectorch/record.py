@@ -9,7 +9,7 @@ import os
 import sys
 from typing import Sequence
 
-from aectorch._cli import UsageError, parse_key_values
+from aectorch._cli import UsageError, parse_key_values, run_main
 
 USAGE = """\
 usage: python -m aectorch.record checkpoint=<file> out=<folder> [key=value ...]
@@ -59,38 +59,30 @@ def _parse(argv: Sequence[str]) -> dict:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m aectorch.record checkpoint=... out=... [key=value ...]`` (see ``--help``)."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or any(a in ("-h", "--help", "help") for a in argv):
-        print(USAGE, end="")
-        return 0 if argv else 2
-    debug = os.environ.get("AECTORCH_DEBUG", "") not in ("", "0")
-    try:
-        args = _parse(argv)
-        from aectorch.experiment import load_learner
-        from aectorch.integrations.lerobot import record_trials
-        from aectorch.sim import ActiveDepthEnv, TextureBank
+    return run_main(argv, USAGE, _record)
 
-        cfg, learner = load_learner(args["checkpoint"])
-        if args.get("textures") is None:
-            bank = TextureBank.default("test", dtype=cfg.env.torch_dtype)
-        else:
-            bank = TextureBank.from_folder(args["textures"], dtype=cfg.env.torch_dtype,
-                                           progress=None if args["progress"] else False)
-        env = ActiveDepthEnv(args["envs"], textures=bank, renderer=args["renderer"],
-                             distances_m=cfg.env.distances_m, fixation_iterations=cfg.env.fixation_iterations,
-                             shift_m=cfg.env.shift_m, seed=args["seed"], device=cfg.env.device,
-                             dtype=cfg.env.torch_dtype)
-        root = record_trials(learner, env, args["trials"], args["out"], repo_id=args["repo_id"],
-                             progress=args["progress"])
-    except (ValueError, ImportError, OSError) as err:
-        if debug:
-            raise
-        print(f"error: {str(err).strip().splitlines()[0]} (AECTORCH_DEBUG=1 for the traceback)", file=sys.stderr)
-        return 2
+
+def _record(argv: list[str]) -> int:
+    args = _parse(argv)
+    from aectorch.experiment import load_learner
+    from aectorch.integrations.lerobot import record_trials
+    from aectorch.sim import ActiveDepthEnv, TextureBank
+
+    cfg, learner = load_learner(args["checkpoint"])
+    if args.get("textures") is None:
+        bank = TextureBank.default("test", dtype=cfg.env.torch_dtype)
+    else:
+        bank = TextureBank.from_folder(args["textures"], dtype=cfg.env.torch_dtype,
+                                       progress=None if args["progress"] else False)
+    env = ActiveDepthEnv(args["envs"], textures=bank, renderer=args["renderer"],
+                         distances_m=cfg.env.distances_m, fixation_iterations=cfg.env.fixation_iterations,
+                         shift_m=cfg.env.shift_m, seed=args["seed"], device=cfg.env.device,
+                         dtype=cfg.env.torch_dtype)
+    root = record_trials(learner, env, args["trials"], args["out"], repo_id=args["repo_id"],
+                         progress=args["progress"])
     episodes = 2 * args["trials"] * args["envs"]
     print(f"recorded {episodes} episodes ({episodes * cfg.env.fixation_iterations} frames) into {root}")
     return 0
-
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -7,16 +7,7 @@ import platform
 import sys
 from pathlib import Path
 
-
-def cpu_model() -> str:
-    """The CPU's model name from /proc/cpuinfo (``platform.processor()`` is often empty on Linux)."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor()
+from aectorch.provenance import cpu_model  # noqa: F401  (re-exported for the benchmarks)
 
 
 def machine_info() -> dict:

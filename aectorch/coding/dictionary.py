@@ -7,7 +7,7 @@ gradient with the support and coefficients held fixed, then are renormalised.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import torch
 from torch import nn
@@ -170,12 +170,16 @@ class SparseDictionary(nn.Module):
         return pooled_activity(code, self.num_atoms, reduction=reduction)
 
     @torch.no_grad()
-    def gradient(self, signals: torch.Tensor, output: DictionaryOutput) -> torch.Tensor:
+    def gradient(self, signals: torch.Tensor, output: DictionaryOutput, *,
+                 reduce: Callable[[torch.Tensor], torch.Tensor] | None = None) -> torch.Tensor:
         """Closed-form gradient of ``output.error.mean()`` with respect to the atoms.
 
         ``-(2 / M) sum_i r_i a_i^T / ||x_i||^2`` over the M signals, with residuals
         ``r_i = x_i - D a_i`` and the code held fixed: exactly what autograd gives
         for ``output.error.mean().backward()``, without building a graph.
+
+        With ``reduce`` (a sum over processes that share the batch, `aectorch.distributed`) the
+        mean runs over every process's signals.
 
         Returns:
             `[P, N]`, like `atoms`.
@@ -184,13 +188,17 @@ class SparseDictionary(nn.Module):
         residual = x - output.reconstruction.detach().reshape(-1, self.dim)
         energy = x.square().sum(-1, keepdim=True).clamp_min(torch.finfo(x.dtype).tiny)
         dense = output.code.to_dense(self.num_atoms).reshape(-1, self.num_atoms)
-        return (residual / energy).t() @ dense * (-2.0 / x.shape[0])
+        if reduce is None:
+            return (residual / energy).t() @ dense * (-2.0 / x.shape[0])
+        count = reduce(torch.tensor(float(x.shape[0]), dtype=x.dtype, device=x.device))
+        return reduce((residual / energy).t() @ dense) * (-2.0 / count)
 
     @torch.no_grad()
-    def learn_(self, signals: torch.Tensor, output: DictionaryOutput, lr: float) -> torch.Tensor:
+    def learn_(self, signals: torch.Tensor, output: DictionaryOutput, lr: float, *,
+               reduce: Callable[[torch.Tensor], torch.Tensor] | None = None) -> torch.Tensor:
         """One gradient-descent step on the mean eq. (4) error, then renormalise.
 
-        ``D <- normalise(D - lr * grad)``. For textured binocular patches
+        ``D <- normalise(D - lr * grad)`` (``reduce``: see `gradient`). For textured binocular patches
         (``||x||^2 = 2``) this is the AEC rule ``D <- D + lr * R A^T / M``.
 
         Returns:
@@ -198,7 +206,7 @@ class SparseDictionary(nn.Module):
         """
         if not lr >= 0:
             raise ValueError(f"lr must be a non-negative float, got {lr!r}")
-        grad = self.gradient(signals, output)
+        grad = self.gradient(signals, output, reduce=reduce)
         self.atoms.sub_(grad, alpha=lr)
         self.renormalize_()
         return grad

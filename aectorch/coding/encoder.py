@@ -9,7 +9,7 @@ of the scales' mean reconstruction errors is the reward (eq. 6).
 
 from __future__ import annotations
 
-from typing import NamedTuple, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import torch
 from torch import nn
@@ -142,15 +142,17 @@ class BinocularEncoder(nn.Module):
         )
 
     @torch.no_grad()
-    def learn_(self, output: EncoderOutput, lr: float | None = None) -> "BinocularEncoder":
+    def learn_(self, output: EncoderOutput, lr: float | None = None, *,
+               reduce: Callable[[torch.Tensor], torch.Tensor] | None = None) -> "BinocularEncoder":
         """One dictionary-learning step on every scale, then renormalise.
 
         Gradient descent on ``-output.reward.mean()`` (closed form, no graph):
         with B environments this is the mean of the B per-environment updates.
         Equivalent to ``(-output.reward.mean()).backward()`` followed by an SGD
-        step of size `lr` and `SparseDictionary.renormalize_`.
+        step of size `lr` and `SparseDictionary.renormalize_`. ``reduce`` sums over processes
+        that share the batch (`aectorch.distributed`), so the mean runs over all of them.
         """
         lr = self.lr if lr is None else lr
         for scale, x, out in zip(self.scales, output.patches, output.codes):
-            self.dictionaries[scale.name].learn_(x, out, lr)
+            self.dictionaries[scale.name].learn_(x, out, lr, reduce=reduce)
         return self

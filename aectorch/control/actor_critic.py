@@ -44,7 +44,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import NamedTuple, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import torch
 import torch.nn.functional as F
@@ -453,6 +453,7 @@ class NaturalActorCritic(nn.Module):
         first_step: torch.Tensor | None = None,
         *,
         check: bool = True,
+        reduce: Callable[[torch.Tensor], torch.Tensor] | None = None,
     ) -> UpdateOutput:
         """One step of algorithm 3 from the transitions ``(s, a, r, s')`` of B environments.
 
@@ -466,6 +467,10 @@ class NaturalActorCritic(nn.Module):
                 environments change nothing. ``None`` (the paper): all update.
             check: check that inputs are finite and actions in range (a host sync;
                 skipped under torch.compile). Shapes are always checked.
+            reduce: for a batch split across processes (`aectorch.distributed`): sums a tensor
+                over all of them (an all-reduce). Every mean over environments then runs over
+                the whole batch, so each process takes the same step as one process with all the
+                environments would. ``None``: this batch is the whole batch.
 
         Returns:
             `UpdateOutput`; see the module docstring for the rule and its batched form.
@@ -499,13 +504,14 @@ class NaturalActorCritic(nn.Module):
         actions = actions.long()
 
         # Mean over the environments that update: weights 1/n on them, 0 elsewhere.
-        if first_step is None:
+        total = (lambda t: t) if reduce is None else reduce
+        if first_step is None and reduce is None:
             updated = torch.ones(batch, dtype=torch.bool, device=f.device)
             weight = f.new_full((batch,), 1.0 / batch)
             any_update = f.new_ones(())
         else:
-            updated = ~first_step
-            count = updated.sum()
+            updated = torch.ones(batch, dtype=torch.bool, device=f.device) if first_step is None else ~first_step
+            count = total(updated.sum())
             weight = updated.to(f.dtype) / count.clamp_min(1).to(f.dtype)
             any_update = (count > 0).to(f.dtype)
 
@@ -526,14 +532,14 @@ class NaturalActorCritic(nn.Module):
 
         # Every new value is computed before any is written: one read phase, one write phase.
         # (torch 2.13's inductor misordered a read of w after its in-place update otherwise.)
-        j_new = j + (weight * (j_env - j)).sum()
-        v_new = v + cfg.alpha_v * ((weight * delta) @ x)
-        w_new = w + (cfg.step_w / t) * ((coeff[:, None] * g).t() @ x)
+        j_new = j + total((weight * (j_env - j)).sum())
+        v_new = v + cfg.alpha_v * total((weight * delta) @ x)
+        w_new = w + (cfg.step_w / t) * total((coeff[:, None] * g).t() @ x)
         step = cfg.alpha_theta * any_update
         theta_new = theta * (1 - step * cfg.weight_decay) + step * w_new
         theta_new = _project(theta_new, cfg.projection, cfg.theta_bound)
         if cfg.normalize_features:
-            stats = self._merged_feature_stats(f, updated)
+            stats = self._merged_feature_stats(f, updated, total)
         j.view(1).copy_(j_new.view(1))  # a 0-dim float64 buffer's copy_ is lost under torch.compile
         v.copy_(v_new)
         w.copy_(w_new)
@@ -544,19 +550,20 @@ class NaturalActorCritic(nn.Module):
         return UpdateOutput(delta, j_new, value, next_value, advantage, _entropy(logp), updated)
 
     def _merged_feature_stats(
-        self, f: torch.Tensor, mask: torch.Tensor
+        self, f: torch.Tensor, mask: torch.Tensor, reduce: Callable[[torch.Tensor], torch.Tensor]
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Welford count, mean and M2 with the rows of `f` selected by `mask` merged in (Chan's rule)."""
+        """Welford count, mean and M2 with the rows of `f` selected by `mask` merged in (Chan's rule);
+        ``reduce`` sums over the processes that share the batch (identity for one)."""
         m = mask.to(f.dtype)[:, None]
-        nb = m.sum()
+        nb = reduce(m.sum())
         n = self.feature_count.to(f.dtype)
         total = (n + nb).clamp_min(1)
-        mean_b = (m * f).sum(0) / nb.clamp_min(1)
-        m2_b = (m * (f - mean_b).square()).sum(0)
+        mean_b = reduce((m * f).sum(0)) / nb.clamp_min(1)
+        m2_b = reduce((m * (f - mean_b).square()).sum(0))
         diff = mean_b - self.feature_mean
         mean = self.feature_mean + diff * (nb / total)
         m2 = self.feature_m2 + m2_b + diff.square() * (n * nb / total)
-        return self.feature_count + mask.sum(), mean, m2
+        return self.feature_count + reduce(mask.sum()), mean, m2
 
 
 def _project(theta: torch.Tensor, projection: str, bound: float) -> torch.Tensor:

@@ -35,7 +35,6 @@ becomes batches of grey ``(left, right)`` images ``[B, H, W]`` in [0, 1], what
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 import torch

@@ -126,6 +126,10 @@ class ActiveDepthEnv:
         background: the background's texture ``[Hb, Wb]`` (default: a fixed 1/f texture).
         seed: seed of the environment's own generator (textures, distances, start states).
         device, dtype: where and in which float type poses and images live.
+        batch_slice: ``(start, total)``: these B environments are rows ``start .. start + B - 1``
+            of a batch of ``total`` split across processes (`aectorch.distributed`). Every random
+            draw is made for the whole batch and this slice kept, so the split batch behaves as
+            one environment of ``total`` would. ``None``: the batch is these B.
 
     Example:
         >>> env = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64), fixation_iterations=2, seed=0)
@@ -158,6 +162,7 @@ class ActiveDepthEnv:
         device: torch.device | str | None = None,
         dtype: torch.dtype = torch.float32,
         renderer_options: dict | None = None,
+        batch_slice: tuple[int, int] | None = None,
     ) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be an int >= 1, got {num_envs!r}")
@@ -175,6 +180,12 @@ class ActiveDepthEnv:
         if dtype not in (torch.float32, torch.float64):
             raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
         self.num_envs = num_envs
+        start, total = (0, num_envs) if batch_slice is None else (int(batch_slice[0]), int(batch_slice[1]))
+        if not 0 <= start <= total - num_envs:
+            raise ValueError(f"batch_slice=(start, total) must have 0 <= start <= total - num_envs = "
+                             f"{total - num_envs}, got {batch_slice!r}")
+        self._rows = slice(start, start + num_envs)
+        self._draws = total
         self.device = torch.device("cpu") if device is None else torch.device(device)
         self.dtype = dtype
         self.fixation_iterations = fixation_iterations
@@ -226,13 +237,13 @@ class ActiveDepthEnv:
 
     def _uniform(self, bounds: tuple[float, float]) -> Tensor:
         lo, hi = bounds
-        u = torch.rand(self.num_envs, generator=self._generator, dtype=torch.float64)
+        u = torch.rand(self._draws, generator=self._generator, dtype=torch.float64)[self._rows]
         return (lo + (hi - lo) * u).to(self.dtype).to(self.device)
 
     def _new_trial(self) -> None:
-        b = self.num_envs
-        index = torch.randint(len(self.textures), (b,), generator=self._generator)
-        pick = torch.randint(self.distances_m.numel(), (b,), generator=self._generator)
+        b, rows = self._draws, self._rows
+        index = torch.randint(len(self.textures), (b,), generator=self._generator)[rows]
+        pick = torch.randint(self.distances_m.numel(), (b,), generator=self._generator)[rows]
         self.set_trial(index.to(self.device), self.distances_m[pick.to(self.device)])
 
     def set_trial(self, texture_index: Tensor, distance_m: Tensor) -> None:

@@ -1,0 +1,135 @@
+"""Training across processes and machines with ``torch.distributed`` (``torchrun``; gloo or nccl).
+
+Every process (rank) runs its own ``env.num_envs`` environments; together they are one batch of
+``world_size * num_envs`` environments, and rank r holds the environments
+``r * num_envs .. (r + 1) * num_envs - 1`` of it. A `Shard` describes that slice and carries the
+three collectives the learning needs:
+
+- `Shard.sum`, an all-reduce: the dictionary gradients (`SparseDictionary.gradient`), the
+  actor-critic steps and feature statistics (`NaturalActorCritic.update`) are means over the whole
+  batch, so every rank applies the same update and the learners stay identical;
+- `Shard.gather`, an all-gather along the batch: the finished trials that train the depth MLP
+  (every rank fits the same data, in the same global order, to the same weights), and the
+  iteration records that the metrics and the watchdog read;
+- `Shard.draw`: random numbers for the whole batch from the shared seed, of which each rank
+  keeps its rows. The environments' textures, distances and start states and the actions'
+  sampling draw this way, so two processes with B environments each make the same run as one
+  process with 2B environments, up to the summation order of the reductions
+  (``tests/test_distributed.py``).
+
+`setup()` reads torchrun's environment (``RANK``, ``WORLD_SIZE``, ...) and initialises the process
+group: gloo for CPU, nccl for CUDA. Without torchrun it returns ``None`` and nothing changes.
+See ``docs/scaling.md`` for multi-node and Slurm use.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import torch
+
+__all__ = ["Shard", "setup", "teardown", "world_from_env"]
+
+
+def world_from_env() -> tuple[int, int, int]:
+    """``(rank, world_size, local_rank)`` from torchrun's environment (``(0, 1, 0)`` without it)."""
+    return (int(os.environ.get("RANK", 0)), int(os.environ.get("WORLD_SIZE", 1)),
+            int(os.environ.get("LOCAL_RANK", 0)))
+
+
+@dataclass(frozen=True)
+class Shard:
+    """This process's slice ``[start, stop)`` of a batch of ``total`` environments.
+
+    Attributes:
+        rank, world_size: of the process group.
+        start, stop, total: the environments of this rank within the whole batch.
+    """
+
+    rank: int
+    world_size: int
+    start: int
+    stop: int
+    total: int
+
+    @property
+    def is_main(self) -> bool:
+        """Rank 0 writes the run folder."""
+        return self.rank == 0
+
+    def sum(self, tensor: torch.Tensor) -> torch.Tensor:
+        """The sum of ``tensor`` over all ranks (a new tensor; the input is not changed)."""
+        import torch.distributed as dist
+
+        out = tensor.detach().clone().contiguous()
+        dist.all_reduce(out, op=dist.ReduceOp.SUM)
+        return out
+
+    def gather(self, tensor: torch.Tensor) -> torch.Tensor:
+        """Every rank's ``tensor`` ``[n, ...]`` concatenated in rank order, ``[world_size * n, ...]``."""
+        import torch.distributed as dist
+
+        part = tensor.detach().contiguous()
+        parts = [torch.empty_like(part) for _ in range(self.world_size)]
+        dist.all_gather(parts, part)
+        return torch.cat(parts)
+
+    def gather_objects(self, obj) -> list:
+        """Every rank's picklable ``obj``, in rank order, on every rank."""
+        import torch.distributed as dist
+
+        out = [None] * self.world_size
+        dist.all_gather_object(out, obj)
+        return out
+
+    def draw(self, draws: torch.Tensor) -> torch.Tensor:
+        """This rank's rows of ``draws`` ``[total, ...]`` (random numbers drawn for the whole batch)."""
+        return draws[self.start : self.stop]
+
+    def gather_record(self, record):
+        """A (nested) NamedTuple of per-environment tensors ``[B, ...]`` (e.g.
+        `aectorch.framework.IterationRecord`) with every tensor gathered along the batch; fields
+        named ``atom_counts`` (counts over the batch) are summed instead. Other values are kept."""
+
+        def one(name, value):
+            if isinstance(value, tuple) and hasattr(value, "_fields"):
+                return type(value)(*(one(field, getattr(value, field)) for field in value._fields))
+            if isinstance(value, torch.Tensor) and value.ndim > 0:
+                return self.sum(value) if name == "atom_counts" else self.gather(value)
+            return value
+
+        return one("record", record)
+
+    def barrier(self) -> None:
+        import torch.distributed as dist
+
+        dist.barrier()
+
+
+def setup(num_envs: int, device: str | torch.device = "cpu") -> Shard | None:
+    """Join torchrun's process group (gloo on CPU, nccl on CUDA) and return this rank's `Shard`.
+
+    ``None`` when the process was not started by torchrun with more than one process.
+    """
+    import torch.distributed as dist
+
+    rank, world, local = world_from_env()
+    if world <= 1:
+        return None
+    device = torch.device(device)
+    if not dist.is_initialized():
+        backend = "nccl" if device.type == "cuda" else "gloo"
+        if device.type == "cuda":
+            torch.cuda.set_device(local)
+        dist.init_process_group(backend=backend)
+    return Shard(rank=rank, world_size=world, start=rank * num_envs, stop=(rank + 1) * num_envs,
+                 total=world * num_envs)
+
+
+def teardown() -> None:
+    """Leave the process group (if this process joined one)."""
+    import torch.distributed as dist
+
+    if dist.is_available() and dist.is_initialized():
+        dist.destroy_process_group()

@@ -1,0 +1,114 @@
+"""torch.distributed (torchrun, gloo): 2 processes x B environments make the run 1 process x 2B makes."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from aectorch.experiment import load_checkpoint
+
+from test_train import TINY, _lines, _without_time  # noqa: F401
+from test_train import textures  # noqa: F401  (the fixture)
+
+ROOT = Path(__file__).resolve().parents[1]
+QUIET = ["train.figures=false", "train.tensorboard=false", "eval.enabled=false", "train.progress=false"]
+
+
+def _env() -> dict:
+    env = dict(os.environ, PYOPENGL_PLATFORM="osmesa", OMP_NUM_THREADS="1")
+    env.pop("AECTORCH_DEBUG", None)
+    for key in ("RANK", "WORLD_SIZE", "LOCAL_RANK", "MASTER_ADDR", "MASTER_PORT"):
+        env.pop(key, None)
+    return env
+
+
+def _torchrun(*args: str, cwd: Path, nproc: int = 2) -> subprocess.CompletedProcess:
+    torchrun = shutil.which("torchrun", path=str(Path(sys.executable).parent))
+    assert torchrun is not None, "torchrun comes with torch"
+    return subprocess.run([torchrun, "--standalone", f"--nproc_per_node={nproc}", str(ROOT / "train.py"), *args],
+                          cwd=cwd, env=_env(), capture_output=True, text=True, timeout=600)
+
+
+def _single(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(ROOT / "train.py"), *args], cwd=cwd, env=_env(),
+                          capture_output=True, text=True, timeout=600)
+
+
+def _tiny(textures: Path, num_envs: int, run: Path) -> list[str]:
+    overrides = [o for o in TINY if not o.startswith(("env.num_envs", "train.progress"))]
+    return [*overrides, *QUIET, f"env.num_envs={num_envs}", f"env.textures={textures}", f"hydra.run.dir={run}"]
+
+
+def _close(a, b, path="checkpoint"):
+    if isinstance(a, torch.Tensor):
+        assert a.shape == b.shape and a.dtype == b.dtype, path
+        if a.is_floating_point():
+            torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5, equal_nan=True, msg=path)
+        else:
+            assert torch.equal(a, b), path
+    elif isinstance(a, dict):
+        assert a.keys() == b.keys(), path
+        for key in a:
+            _close(a[key], b[key], f"{path}.{key}")
+    elif isinstance(a, (list, tuple)):
+        assert len(a) == len(b), path
+        for i, (x, y) in enumerate(zip(a, b)):
+            _close(x, y, f"{path}[{i}]")
+    else:
+        assert a == b, path
+
+
+def test_two_processes_with_b_envs_match_one_process_with_2b(tmp_path, textures):
+    split, whole = tmp_path / "split", tmp_path / "whole"
+    done = _torchrun(*_tiny(textures, 3, split), cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-4000:]
+    done = _single(*_tiny(textures, 6, whole), cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-4000:]
+    # one run folder, written by rank 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["split", "whole"]
+    a, b = load_checkpoint(split / "checkpoint.pt"), load_checkpoint(whole / "checkpoint.pt")
+    assert a["iteration"] == b["iteration"] == 12
+    _close(a["learner"], b["learner"], "learner")  # dictionaries, policies, critics, depth data and MLP
+    _close(a["metrics"], b["metrics"], "metrics")
+    # the environments: rank 0 holds envs 0-2 of the whole batch, rank 1 envs 3-5
+    assert isinstance(a["env"], list) and len(a["env"]) == 2
+    for key in ("texture_index", "distance_m", "pan_deg", "q_deg"):
+        joined = torch.cat([a["env"][0][key], a["env"][1][key]])
+        _close(joined, b["env"][key], f"env.{key}")
+    lines_a, lines_b = _without_time(_lines(split)), _without_time(_lines(whole))
+    assert [line["env_iterations"] for line in lines_a] == [line["env_iterations"] for line in lines_b]
+    for x, y in zip(lines_a, lines_b):
+        for key in x:
+            if x[key] is None:
+                assert y[key] is None, key
+            else:
+                assert x[key] == pytest.approx(y[key], rel=1e-4, abs=1e-5), key
+    sessions = json.loads((split / "provenance.json").read_text())["sessions"]
+    assert sessions[0]["world_size"] == 2
+    # A checkpoint of 2 processes resumes with 2 processes only.
+    done = _single(*_tiny(textures, 3, tmp_path / "x"), f"train.resume={split}", "train.iterations=14", cwd=tmp_path)
+    assert done.returncode == 2 and "resume it with as many" in done.stderr, done.stderr[-2000:]
+    done = _torchrun(*_tiny(textures, 3, tmp_path / "x"), f"train.resume={split}", "train.iterations=14",
+                     cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-4000:]
+    assert load_checkpoint(split / "checkpoint.pt")["iteration"] == 14
+
+
+def test_multirun_sweep_through_the_submitit_launcher(tmp_path, textures):
+    # submitit_local: the launcher that submitit_slurm is, with local subprocesses for jobs.
+    sweep = tmp_path / "sweep"
+    args = [o for o in _tiny(textures, 2, tmp_path / "unused") if not o.startswith("hydra.run.dir")]
+    done = _single("-m", "hydra/launcher=submitit_local", "seed=0,1", "train.iterations=4",
+                   *[a for a in args if not a.startswith("train.iterations")], f"hydra.sweep.dir={sweep}", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-4000:]
+    for job in ("0", "1"):
+        assert load_checkpoint(sweep / job / "checkpoint.pt")["iteration"] == 4
+    assert load_checkpoint(sweep / "0" / "checkpoint.pt")["config"]["seed"] == 0
+    assert load_checkpoint(sweep / "1" / "checkpoint.pt")["config"]["seed"] == 1
