@@ -37,6 +37,8 @@ Usage:
     python benchmarks/train_step.py --quick            # B = 1, 16, 64; 1 thread; eager and compile
     python benchmarks/train_step.py --device cuda --renderers torch --batches 256 4096 16384
     python benchmarks/train_step.py --leak 10000 --batches 16 --json benchmarks/results/train_step_leak.json
+    python benchmarks/train_step.py --interleave pyrender:1:eager torch:64:eager torch:64:compile \
+        --json benchmarks/results/train_step_interleaved.json     # ratios robust to the VM's drift
 
 Writes a table to stdout, JSON to benchmarks/results/train_step.json (--json) and the plots to
 docs/figures/train_step.png (--plot; ``--plot-only <json>`` redraws them).
@@ -105,7 +107,11 @@ def flops_per_env_iteration(device: str) -> float:
     env = ActiveDepthEnv(batch, seed=0, device=device)
     learner = JointLearner(LearnerConfig(), generator=torch.Generator().manual_seed(0), device=device)
     learner.iteration(env)  # so that the next one also updates the actor-critics
-    with FlopCounterMode(display=False) as counter:
+    # With the torch backend: FlopCounterMode cannot see the matrix product inside the fused
+    # pursuit operator, and the work is the same whichever backend does it.
+    from aectorch.coding import use_backend
+
+    with use_backend("torch"), FlopCounterMode(display=False) as counter:
         learner.iteration(env)
     return counter.get_total_flops() / batch
 
@@ -226,6 +232,45 @@ def leak(iterations: int, batch: int, device: str, samples: int = 50) -> dict:
             "depth_samples_stored": int(learner.depth_inputs.shape[0])}
 
 
+def interleave(configs: list[str], rounds: int, block: int, warmup: int, device: str) -> list[dict]:
+    """Several configurations in one process, timed in alternating blocks.
+
+    The VM's speed drifts by 25 % or more within minutes; alternating blocks of ``block``
+    iterations for ``rounds`` rounds exposes every configuration to the same drift, so their
+    ratios are trustworthy where separate runs are not.
+    """
+    import torch
+
+    from aectorch.experiment import _compile
+    from aectorch.framework import JointLearner, LearnerConfig
+    from aectorch.sim import ActiveDepthEnv
+
+    setups = []
+    for text in configs:
+        renderer, batch, mode = text.split(":")
+        env = ActiveDepthEnv(int(batch), renderer=renderer, seed=0, device=device)
+        learner = JointLearner(LearnerConfig(), generator=torch.Generator().manual_seed(0), device=device)
+        if mode == "compile":
+            _compile(learner, env)
+        for _ in range(warmup):
+            learner.iteration(env)
+        setups.append((text, int(batch), env, learner, []))
+    for _ in range(rounds):
+        for _, _, env, learner, times in setups:
+            for _ in range(block):
+                if device == "cuda":
+                    torch.cuda.synchronize()
+                start = time.perf_counter()
+                learner.iteration(env)
+                if device == "cuda":
+                    torch.cuda.synchronize()
+                times.append(time.perf_counter() - start)
+    return [{"config": text, "B": batch, "threads": torch.get_num_threads(),
+             "median_iteration_s": statistics.median(times),
+             "env_iterations_per_s": batch / statistics.median(times), "iterations": len(times)}
+            for text, batch, _, _, times in setups]
+
+
 def worker(args) -> dict:
     """One configuration (or, with --extras, the FLOP count, matmul rates and the depth refit)."""
     os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
@@ -236,6 +281,8 @@ def worker(args) -> dict:
     torch.set_num_threads(threads)
     if args.leak:
         return leak(args.leak, args.batches[0], args.device)
+    if args.interleave:
+        return {"rows": interleave(args.interleave, args.rounds, args.block, args.warmup, args.device)}
     if args.extras:
         return {
             "threads": threads,
@@ -309,7 +356,37 @@ def main() -> None:
     parser.add_argument("--leak", type=int, default=0, metavar="ITERATIONS",
                         help="instead of the sweep: resident memory over this many iterations at the "
                              "first --batches B, one thread (JSON to --json)")
+    parser.add_argument("--interleave", nargs="+", default=None, metavar="RENDERER:B:MODE",
+                        help="instead of the sweep: these configurations in one process, timed in "
+                             "alternating blocks (robust ratios), on each of --threads")
+    parser.add_argument("--rounds", type=int, default=10, help="--interleave: rounds of blocks")
+    parser.add_argument("--block", type=int, default=3, help="--interleave: iterations per block")
     args = parser.parse_args()
+    if args.interleave and not args.worker:
+        report = {"benchmark": "train_step --interleave", "rounds": args.rounds, "block": args.block, "rows": []}
+        for threads in args.threads:
+            env = dict(os.environ, OMP_NUM_THREADS=str(threads), LP_NUM_THREADS=str(threads),
+                       MKL_NUM_THREADS=str(threads), PYOPENGL_PLATFORM=os.environ.get("PYOPENGL_PLATFORM", "osmesa"))
+            command = [sys.executable, __file__, "--worker", "--interleave", *args.interleave,
+                       "--rounds", str(args.rounds), "--block", str(args.block), "--warmup", str(args.warmup),
+                       "--device", args.device]
+            result = subprocess.run(command, env=env, stdout=subprocess.PIPE, text=True, check=True)
+            rows = json.loads(result.stdout.strip().splitlines()[-1])["rows"]
+            first = rows[0]["env_iterations_per_s"]
+            print(f"\n{threads} thread(s), {args.rounds} rounds of {args.block} iterations each, medians:")
+            print(f"| configuration | env-it/s | x {rows[0]['config']} |\n|---|---:|---:|")
+            for row in rows:
+                row["ratio_to_first"] = row["env_iterations_per_s"] / first
+                print(f"| {row['config']} | {row['env_iterations_per_s']:,.1f} | {row['ratio_to_first']:.2f}x |")
+            report["rows"] += rows
+        sys.path.insert(0, str(ROOT))
+        from benchmarks.machine import machine_info
+
+        report["machine"] = machine_info()
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(report, indent=2) + "\n")
+        print(f"wrote {args.json}")
+        return
     if args.plot_only is not None:
         plot(json.loads(args.plot_only.read_text()), args.plot)
         print(f"wrote {args.plot}")
