@@ -416,6 +416,10 @@ def validate_resources(cfg: ExperimentConfig) -> None:
         if not os.path.isdir(folder):
             raise ValueError(f"{name}: no such folder {folder!r}")
         _check_images(name, folder)
+    device = torch.device(cfg.env.device)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"env.device={cfg.env.device!r}, but this torch ({torch.__version__}) sees no CUDA "
+                         "device; use env.device=cpu")
     if cfg.env.renderer == "pyrender":
         try:
             import pyrender  # noqa: F401

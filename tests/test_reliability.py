@@ -274,3 +274,11 @@ def test_recording_without_lerobot_says_where_it_lives(tmp_path, textures):
     done = subprocess.run([sys.executable, "-m", "aectorch.record", f"checkpoint={run / 'checkpoint.pt'}",
                            f"out={tmp_path / 'cli'}"], capture_output=True, text=True, timeout=300)
     assert done.returncode == 2 and "needs LeRobot" in done.stderr and "Traceback" not in done.stderr
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the message on a machine without CUDA")
+def test_cuda_device_without_cuda_is_rejected_before_any_work(textures):
+    from aectorch.config import validate_resources
+
+    with pytest.raises(ValueError, match="env.device='cuda', but this torch .* sees no CUDA device"):
+        validate_resources(_cfg(textures, "env.device=cuda"))

@@ -1,0 +1,90 @@
+"""A soak run: the default training for many iterations, with resident memory logged alongside.
+
+    .venv/bin/python scripts/soak.py runs/soak                    # 100,000 iterations, defaults
+    .venv/bin/python scripts/soak.py runs/soak --iterations 200000  # longer (resumes if it can)
+
+Runs `aectorch.experiment.run_experiment` with the default `ExperimentConfig` (the watchdog on,
+in mode ``stop``), except ``train.iterations``, no final evaluation and figures only at the end.
+If the folder already holds a checkpoint the run is resumed, so a soak can be spread over
+several sessions (Ctrl-C or SIGTERM leaves a checkpoint). Every ``--memory-every`` iterations
+the process's resident set (VmRSS) is appended to ``memory.jsonl`` in the run folder;
+``--report`` prints a summary of both logs (NaN-free metrics, memory growth per 10k iterations).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def rss_mb() -> float:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return math.nan
+
+
+def report(run: Path) -> dict:
+    """Summary of a soak folder: iterations, non-finite metrics, memory at start/end and its slope."""
+    lines = [json.loads(x) for x in (run / "metrics.jsonl").read_text().splitlines() if x.strip()]
+    memory = [json.loads(x) for x in (run / "memory.jsonl").read_text().splitlines() if x.strip()]
+    nonfinite = sum(1 for line in lines for k, v in line.items()
+                    if k != "depth_mae_m" and isinstance(v, float) and not math.isfinite(v))
+    nulls = sum(1 for line in lines for k, v in line.items() if v is None and k != "depth_mae_m")
+    out = {"iterations": lines[-1]["iteration"] if lines else 0, "metrics_lines": len(lines),
+           "nonfinite_values": nonfinite, "null_values_besides_early_depth": nulls}
+    if len(memory) >= 2:
+        half = [m for m in memory if m["iteration"] >= memory[-1]["iteration"] / 2]
+        slope = (half[-1]["rss_mb"] - half[0]["rss_mb"]) / max(half[-1]["iteration"] - half[0]["iteration"], 1)
+        out.update(rss_first_mb=memory[0]["rss_mb"], rss_last_mb=memory[-1]["rss_mb"],
+                   rss_max_mb=max(m["rss_mb"] for m in memory),
+                   rss_growth_mb_per_10k_second_half=slope * 10_000)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("run", type=Path, help="the run folder (resumed when it holds a checkpoint)")
+    parser.add_argument("--iterations", type=int, default=100_000)
+    parser.add_argument("--memory-every", type=int, default=500)
+    parser.add_argument("--report", action="store_true", help="only print the summary of the folder")
+    args = parser.parse_args()
+    if args.report:
+        print(json.dumps(report(args.run), indent=2))
+        return
+    os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+    from omegaconf import OmegaConf
+
+    from aectorch.config import to_experiment_config
+    from aectorch.experiment import run_experiment
+
+    overrides = [f"train.iterations={args.iterations}", "eval.enabled=false", "train.checkpoint_every=1000",
+                 "train.log_every=100"]
+    if (args.run / "checkpoint.pt").exists():
+        overrides.append(f"train.resume={args.run}")
+    cfg = to_experiment_config(OmegaConf.from_dotlist(overrides))
+    args.run.mkdir(parents=True, exist_ok=True)
+    memory = (args.run / "memory.jsonl").open("a")
+
+    def sample(done: int, record) -> None:
+        if done % args.memory_every == 0:
+            memory.write(json.dumps({"iteration": done, "rss_mb": rss_mb(), "time": time.time()}) + "\n")
+            memory.flush()
+
+    try:
+        run_experiment(cfg, args.run, callback=sample)
+    finally:
+        memory.close()
+    print(json.dumps(report(args.run), indent=2))
+
+
+if __name__ == "__main__":
+    main()
