@@ -135,6 +135,19 @@ def depth_refit_seconds(device: str) -> float:
     return time.perf_counter() - start
 
 
+def _timed_iteration(learner, env, device: str) -> float:
+    """Seconds of one learner iteration (the GPU synchronised before and after)."""
+    import torch
+
+    if device == "cuda":
+        torch.cuda.synchronize()
+    start = time.perf_counter()
+    learner.iteration(env)
+    if device == "cuda":
+        torch.cuda.synchronize()
+    return time.perf_counter() - start
+
+
 def measure(renderer: str, batch: int, mode: str, iterations: int, warmup: int, device: str) -> dict:
     import torch
 
@@ -160,13 +173,7 @@ def measure(renderer: str, batch: int, mode: str, iterations: int, warmup: int, 
     times = []
     with StageTimer(device if device == "cuda" else None) as timer:
         for _ in range(iterations):
-            if device == "cuda":
-                torch.cuda.synchronize()
-            start = time.perf_counter()
-            learner.iteration(env)
-            if device == "cuda":
-                torch.cuda.synchronize()
-            times.append(time.perf_counter() - start)
+            times.append(_timed_iteration(learner, env, device))
     median = statistics.median(times)
     per_iteration = {name: seconds / iterations for name, seconds in timer.seconds.items()}
     stages = {name: per_iteration.get(name, 0.0) for name in ("render", "encode", "rl", "dictionary", "env", "metrics")}
@@ -258,13 +265,7 @@ def interleave(configs: list[str], rounds: int, block: int, warmup: int, device:
     for _ in range(rounds):
         for _, _, env, learner, times in setups:
             for _ in range(block):
-                if device == "cuda":
-                    torch.cuda.synchronize()
-                start = time.perf_counter()
-                learner.iteration(env)
-                if device == "cuda":
-                    torch.cuda.synchronize()
-                times.append(time.perf_counter() - start)
+                times.append(_timed_iteration(learner, env, device))
     return [{"config": text, "B": batch, "threads": torch.get_num_threads(),
              "median_iteration_s": statistics.median(times),
              "env_iterations_per_s": batch / statistics.median(times), "iterations": len(times)}
