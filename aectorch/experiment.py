@@ -295,7 +295,7 @@ def _train(cfg: ExperimentConfig, run_dir, callback, shard) -> dict:
     env = build_env(cfg, shard)
     learner = build_learner(cfg, shard=shard)
     metrics = TrainingMetrics(batch, scales=cfg.learner.scales)
-    watchdog = Watchdog(cfg.watchdog, total)
+    watchdog = Watchdog(cfg.watchdog)
     if checkpoint is not None:
         path = run_dir / "checkpoint.pt"
         restore(learner, checkpoint["learner"], path, "learner")

@@ -148,18 +148,18 @@ def _record_and_learner():
 
 def test_watchdog_detects_divergence_and_collapse():
     record, learner = _record_and_learner()
-    healthy = Watchdog(WatchdogConfig(), iterations=100)
+    healthy = Watchdog(WatchdogConfig())
     assert healthy.check(1, record, learner) == []
     exploding = record._replace(parallax=record.parallax._replace(td_error=torch.full((2,), 1e4)))
     with pytest.raises(WatchdogError, match="parallax mean |TD error| 1e\\+04 > watchdog.td_error_max"):
-        Watchdog(WatchdogConfig(), iterations=100).check(2, exploding, learner)
+        Watchdog(WatchdogConfig()).check(2, exploding, learner)
     collapsed = record._replace(stereo=record.stereo._replace(entropy=torch.zeros(2)))
     with pytest.raises(WatchdogError, match="stereo policy entropy 0 nats"):
-        Watchdog(WatchdogConfig(), iterations=100).check(5, collapsed, learner)
+        Watchdog(WatchdogConfig()).check(5, collapsed, learner)
     # after the grace period a deterministic policy is fine
-    assert Watchdog(WatchdogConfig(), iterations=100).check(50, collapsed, learner) == []
+    assert Watchdog(WatchdogConfig(entropy_grace_iterations=20)).check(50, collapsed, learner) == []
     # dead atoms: counted over a window
-    dog = Watchdog(WatchdogConfig(dead_atoms_window=3), iterations=100)
+    dog = Watchdog(WatchdogConfig(dead_atoms_window=3))
     counts = torch.zeros_like(record.parallax.atom_counts)
     counts[:, :4] = 10  # 12 of 16 atoms never chosen
     dying = record._replace(parallax=record.parallax._replace(atom_counts=counts))
@@ -168,13 +168,13 @@ def test_watchdog_detects_divergence_and_collapse():
         dog.check(3, dying, learner)
     nan_reward = record._replace(stereo=record.stereo._replace(reward=torch.tensor([0.0, float("nan")])))
     with pytest.raises(WatchdogError, match="non-finite values .* in stereo reward at iteration 7"):
-        Watchdog(WatchdogConfig(), iterations=100).check(7, nan_reward, learner)
+        Watchdog(WatchdogConfig()).check(7, nan_reward, learner)
 
 
 def test_watchdog_warn_mode_warns_once_per_kind_and_off_mode_is_silent():
     record, learner = _record_and_learner()
     exploding = record._replace(parallax=record.parallax._replace(td_error=torch.full((2,), 1e4)))
-    dog = Watchdog(WatchdogConfig(mode="warn"), iterations=100)
+    dog = Watchdog(WatchdogConfig(mode="warn"))
     with pytest.warns(RuntimeWarning, match="TD error"):
         assert len(dog.check(1, exploding, learner)) == 1
     import warnings
@@ -182,14 +182,14 @@ def test_watchdog_warn_mode_warns_once_per_kind_and_off_mode_is_silent():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert len(dog.check(2, exploding, learner)) == 1  # reported, not warned again
-        assert Watchdog(WatchdogConfig(mode="off"), iterations=100).check(1, exploding, learner) == []
-    restored = Watchdog(WatchdogConfig(mode="warn"), iterations=100)
+        assert Watchdog(WatchdogConfig(mode="off")).check(1, exploding, learner) == []
+    restored = Watchdog(WatchdogConfig(mode="warn"))
     restored.load_state_dict(dog.state_dict())
     assert restored.warned == {"td_error"}
 
 
 @pytest.mark.parametrize("field, value", [
-    ("mode", "loud"), ("td_error_max", 0), ("entropy_min_nats", -1.0), ("entropy_grace_fraction", 2.0),
+    ("mode", "loud"), ("td_error_max", 0), ("entropy_min_nats", -1.0), ("entropy_grace_iterations", -1), ("entropy_grace_iterations", 0.5),
     ("dead_atoms_window", 0), ("dead_atoms_max_fraction", 0.0),
 ])
 def test_watchdog_config_rejects_bad_values(field, value):
