@@ -159,8 +159,11 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
 def checkpoint_config(payload: dict, path: str | os.PathLike) -> ExperimentConfig:
     """The validated config stored in a checkpoint; ``ValueError`` naming ``path`` if this version
     of aectorch cannot read it."""
+    # The watchdog and the recording change nothing that is learned and come from the command line
+    # on resume, so a checkpoint from a version with other watchdog options still loads.
+    stored = {k: v for k, v in payload["config"].items() if k not in ("watchdog", "record")}
     try:
-        return to_experiment_config(payload["config"])
+        return to_experiment_config(stored)
     except Exception as err:  # unknown keys, wrong types, impossible values
         raise ValueError(f"the checkpoint {str(path)!r} holds a config this aectorch cannot use "
                          f"({type(err).__name__}: {str(err).strip().splitlines()[0]})") from err

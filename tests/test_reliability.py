@@ -282,3 +282,15 @@ def test_cuda_device_without_cuda_is_rejected_before_any_work(textures):
 
     with pytest.raises(ValueError, match="env.device='cuda', but this torch .* sees no CUDA device"):
         validate_resources(_cfg(textures, "env.device=cuda"))
+
+
+def test_a_checkpoint_with_other_watchdog_options_still_resumes(tmp_path, textures):
+    # The watchdog (and recording) sections come from the command line on resume: options of
+    # another aectorch version stored there must not block it.
+    run = tmp_path / "run"
+    run_experiment(_cfg(textures, "train.iterations=4"), run)
+    payload = load_checkpoint(run / "checkpoint.pt")
+    payload["config"]["watchdog"]["entropy_grace_fraction"] = 0.1  # an option this version lacks
+    save_checkpoint(run / "checkpoint.pt", payload)
+    run_experiment(_cfg(textures, f"train.resume={run}", "train.iterations=6"), run)
+    assert load_checkpoint(run / "checkpoint.pt")["iteration"] == 6
