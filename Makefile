@@ -20,7 +20,7 @@ test: setup
 	PYOPENGL_PLATFORM=osmesa OMP_WAIT_POLICY=PASSIVE $(VENV_PY) -m pytest -q --ignore=tests/lerobot $(PYTEST_ARGS)
 ifneq ($(LEROBOT),0)
 	bash scripts/setup_lerobot.sh
-	PYOPENGL_PLATFORM=osmesa OMP_WAIT_POLICY=PASSIVE .venv-lerobot/bin/python -m pytest -q -p no:cacheprovider tests/lerobot $(PYTEST_ARGS)
+	PYOPENGL_PLATFORM=osmesa OMP_WAIT_POLICY=PASSIVE .venv-lerobot/bin/python -m pytest -q -p no:cacheprovider -W "ignore::DeprecationWarning" tests/lerobot $(PYTEST_ARGS)
 endif
 
 docs: setup
