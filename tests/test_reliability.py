@@ -154,10 +154,16 @@ def test_watchdog_detects_divergence_and_collapse():
     with pytest.raises(WatchdogError, match="parallax mean |TD error| 1e\\+04 > watchdog.td_error_max"):
         Watchdog(WatchdogConfig()).check(2, exploding, learner)
     collapsed = record._replace(stereo=record.stereo._replace(entropy=torch.zeros(2)))
-    with pytest.raises(WatchdogError, match="stereo policy entropy 0 nats"):
-        Watchdog(WatchdogConfig()).check(5, collapsed, learner)
+    dog = Watchdog(WatchdogConfig(entropy_window=3))
+    assert dog.check(1, collapsed, learner) == [] and dog.check(2, collapsed, learner) == []
+    with pytest.raises(WatchdogError, match=r"stereo policy entropy 0 nats \(mean of iterations 1-3\)"):
+        dog.check(3, collapsed, learner)
+    # one deterministic iteration in a window is a confident state, not a collapse
+    dog = Watchdog(WatchdogConfig(entropy_window=3))
+    assert [dog.check(i, r, learner) for i, r in ((1, collapsed), (2, record), (3, record))] == [[], [], []]
     # after the grace period a deterministic policy is fine
-    assert Watchdog(WatchdogConfig(entropy_grace_iterations=20)).check(50, collapsed, learner) == []
+    late = Watchdog(WatchdogConfig(entropy_grace_iterations=20, entropy_window=3))
+    assert [late.check(i, collapsed, learner) for i in (50, 51, 52)] == [[], [], []]
     # dead atoms: counted over a window
     dog = Watchdog(WatchdogConfig(dead_atoms_window=3))
     counts = torch.zeros_like(record.parallax.atom_counts)
@@ -189,7 +195,7 @@ def test_watchdog_warn_mode_warns_once_per_kind_and_off_mode_is_silent():
 
 
 @pytest.mark.parametrize("field, value", [
-    ("mode", "loud"), ("td_error_max", 0), ("entropy_min_nats", -1.0), ("entropy_grace_iterations", -1), ("entropy_grace_iterations", 0.5),
+    ("mode", "loud"), ("td_error_max", 0), ("entropy_min_nats", -1.0), ("entropy_grace_iterations", -1), ("entropy_grace_iterations", 0.5), ("entropy_window", 0),
     ("dead_atoms_window", 0), ("dead_atoms_max_fraction", 0.0),
 ])
 def test_watchdog_config_rejects_bad_values(field, value):
