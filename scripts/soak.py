@@ -8,7 +8,8 @@ in mode ``stop``), except ``train.iterations``, no final evaluation and figures 
 If the folder already holds a checkpoint the run is resumed, so a soak can be spread over
 several sessions (Ctrl-C or SIGTERM leaves a checkpoint). Every ``--memory-every`` iterations
 the process's resident set (VmRSS) is appended to ``memory.jsonl`` in the run folder;
-``--report`` prints a summary of both logs (NaN-free metrics, memory growth per 10k iterations).
+``--report`` prints a summary of both logs (NaN-free metrics, memory growth per 10k iterations);
+``--plot <png>`` also draws the curves (errors, rewards, entropies, TD errors, resident memory).
 """
 
 from __future__ import annotations
@@ -50,15 +51,55 @@ def report(run: Path) -> dict:
     return out
 
 
+def plot(run: Path, path: Path) -> None:
+    """The soak's curves: eq. (9) errors and depth MAE, rewards, entropies, |TD error|, memory."""
+    from matplotlib.figure import Figure
+
+    lines = [json.loads(x) for x in (run / "metrics.jsonl").read_text().splitlines() if x.strip()]
+    memory = [json.loads(x) for x in (run / "memory.jsonl").read_text().splitlines() if x.strip()]
+    it = [line["iteration"] for line in lines]
+
+    def series(key):
+        return [math.nan if line.get(key) is None else line[key] for line in lines]
+
+    fig = Figure(figsize=(13, 7), dpi=110)
+    axes = fig.subplots(2, 3).ravel()
+    panels = [
+        ("eye errors (eq. 9, deg)", ["pursuit_mae_deg", "vergence_mae_deg"]),
+        ("depth MAE (m, 1000-trial window)", ["depth_mae_m"]),
+        ("coding reward", ["parallax/reward", "stereo/reward"]),
+        ("policy entropy (nats)", ["parallax/entropy", "stereo/entropy"]),
+        ("mean |TD error|", ["parallax/td_error", "stereo/td_error"]),
+    ]
+    for ax, (title, keys) in zip(axes, panels):
+        for key in keys:
+            ax.plot(it, series(key), label=key, lw=0.8)
+        ax.set_title(title, fontsize=10)
+        ax.legend(fontsize=7)
+        ax.grid(alpha=0.3)
+    ax = axes[-1]
+    ax.plot([m["iteration"] for m in memory], [m["rss_mb"] for m in memory], lw=0.8)
+    ax.set_title("resident memory (MB)", fontsize=10)
+    ax.grid(alpha=0.3)
+    for ax in axes:
+        ax.set_xlabel("learner iteration", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("run", type=Path, help="the run folder (resumed when it holds a checkpoint)")
     parser.add_argument("--iterations", type=int, default=100_000)
     parser.add_argument("--memory-every", type=int, default=500)
     parser.add_argument("--report", action="store_true", help="only print the summary of the folder")
+    parser.add_argument("--plot", type=Path, default=None, help="with --report: draw the curves into this PNG")
     args = parser.parse_args()
     if args.report:
         print(json.dumps(report(args.run), indent=2))
+        if args.plot is not None:
+            plot(args.run, args.plot)
+            print(f"wrote {args.plot}")
         return
     os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
     from omegaconf import OmegaConf
