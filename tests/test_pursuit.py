@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from sklearn.datasets import load_sample_image
 from sklearn.linear_model import orthogonal_mp_gram
 
-from aectorch.coding import SparseCode, gram_matrix, matching_pursuit, native, omp, use_backend
+from aectorch.coding import SparseCode, gram_matrix, matching_pursuit, omp, use_backend
 from aectorch.coding import pursuit as pursuit_module
 from aectorch.coding import sparse_code as sparse_code_module
 from aectorch.coding.patches import COARSE, FINE, extract_patches
@@ -693,66 +693,6 @@ def test_torch_compile_fullgraph_aot_eager_matches_eager(fn):
 @pytest.mark.parametrize("fn", ALGORITHMS)
 def test_torch_compile_fullgraph_inductor_matches_eager(fn):
     _check_compiled(fn, "inductor")
-
-
-# ---------------------------------------------------------------------------------------------
-# The fused CPU kernel: built, used, and replaceable
-
-
-def test_native_kernel_is_built(backend):
-    # CI and `make test` must exercise the kernel, not silently fall back to torch.
-    if backend == "auto":
-        assert native.available(), "the fused CPU pursuit kernel did not build (see the warning)"
-        d = torch.nn.functional.normalize(torch.randn(30, 60, dtype=torch.float64), dim=0)
-        x = torch.randn(5, 30, dtype=torch.float64)
-        a = omp(x, d, 4, backend="native")
-        b = omp(x, d, 4, backend="torch")
-        assert torch.equal(a.indices, b.indices)
-        torch.testing.assert_close(a.coefficients, b.coefficients, rtol=0, atol=1e-12)
-
-
-def test_backend_argument_is_validated(backend):
-    d = torch.nn.functional.normalize(torch.randn(30, 60), dim=0)
-    with pytest.raises(ValueError, match="backend must be one of"):
-        omp(torch.randn(5, 30), d, 4, backend="fast")
-    with pytest.raises(ValueError, match="backend must be one of"):
-        with use_backend("cuda"):
-            pass
-    with pytest.raises(ValueError, match="backend='native' needs float32 or float64"):
-        matching_pursuit(torch.randn(5, 30).half(), d.half(), 4, backend="native")
-
-
-_FALLBACK = """
-import warnings, torch
-from aectorch.coding import native, omp
-with warnings.catch_warnings(record=True) as caught:
-    warnings.simplefilter("always")
-    d = torch.nn.functional.normalize(torch.randn(30, 60), dim=0)
-    code = omp(torch.randn(5, 30), d, 4)
-print(native.available(), code.indices.shape[-1], "|".join(str(w.message) for w in caught))
-"""
-
-
-@pytest.mark.parametrize("how", ["disabled", "no compiler"])
-def test_without_the_kernel_the_pursuits_fall_back_to_torch(tmp_path, how, backend):
-    import os
-    import subprocess
-    import sys
-
-    if backend != "auto":
-        return  # one subprocess per case is enough
-    env = dict(os.environ, AECTORCH_CACHE=str(tmp_path))  # nothing cached: a fresh build
-    if how == "disabled":
-        env["AECTORCH_NATIVE"] = "0"
-    else:
-        env["CXX"] = "/bin/false"
-    out = subprocess.run([sys.executable, "-c", _FALLBACK], env=env, capture_output=True, text=True,
-                         check=True).stdout.strip()
-    assert out.startswith("False 4")
-    if how == "disabled":
-        assert out == "False 4"  # silent: the user asked for it
-    else:
-        assert "fused CPU pursuit kernel is not available" in out and "pure-torch" in out
 
 
 # ---------------------------------------------------------------------------------------------
