@@ -42,11 +42,17 @@ def report(run: Path) -> dict:
     nulls = sum(1 for line in lines for k, v in line.items() if v is None and k != "depth_mae_m")
     out = {"iterations": lines[-1]["iteration"] if lines else 0, "metrics_lines": len(lines),
            "nonfinite_values": nonfinite, "null_values_besides_early_depth": nulls}
-    if len(memory) >= 2:
+    if len(memory) >= 3:
+        # A least-squares slope over the second half: single samples jump by tens of MB when a
+        # depth refit's Jacobian workspace is held by the allocator.
         half = [m for m in memory if m["iteration"] >= memory[-1]["iteration"] / 2]
-        slope = (half[-1]["rss_mb"] - half[0]["rss_mb"]) / max(half[-1]["iteration"] - half[0]["iteration"], 1)
+        xs, ys = [m["iteration"] for m in half], [m["rss_mb"] for m in half]
+        mx, my = sum(xs) / len(xs), sum(ys) / len(ys)
+        var = sum((x - mx) ** 2 for x in xs)
+        slope = sum((x - mx) * (y - my) for x, y in zip(xs, ys)) / var if var else math.nan
         out.update(rss_first_mb=memory[0]["rss_mb"], rss_last_mb=memory[-1]["rss_mb"],
-                   rss_max_mb=max(m["rss_mb"] for m in memory),
+                   rss_min_mb=min(m["rss_mb"] for m in memory), rss_max_mb=max(m["rss_mb"] for m in memory),
+                   rss_second_half_min_max_mb=[min(ys), max(ys)],
                    rss_growth_mb_per_10k_second_half=slope * 10_000)
     return out
 
