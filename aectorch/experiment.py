@@ -211,10 +211,17 @@ def _write_json(path: Path, data: dict) -> None:
 
 
 def _truncate_metrics(path: Path, iteration: int) -> None:
+    """Keep the lines up to the checkpoint's iteration; a line torn by a kill mid-write is dropped."""
     if not path.exists():
         return
-    kept = [line for line in path.read_text().splitlines()
-            if line.strip() and json.loads(line)["iteration"] <= iteration]
+    kept = []
+    for line in path.read_text().splitlines():
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            continue  # only the last line can be torn, and it is after the checkpoint
+        if record["iteration"] <= iteration:
+            kept.append(line)
     path.write_text("".join(line + "\n" for line in kept))
 
 

@@ -300,3 +300,14 @@ def test_a_checkpoint_with_other_watchdog_options_still_resumes(tmp_path, textur
     save_checkpoint(run / "checkpoint.pt", payload)
     run_experiment(_cfg(textures, f"train.resume={run}", "train.iterations=6"), run)
     assert load_checkpoint(run / "checkpoint.pt")["iteration"] == 6
+
+
+def test_resume_after_a_kill_that_tore_the_last_metrics_line(tmp_path, textures):
+    # SIGKILL (out of memory, a hard scheduler limit) can cut a metrics line in half.
+    straight, run = tmp_path / "straight", tmp_path / "run"
+    run_experiment(_cfg(textures), straight)
+    run_experiment(_cfg(textures, "train.iterations=8"), run)
+    with (run / "metrics.jsonl").open("a") as f:
+        f.write('{"iteration": 10, "env_iterations": 5')  # torn, after the checkpoint's iteration 8
+    run_experiment(_cfg(textures, f"train.resume={run}"), run)
+    assert _without_time(_lines(run)) == _without_time(_lines(straight))
