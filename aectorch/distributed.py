@@ -31,6 +31,8 @@ import torch
 
 __all__ = ["Shard", "setup", "teardown", "world_from_env"]
 
+_owned: list[bool] = []  # non-empty while a process group made by `setup` is alive
+
 
 def world_from_env() -> tuple[int, int, int]:
     """``(rank, world_size, local_rank)`` from torchrun's environment (``(0, 1, 0)`` without it)."""
@@ -118,18 +120,20 @@ def setup(num_envs: int, device: str | torch.device = "cpu") -> Shard | None:
     if world <= 1:
         return None
     device = torch.device(device)
-    if not dist.is_initialized():
+    if not dist.is_initialized():  # a group the caller made is used as it is, and left to them
         backend = "nccl" if device.type == "cuda" else "gloo"
         if device.type == "cuda":
             torch.cuda.set_device(local)
         dist.init_process_group(backend=backend)
+        _owned.append(True)
     return Shard(rank=rank, world_size=world, start=rank * num_envs, stop=(rank + 1) * num_envs,
                  total=world * num_envs)
 
 
 def teardown() -> None:
-    """Leave the process group (if this process joined one)."""
+    """Leave the process group if `setup` made it (one the caller made stays theirs)."""
     import torch.distributed as dist
 
-    if dist.is_available() and dist.is_initialized():
+    if _owned and dist.is_initialized():
         dist.destroy_process_group()
+    _owned.clear()

@@ -112,3 +112,17 @@ def test_multirun_sweep_through_the_submitit_launcher(tmp_path, textures):
         assert load_checkpoint(sweep / job / "checkpoint.pt")["iteration"] == 4
     assert load_checkpoint(sweep / "0" / "checkpoint.pt")["config"]["seed"] == 0
     assert load_checkpoint(sweep / "1" / "checkpoint.pt")["config"]["seed"] == 1
+
+
+def test_teardown_leaves_a_process_group_the_caller_made(tmp_path):
+    import torch.distributed as dist
+
+    from aectorch import distributed
+
+    dist.init_process_group("gloo", init_method=f"file://{tmp_path / 'rendezvous'}", rank=0, world_size=1)
+    try:
+        assert distributed.setup(4) is None  # one process: no shard
+        distributed.teardown()
+        assert dist.is_initialized()  # still the caller's
+    finally:
+        dist.destroy_process_group()
