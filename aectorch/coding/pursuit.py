@@ -54,6 +54,11 @@ BACKENDS = ("auto", "native", "torch")
 _default_backend = "auto"
 
 
+def _check_backend(backend: str) -> None:
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+
+
 @contextlib.contextmanager
 def use_backend(backend: str) -> Iterator[None]:
     """Within the block, `omp` and `matching_pursuit` called without ``backend=`` use this one.
@@ -73,8 +78,7 @@ def use_backend(backend: str) -> Iterator[None]:
         True
     """
     global _default_backend
-    if backend not in BACKENDS:
-        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    _check_backend(backend)
     previous, _default_backend = _default_backend, backend
     try:
         yield
@@ -130,8 +134,7 @@ def _validate(
             f"sparsity must be in [1, min(P, N)] = [1, {min(dim, num_atoms)}] for a dictionary "
             f"of shape [P={dim}, N={num_atoms}], got {sparsity}"
         )
-    if backend not in BACKENDS:
-        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    _check_backend(backend)
     if backend == "native" and not _native_ok(signals):
         raise ValueError(
             "backend='native' needs float32 or float64 signals on CPU and a built kernel "
