@@ -49,6 +49,7 @@ PAPER_PRESET: dict[str, Any] = {
     # natural actor-critic of Bhatnagar et al. (2009) in its published form (ActorCriticConfig()).
     "learner.reward": "coding",
     "learner.features": "pooled",
+    "learner.symmetry": [],
     "learner.control.alpha_v": 0.4,
     "learner.control.alpha_w": None,
     "learner.control.alpha_theta": 0.04,

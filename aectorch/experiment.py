@@ -162,6 +162,9 @@ def checkpoint_config(payload: dict, path: str | os.PathLike) -> ExperimentConfi
     # The watchdog and the recording change nothing that is learned and come from the command line
     # on resume, so a checkpoint from a version with other watchdog options still loads.
     stored = {k: v for k, v in payload["config"].items() if k not in ("watchdog", "record")}
+    # Checkpoints from before `learner.symmetry` existed learned without the symmetries.
+    if isinstance(stored.get("learner"), dict) and "symmetry" not in stored["learner"]:
+        stored["learner"] = {**stored["learner"], "symmetry": []}
     try:
         return to_experiment_config(stored)
     except Exception as err:  # unknown keys, wrong types, impossible values

@@ -103,6 +103,19 @@ class LearnerConfig:
             reward's, minus a constant of the start state), but the improvement leaves out the
             texture's reward level, the largest term of the TD error's noise. With gamma = 1 the
             improvement's return telescopes to a constant: use it only with ``critic_discount < 1``.
+        symmetry: the cues whose symmetry the learner uses (a subset of ``("parallax",
+            "stereo")``; default both; ``[]`` is the paper). Mirroring the world left-right
+            mirrors both images of the parallax pair and negates the pursuit it needs; exchanging
+            the two eyes' images of a stereo pair negates the disparity, so the vergence change it
+            needs (for a fronto-parallel plane and textures that are mirror-symmetric in
+            distribution). For each cue listed, its dictionaries keep their atoms in pairs related
+            by that symmetry (so the features of the transformed observation are a permutation of
+            the features, at no cost), and every actor-critic update also learns from the
+            transformed transition: features permuted, action negated (the action set must be
+            symmetric), the same reward. Leftward and rightward fixations then teach one pursuit
+            policy, and under- and over-convergence one vergence policy: neither can prefer a
+            direction the images do not give, and the stereo dictionaries code crossed and
+            uncrossed disparities alike.
         depth_hidden: hidden units of the depth MLP (paper: 10).
         depth_every_trials: retrain the depth MLP after every this many finished trials (all B
             environments' trials count).
@@ -122,6 +135,7 @@ class LearnerConfig:
     skip_fixation_boundary: bool = True
     reward: str = "improvement"
     features: str = "pooled"
+    symmetry: tuple[str, ...] = ("parallax", "stereo")
     depth_hidden: int = 10
     depth_every_trials: int = 256
     depth_max_samples: int = 20000
@@ -141,6 +155,20 @@ class LearnerConfig:
             self.actions_deg = tuple(float(a) for a in self.actions_deg)
         except (TypeError, ValueError):
             raise ValueError(f"LearnerConfig.actions_deg must be a list of numbers (degrees), got {self.actions_deg!r}") from None
+        try:
+            self.symmetry = tuple(self.symmetry)
+        except TypeError:
+            self.symmetry = (self.symmetry,)
+        if any(c not in ("parallax", "stereo") for c in self.symmetry) or len(set(self.symmetry)) != len(self.symmetry):
+            raise ValueError("LearnerConfig.symmetry must be a list of distinct cues from ('parallax', 'stereo'), "
+                             f"got {list(self.symmetry)!r}")
+        if self.symmetry and sorted(-a for a in self.actions_deg) != sorted(self.actions_deg):
+            raise ValueError("LearnerConfig.actions_deg must be symmetric (-a for every a) with "
+                             f"LearnerConfig.symmetry={list(self.symmetry)!r}, got {list(self.actions_deg)!r}; "
+                             "use a symmetric set or symmetry=[]")
+        if self.symmetry and self.num_atoms % 2:
+            raise ValueError(f"LearnerConfig.num_atoms must be even with LearnerConfig.symmetry (atoms come in "
+                             f"pairs), got {self.num_atoms}")
         if not self.scales or any(s not in ("coarse", "fine") for s in self.scales):
             raise ValueError(f"LearnerConfig.scales must be a non-empty subset of ('coarse', 'fine'), got {self.scales!r}")
         for name in ("num_atoms", "sparsity", "depth_hidden", "depth_every_trials",
@@ -221,13 +249,26 @@ class JointLearner(nn.Module):
         kwargs = dict(num_atoms=config.num_atoms, sparsity=config.sparsity, algorithm=config.algorithm,
                       scales=config.scales, lr=config.dictionary_lr, pooling=config.pooling,
                       generator=self.generator, dtype=dtype, device=device)
-        self.parallax = BinocularEncoder(**kwargs)
-        self.stereo = BinocularEncoder(**kwargs)
+        self.parallax = BinocularEncoder(**kwargs, symmetry="mirror" if "parallax" in config.symmetry else None)
+        self.stereo = BinocularEncoder(**kwargs, symmetry="swap" if "stereo" in config.symmetry else None)
         features = self.parallax.num_features
         agent = dict(actions_deg=config.actions_deg, config=config.control,
                      generator=self.generator, dtype=dtype, device=device)
         self.pursuit = NaturalActorCritic(features, **agent)
         self.vergence = NaturalActorCritic(features, **agent)
+        # The transformed transition of each cue: (feature index, action index), or None.
+        actions = torch.tensor(config.actions_deg, dtype=torch.float64)
+        negate = (actions[None, :] == -actions[:, None]).to(torch.int64).argmax(-1).to(device)
+        self._symmetry: dict[str, tuple[Tensor, Tensor] | None] = {
+            key: None if encoder.symmetry is None else (encoder.feature_permutation, negate)
+            for key, encoder in (("m", self.parallax), ("s", self.stereo))
+        }
+        with torch.no_grad():  # start the policies and critics symmetric as well
+            for key, agent_ in (("m", self.pursuit), ("s", self.vergence)):
+                if self._symmetry[key] is not None:
+                    fmap, amap = self._symmetry[key]
+                    agent_.actor_weight.copy_((agent_.actor_weight + agent_.actor_weight[amap][:, fmap]) * 0.5)
+                    agent_.critic_weight.copy_((agent_.critic_weight + agent_.critic_weight[fmap]) * 0.5)
         self.depth = DepthMLP(in_features=4, hidden=config.depth_hidden, out_features=1).to(
             device=device, dtype=dtype
         )
@@ -261,8 +302,16 @@ class JointLearner(nn.Module):
             reduce = None if shard is None else shard.sum
             if learn and previous is not None:
                 learned = reward - previous[2] if self.config.reward == "improvement" else reward
-                update = agent.update(previous[0], previous[1], learned, features, reduce=reduce)
-                td_error = update.td_error
+                f_prev, a_prev, f_next = previous[0], previous[1], features
+                transform = self._symmetry[key]
+                if transform is not None:  # also learn from the transformed transition
+                    fmap, amap = transform
+                    f_prev = torch.cat((f_prev, f_prev[:, fmap]))
+                    a_prev = torch.cat((a_prev, amap[a_prev]))
+                    f_next = torch.cat((f_next, f_next[:, fmap]))
+                    learned = torch.cat((learned, learned))
+                update = agent.update(f_prev, a_prev, learned, f_next, reduce=reduce)
+                td_error = update.td_error[: features.shape[0]]
             if shard is None or greedy:
                 action = agent.act(features, greedy=greedy, generator=self.generator)
             else:  # the numbers one process with the whole batch would draw; this rank's rows

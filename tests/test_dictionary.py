@@ -468,3 +468,40 @@ def test_error_bounds(x, algorithm):
         assert (error <= 1 + 1e-12).all(), error
     else:  # MP removes the residual's projection on one unit atom per step
         assert (error <= 1 + 1e-9).all(), error
+
+
+def test_mirror_pairs_survive_learning_and_code_mirrored_signals_with_the_partners():
+    from aectorch.coding import patch_permutation
+
+    mirror = patch_permutation(10)
+    d = SparseDictionary(32, 200, 4, "mp", mirror=mirror, generator=torch.Generator().manual_seed(0), dtype=F64)
+    partner = d.partner
+    assert torch.equal(partner[partner], torch.arange(32))
+    torch.testing.assert_close(d.atoms[mirror][:, partner], d.atoms, rtol=0, atol=1e-15)
+    gen = torch.Generator().manual_seed(1)
+    for _ in range(5):  # learning from signals that are not mirror-symmetric keeps the pairs
+        x = torch.randn(7, 200, generator=gen, dtype=F64)
+        d.learn_(x, d(x), lr=0.3)
+        torch.testing.assert_close(d.atoms[mirror][:, partner], d.atoms, rtol=0, atol=1e-15)
+        torch.testing.assert_close(d.atoms.norm(dim=0), torch.ones(32, dtype=F64))
+    code, mirrored = d.encode(x), d.encode(x[:, mirror])
+    assert torch.equal(partner[code.indices], mirrored.indices)
+    torch.testing.assert_close(mirrored.coefficients, code.coefficients)
+    torch.testing.assert_close(d.pooled_activity(mirrored)[..., :], d.pooled_activity(code)[..., partner])
+    # Without a mirror nothing is paired.
+    plain = SparseDictionary(32, 200, 4, generator=torch.Generator().manual_seed(0), dtype=F64)
+    assert plain.partner is None
+    assert not torch.allclose(plain.atoms[mirror][:, torch.arange(32).roll(16)], plain.atoms)
+
+
+def test_mirror_is_validated():
+    from aectorch.coding import patch_permutation
+
+    with pytest.raises(ValueError, match="even"):
+        SparseDictionary(31, 200, 4, mirror=patch_permutation(10))
+    with pytest.raises(ValueError, match="permutation of range"):
+        SparseDictionary(32, 100, 4, mirror=patch_permutation(10))
+    with pytest.raises(ValueError, match="involution"):
+        SparseDictionary(32, 4, 2, mirror=torch.tensor([1, 2, 3, 0]))
+    with pytest.raises(TypeError, match="integer tensor"):
+        SparseDictionary(32, 4, 2, mirror=[1, 0, 3, 2])

@@ -323,3 +323,26 @@ def test_cuda_matches_cpu():
     cpu.learn_(out_cpu, lr=0.3)
     gpu.learn_(out_gpu, lr=0.3)
     _close(gpu.fine.atoms, cpu.fine.atoms, atol=1e-10)
+
+
+@pytest.mark.parametrize("symmetry", ["mirror", "swap"])
+def test_symmetric_encoders_give_the_transformed_pair_permuted_features(symmetry):
+    # Scales without a pyramid reduction: the transformed images give exactly the transformed
+    # patches, so the features of the transformed pair are the permuted features.
+    from aectorch.coding import Scale
+
+    scales = (Scale("a", crop=20, downsample=1, patch_size=5, stride=5),
+              Scale("b", crop=10, downsample=1, patch_size=5, stride=1))
+    enc = BinocularEncoder(16, 3, scales=scales, symmetry=symmetry, generator=torch.Generator().manual_seed(0),
+                           dtype=torch.float64)
+    first, second = torch.rand(2, 4, 24, 30, generator=torch.Generator().manual_seed(1), dtype=torch.float64).unbind(0)
+    pair = (first.flip(-1), second.flip(-1)) if symmetry == "mirror" else (second, first)
+    with torch.no_grad():
+        f, ft = enc(first, second).features, enc(*pair).features
+    perm = enc.feature_permutation
+    assert perm.shape == (32,) and torch.equal(perm[perm], torch.arange(32))
+    torch.testing.assert_close(ft, f[:, perm])
+    assert not torch.allclose(ft, f)
+    assert BinocularEncoder(16, 3, scales=scales).feature_permutation is None
+    with pytest.raises(ValueError, match="symmetry must be one of"):
+        BinocularEncoder(16, 3, scales=scales, symmetry="rotate")

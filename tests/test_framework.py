@@ -122,7 +122,7 @@ def test_unit_features_reach_the_actor_critics_normalised():
     from aectorch.control import ActorCriticConfig
 
     control = ActorCriticConfig(normalize_features=True)
-    env, learner = make(h=3, features="unit", feature_scale=2.0, control=control)
+    env, learner = make(h=3, features="unit", feature_scale=2.0, control=control, symmetry=())
     with torch.no_grad():
         pooled = learner.parallax(*env.parallax_observation().unbind(1)).features
     learner.iteration(env)
@@ -136,3 +136,36 @@ def test_learner_config_rejects_unknown_reward_and_features():
         LearnerConfig(reward="bonus")
     with pytest.raises(ValueError, match="features"):
         LearnerConfig(features="raw")
+
+
+def test_the_symmetric_cues_learn_equivariant_policies():
+    # The pursuit policy of the mirrored parallax features, and the vergence policy of the swapped
+    # stereo features, are the policies with every action negated, and the critics give both the
+    # same value: after learning too.
+    env, learner = make(num_envs=3, h=4)
+    assert learner.config.symmetry == ("parallax", "stereo")
+    for _ in range(6):
+        learner.iteration(env)
+    actions = learner.pursuit.actions_deg
+    negate = (actions[None, :] == -actions[:, None]).int().argmax(-1)
+    assert torch.equal(actions[negate], -actions)
+    with torch.no_grad():
+        for encoder, agent, pair in ((learner.parallax, learner.pursuit, env.parallax_observation()),
+                                     (learner.stereo, learner.vergence, env.stereo_observation())):
+            f = encoder(*pair.unbind(1)).features * learner.config.feature_scale
+            fm = f[:, encoder.feature_permutation]
+            assert not torch.allclose(fm, f, rtol=1e-2)  # the transformed features do differ
+            probs = agent(f)
+            torch.testing.assert_close(agent(fm), probs[:, negate])
+            torch.testing.assert_close(agent.value(fm), agent.value(f))
+            assert not torch.allclose(probs, probs[:, negate], rtol=1e-3)  # and the policy prefers a direction
+
+
+def test_symmetry_config_is_validated():
+    with pytest.raises(ValueError, match="symmetry"):
+        LearnerConfig(symmetry=("motion",))
+    with pytest.raises(ValueError, match="actions_deg must be symmetric"):
+        LearnerConfig(actions_deg=(-1.0, 0.0, 0.5))
+    LearnerConfig(actions_deg=(-1.0, 0.0, 0.5), symmetry=())
+    with pytest.raises(ValueError, match="num_atoms must be even"):
+        LearnerConfig(num_atoms=33)

@@ -394,3 +394,25 @@ def test_property_halves_unit_or_zero(h, w, b, kinds, seed, double, scale):
         assert zero.view(b, -1, 2)[..., 0].all()
     if kinds[0] in ("noise", "smooth"):
         assert unit.view(b, -1, 2)[..., 0].all()
+
+
+@pytest.mark.parametrize("flip, swap", [(True, False), (False, True), (True, True)])
+def test_patch_permutation_is_the_symmetry_of_the_two_images(flip, swap):
+    from aectorch.coding.patches import patch_permutation
+
+    # Without a pyramid reduction the patches of mirrored images are the mirrored patches, with
+    # the grid's columns reversed (the reduce keeps even samples, so with one it is only close).
+    scale = Scale("plain", crop=20, downsample=1, patch_size=5, stride=5)
+    gen = torch.Generator().manual_seed(0)
+    first, second = torch.rand(2, 3, 24, 30, generator=gen).unbind(0)
+    perm = patch_permutation(5, flip=flip, swap=swap)
+    assert torch.equal(perm[perm], torch.arange(50))
+    x = extract_patches(first, second, scale)
+    pair = (second, first) if swap else (first, second)
+    if flip:
+        pair = tuple(image.flip(-1) for image in pair)
+    y = extract_patches(*pair, scale).view(3, 4, 4, 50)
+    y = (y.flip(2) if flip else y).reshape(3, 16, 50)
+    torch.testing.assert_close(y, x[..., perm])
+    with pytest.raises(ValueError, match="patch_size"):
+        patch_permutation(0)

@@ -269,3 +269,15 @@ def test_compile_gives_the_same_run_as_eager(tmp_path, textures):
     for key, value in eager_state.items():
         if isinstance(value, torch.Tensor) and value.is_floating_point():
             torch.testing.assert_close(compiled_state[key], value, rtol=1e-4, atol=1e-5, msg=key)
+
+
+def test_a_checkpoint_from_before_the_symmetries_loads_without_them():
+    from aectorch.config import to_container
+    from aectorch.experiment import checkpoint_config
+
+    stored = to_container(ExperimentConfig())
+    assert stored["learner"]["symmetry"] == ["parallax", "stereo"]
+    del stored["learner"]["symmetry"]  # what versions before `learner.symmetry` wrote
+    assert checkpoint_config({"config": stored}, "old.pt").learner.symmetry == ()
+    stored["learner"]["symmetry"] = ["stereo"]
+    assert checkpoint_config({"config": stored}, "new.pt").learner.symmetry == ("stereo",)

@@ -7,7 +7,7 @@ from aectorch.coding.dictionary import (
     reconstruction_error,
 )
 from aectorch.coding.encoder import BinocularEncoder, EncoderOutput
-from aectorch.coding.patches import COARSE, FINE, FovealPatches, Scale, extract_patches, pyramid_down
+from aectorch.coding.patches import COARSE, FINE, FovealPatches, Scale, extract_patches, patch_permutation, pyramid_down
 from aectorch.coding.pursuit import gram_matrix, matching_pursuit, omp, use_backend
 from aectorch.coding.sparse_code import SparseCode
 
@@ -25,6 +25,7 @@ __all__ = [
     "gram_matrix",
     "matching_pursuit",
     "omp",
+    "patch_permutation",
     "pooled_activity",
     "pyramid_down",
     "reconstruction_error",

@@ -92,6 +92,13 @@ class SparseDictionary(nn.Module):
             paper's plain matching pursuit).
         generator: optional `torch.Generator` for the random initial atoms
             (white noise, then unit-normalised, as in the AEC lineage).
+        mirror: optional symmetry of the signals, an index of length `dim` with
+            ``mirror[mirror]`` the identity (e.g. `aectorch.coding.patch_permutation`). The atoms
+            then come in mirror pairs: atom ``j + N/2`` is atom ``j`` permuted (N even), kept so
+            by every `learn_` step (`symmetrize_`). The code of a permuted signal is then the
+            code of the signal with every atom replaced by its partner (`partner`), so the pooled
+            activities of permuted signals are the permuted activities: ``f(x[..., mirror]) =
+            f(x)[..., partner]`` (up to ties).
         dtype, device: of the atoms (default: torch's defaults).
 
     Shape:
@@ -119,6 +126,7 @@ class SparseDictionary(nn.Module):
         algorithm: str = "omp",
         *,
         generator: torch.Generator | None = None,
+        mirror: torch.Tensor | None = None,
         dtype: torch.dtype | None = None,
         device: torch.device | str | None = None,
     ) -> None:
@@ -138,6 +146,13 @@ class SparseDictionary(nn.Module):
         self.algorithm = algorithm
         atoms = torch.randn(dim, num_atoms, generator=generator, dtype=dtype, device="cpu")
         self.atoms = nn.Parameter(atoms.to(device) if device is not None else atoms)
+        self.mirror: torch.Tensor | None
+        if mirror is None:
+            self.mirror = None
+        else:
+            mirror = _check_mirror(mirror, dim, num_atoms)
+            self.register_buffer("mirror", mirror.to(self.atoms.device), persistent=False)
+            self.symmetrize_()
         self.renormalize_()
 
     def extra_repr(self) -> str:
@@ -145,6 +160,23 @@ class SparseDictionary(nn.Module):
             f"num_atoms={self.num_atoms}, dim={self.dim}, sparsity={self.sparsity}, "
             f"algorithm={self.algorithm!r}"
         )
+
+    @property
+    def partner(self) -> torch.Tensor | None:
+        """With `mirror`: the index of each atom's mirror partner, ``(j + N/2) mod N``, `[N]`."""
+        if self.mirror is None:
+            return None
+        n = self.num_atoms
+        return torch.arange(n, device=self.atoms.device).add(n // 2).remainder(n)
+
+    @torch.no_grad()
+    def symmetrize_(self) -> "SparseDictionary":
+        """Project the atoms onto mirror pairs, in place: ``D <- (D + M D Pi) / 2`` (M the signal
+        mirror, Pi the pairing); afterwards atom ``partner[j]`` is atom ``j`` mirrored. Does
+        nothing without `mirror`. The norms of the two atoms of a pair become equal."""
+        if self.mirror is not None:
+            self.atoms.copy_((self.atoms + self.atoms[self.mirror][:, self.partner]) * 0.5)
+        return self
 
     @torch.no_grad()
     def renormalize_(self) -> "SparseDictionary":
@@ -198,7 +230,8 @@ class SparseDictionary(nn.Module):
                reduce: Callable[[torch.Tensor], torch.Tensor] | None = None) -> torch.Tensor:
         """One gradient-descent step on the mean eq. (4) error, then renormalise.
 
-        ``D <- normalise(D - lr * grad)`` (``reduce``: see `gradient`). For textured binocular patches
+        ``D <- normalise(D - lr * grad)`` (``reduce``: see `gradient`; with `mirror` the step is
+        projected onto mirror pairs before the normalisation). For textured binocular patches
         (``||x||^2 = 2``) this is the AEC rule ``D <- D + lr * R A^T / M``.
 
         Returns:
@@ -208,5 +241,19 @@ class SparseDictionary(nn.Module):
             raise ValueError(f"lr must be a non-negative float, got {lr!r}")
         grad = self.gradient(signals, output, reduce=reduce)
         self.atoms.sub_(grad, alpha=lr)
+        self.symmetrize_()
         self.renormalize_()
         return grad
+
+
+def _check_mirror(mirror: torch.Tensor, dim: int, num_atoms: int) -> torch.Tensor:
+    if not isinstance(mirror, torch.Tensor) or mirror.dtype not in (torch.int32, torch.int64):
+        raise TypeError(f"mirror must be an integer tensor (an index of length dim={dim}), got {mirror!r}")
+    mirror = mirror.long().cpu()
+    if mirror.shape != (dim,) or not torch.equal(mirror.sort().values, torch.arange(dim)):
+        raise ValueError(f"mirror must be a permutation of range(dim={dim}), got shape {tuple(mirror.shape)}")
+    if not torch.equal(mirror[mirror], torch.arange(dim)):
+        raise ValueError("mirror must be an involution (mirror[mirror] == arange(dim)), as a mirror is")
+    if num_atoms % 2:
+        raise ValueError(f"num_atoms must be even with mirror (atoms come in mirror pairs), got {num_atoms}")
+    return mirror

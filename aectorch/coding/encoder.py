@@ -16,9 +16,12 @@ from torch import nn
 
 from aectorch.coding.dictionary import DictionaryOutput, SparseDictionary
 from aectorch._checks import check_finite
-from aectorch.coding.patches import COARSE, FINE, Scale, as_scale, extract_patches
+from aectorch.coding.patches import COARSE, FINE, Scale, as_scale, extract_patches, patch_permutation
 
-__all__ = ["BinocularEncoder", "EncoderOutput"]
+__all__ = ["BinocularEncoder", "EncoderOutput", "SYMMETRIES"]
+
+#: The symmetries a `BinocularEncoder` can keep (``None``: none; see `patch_permutation`).
+SYMMETRIES = (None, "mirror", "swap")
 
 
 class EncoderOutput(NamedTuple):
@@ -49,6 +52,12 @@ class BinocularEncoder(nn.Module):
         scales: the patch scales, coarse first (default: `COARSE`, `FINE`).
         lr: default dictionary learning rate of `learn_`.
         pooling: ``"sum"`` (eq. 3) or ``"mean"`` over patches for the features.
+        symmetry: ``None`` (default), or a symmetry of the image pairs that every dictionary then
+            keeps (atoms in pairs, `SparseDictionary`'s ``mirror``; `patch_permutation`):
+            ``"mirror"`` mirrors both images left-right (the motion-parallax cue's symmetry: it
+            negates the pursuit needed), ``"swap"`` exchanges the two images (the stereo cue's: it
+            negates the disparity). The features of the transformed pair are then
+            ``features[..., feature_permutation]``.
         generator: optional `torch.Generator` for the initial atoms.
         dtype, device: of the dictionaries.
 
@@ -79,6 +88,7 @@ class BinocularEncoder(nn.Module):
         *,
         lr: float = 0.05,
         pooling: str = "sum",
+        symmetry: str | None = None,
         generator: torch.Generator | None = None,
         dtype: torch.dtype | None = None,
         device: torch.device | str | None = None,
@@ -94,13 +104,17 @@ class BinocularEncoder(nn.Module):
             raise ValueError(f"pooling must be 'sum' or 'mean', got {pooling!r}")
         if not lr >= 0:
             raise ValueError(f"lr must be a non-negative float, got {lr!r}")
+        if symmetry not in SYMMETRIES:
+            raise ValueError(f"symmetry must be one of {SYMMETRIES}, got {symmetry!r}")
         self.lr = float(lr)
         self.pooling = pooling
+        self.symmetry = symmetry
         self.dictionaries = nn.ModuleDict(
             {
                 s.name: SparseDictionary(
-                    num_atoms, s.dim, sparsity, algorithm,
-                    generator=generator, dtype=dtype, device=device,
+                    num_atoms, s.dim, sparsity, algorithm, generator=generator, dtype=dtype, device=device,
+                    mirror=None if symmetry is None else patch_permutation(
+                        s.patch_size, flip=symmetry == "mirror", swap=symmetry == "swap"),
                 )
                 for s in self.scales
             }
@@ -115,6 +129,18 @@ class BinocularEncoder(nn.Module):
             if dictionaries is not None and name in dictionaries:
                 return dictionaries[name]
             raise
+
+    @property
+    def feature_permutation(self) -> torch.Tensor | None:
+        """With `symmetry`: the index that maps the features of a pair to those of the transformed
+        pair (each atom's partner, scale by scale), `[num_features]`; else ``None``."""
+        if self.symmetry is None:
+            return None
+        parts, offset = [], 0
+        for d in self.dictionaries.values():
+            parts.append(d.partner + offset)
+            offset += d.num_atoms
+        return torch.cat(parts)
 
     @property
     def num_features(self) -> int:

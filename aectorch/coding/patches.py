@@ -24,6 +24,7 @@ __all__ = [
     "as_scale",
     "pyramid_down",
     "extract_patches",
+    "patch_permutation",
     "FovealPatches",
 ]
 
@@ -112,6 +113,37 @@ class Scale:
     def dim(self) -> int:
         """Length of a binocular patch vector, 2 * patch_size**2."""
         return 2 * self.patch_size**2
+
+
+def patch_permutation(patch_size: int, *, flip: bool = True, swap: bool = False) -> Tensor:
+    """A symmetry of binocular patch vectors as an index, ``x[..., perm]``: mirror and/or swap.
+
+    A patch vector is two ``patch_size x patch_size`` halves, row-major, ``first``'s half first
+    (:func:`extract_patches`). ``flip`` reverses the columns of each half (the left-right mirror of
+    both images), ``swap`` exchanges the halves. The two symmetries of the experiment:
+
+    - mirroring the world about a vertical plane mirrors both images of the motion-parallax
+      pair (one eye before and after the shift) and negates the pursuit it needs
+      (``flip=True``);
+    - exchanging the two eyes' images of a stereo pair negates the disparity, so the vergence
+      error (``flip=False, swap=True``; a fronto-parallel plane, textures statistically mirror
+      symmetric).
+
+    Either way the index is an involution: ``perm[perm]`` is the identity.
+
+    Example:
+        >>> patch_permutation(2)
+        tensor([1, 0, 3, 2, 5, 4, 7, 6])
+        >>> patch_permutation(2, flip=False, swap=True)
+        tensor([4, 5, 6, 7, 0, 1, 2, 3])
+    """
+    if isinstance(patch_size, bool) or not isinstance(patch_size, int) or patch_size < 1:
+        raise ValueError(f"patch_size must be a positive int, got {patch_size!r}")
+    half = torch.arange(patch_size * patch_size)
+    if flip:
+        half = half.view(patch_size, patch_size).flip(-1).reshape(-1)
+    halves = (half + half.numel(), half) if swap else (half, half + half.numel())
+    return torch.cat(halves)
 
 
 COARSE = Scale("coarse", crop=128, downsample=8, stride=1)
