@@ -199,6 +199,13 @@ class TrainConfig:
         deterministic: ``torch.use_deterministic_algorithms(True, warn_only=True)`` for the
             run (and cuBLAS's workspace setting on CUDA): the same seed and config give the same
             run on the same machine.
+        keep_best: early stopping by the training signal: at every log line whose eq. (9)
+            window is full (``metrics_window`` fixation ends), if the window's pursuit plus
+            vergence MAE is the lowest so far, write the state to ``best.pt`` (the checkpoint's
+            format); the final evaluation then evaluates ``best.pt``. Only training errors
+            choose it, never held-out data. ``checkpoint.pt`` stays the latest state (to resume).
+        metrics_window: fixation ends the training window's pursuit and vergence MAE (eq. 9) and
+            trials its depth MAE average over (>= 1; the paper: 1000).
     """
 
     iterations: int = 3000
@@ -211,14 +218,17 @@ class TrainConfig:
     figures: bool = True
     tensorboard: bool = True
     deterministic: bool = True
+    keep_best: bool = True
+    metrics_window: int = 1000
 
     def __post_init__(self) -> None:
         owner = "train"
         _require_int(owner, "iterations", self.iterations, 1)
         _require_int(owner, "log_every", self.log_every, 1)
+        _require_int(owner, "metrics_window", self.metrics_window, 1)
         _require_int(owner, "checkpoint_every", self.checkpoint_every, 1)
         _require_int(owner, "threads", self.threads, 1)
-        for name in ("compile", "progress", "figures", "tensorboard", "deterministic"):
+        for name in ("compile", "progress", "figures", "tensorboard", "deterministic", "keep_best"):
             _require_bool(owner, name, getattr(self, name))
         if self.resume is not None and (not isinstance(self.resume, str) or not self.resume):
             raise ValueError(f"{owner}.resume must be null or a run folder, got {self.resume!r}")

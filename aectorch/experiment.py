@@ -296,6 +296,8 @@ def _train(cfg: ExperimentConfig, run_dir, callback, shard) -> dict:
     batch = cfg.env.num_envs if shard is None else shard.total
     torch.set_num_threads(cfg.train.threads)
     checkpoint = None
+    # Early stopping by the training window (`train.keep_best`): the best score and its iteration.
+    best: dict = {"iteration": None, "score": None}
     if cfg.train.resume is not None:
         run_dir = Path(cfg.train.resume)
         checkpoint = load_checkpoint(run_dir / "checkpoint.pt")
@@ -307,7 +309,8 @@ def _train(cfg: ExperimentConfig, run_dir, callback, shard) -> dict:
 
     env = build_env(cfg, shard)
     learner = build_learner(cfg, shard=shard)
-    metrics = TrainingMetrics(batch, scales=cfg.learner.scales)
+    metrics = TrainingMetrics(batch, scales=cfg.learner.scales, window_fixations=cfg.train.metrics_window,
+                              window_trials=cfg.train.metrics_window)
     watchdog = Watchdog(cfg.watchdog)
     if checkpoint is not None:
         path = run_dir / "checkpoint.pt"
@@ -325,6 +328,7 @@ def _train(cfg: ExperimentConfig, run_dir, callback, shard) -> dict:
         if "watchdog" in checkpoint:
             restore(watchdog, checkpoint["watchdog"], path, "watchdog")
         start = int(checkpoint["iteration"])
+        best = dict(checkpoint.get("best") or best)
         initial = checkpoint["initial_dictionaries"]
         elapsed_before = float(checkpoint["elapsed_s"])
         if main:
@@ -362,7 +366,7 @@ def _train(cfg: ExperimentConfig, run_dir, callback, shard) -> dict:
 
     def payload(iteration: int, state: dict, elapsed: float) -> dict:
         return {"format": CHECKPOINT_FORMAT, "config": config_dict, "iteration": iteration,
-                **state, "initial_dictionaries": initial, "elapsed_s": elapsed}
+                **state, "initial_dictionaries": initial, "elapsed_s": elapsed, "best": dict(best)}
 
     bar = None
     if cfg.train.progress and main:
@@ -408,6 +412,14 @@ def _train(cfg: ExperimentConfig, run_dir, callback, shard) -> dict:
                                         vergence=f"{line['vergence_mae_deg']:.3f}",
                                         depth=f"{line['depth_mae_m']:.3f}", refresh=False)
                 state = _state(learner, env, metrics, watchdog, shard)
+                if cfg.train.keep_best and (done % cfg.train.log_every == 0 or done == total) \
+                        and metrics.pursuit.numel() >= metrics.window_fixations:
+                    score = line["pursuit_mae_deg"] + line["vergence_mae_deg"]
+                    if best["score"] is None or score < best["score"]:
+                        best.update(iteration=done, score=score, pursuit_mae_deg=line["pursuit_mae_deg"],
+                                    vergence_mae_deg=line["vergence_mae_deg"], depth_mae_m=line["depth_mae_m"])
+                        if main:
+                            save_checkpoint(run_dir / "best.pt", payload(done, state, elapsed()))
                 if main and (done % cfg.train.checkpoint_every == 0 or done == total):
                     save_checkpoint(run_dir / "checkpoint.pt", payload(done, state, elapsed()))
                 last = (done, state)
@@ -445,10 +457,11 @@ def _train(cfg: ExperimentConfig, run_dir, callback, shard) -> dict:
     train_seconds = elapsed()
     if not main:
         return {}
-    return _finish(cfg, run_dir, learner, env, initial, events, train_seconds, session)
+    return _finish(cfg, run_dir, learner, env, initial, events, train_seconds, session, best)
 
 
-def _finish(cfg, run_dir: Path, learner, env, initial, events, train_seconds, session: dict) -> dict:
+def _finish(cfg, run_dir: Path, learner, env, initial, events, train_seconds, session: dict,
+            best: dict | None = None) -> dict:
     total = cfg.train.iterations
     records = _read_lines(run_dir / "metrics.jsonl")
     # The last line (always written at the last iteration) holds the final interval's averages.
@@ -493,8 +506,15 @@ def _finish(cfg, run_dir: Path, learner, env, initial, events, train_seconds, se
     close = getattr(env.renderer, "close", None)
     if close is not None:
         close()
+    if best is not None and best.get("iteration") is not None:
+        summary["best"] = {k: _json_value(v) for k, v in best.items()}
     if cfg.eval.enabled:
         from aectorch.evaluate import evaluate
+
+        evaluated = "checkpoint.pt"
+        if cfg.train.keep_best and (run_dir / "best.pt").exists():
+            evaluated = "best.pt"  # the learner of the best training window
+            restore(learner, load_checkpoint(run_dir / "best.pt")["learner"], run_dir / "best.pt", "learner")
 
         bank = build_textures(cfg.eval.textures, "test", cfg)
         result = evaluate(learner, bank, distances_m=cfg.eval.distances_m, renderer=cfg.env.renderer,
@@ -504,6 +524,7 @@ def _finish(cfg, run_dir: Path, learner, env, initial, events, train_seconds, se
         if figures is not None:
             figures.plot_evaluation(result, run_dir / "figures" / "evaluation.png")
         summary["evaluation"] = {k: result[k] for k in ("pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m", "trials")}
+        summary["evaluation"]["checkpoint"] = evaluated
         if "vergence_test" in result:
             summary["evaluation"]["vergence_test_rmse_deg"] = result["vergence_test"]["degrees"]["rmse"]
     _write_json(run_dir / "summary.json", summary)

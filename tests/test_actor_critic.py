@@ -66,6 +66,8 @@ def _reference(cfg: ActorCriticConfig, theta, v, transitions):
             norm = lambda x: (x - mean) / np.sqrt(var + cfg.normalize_eps)  # noqa: E731
         else:
             norm = lambda x: x  # noqa: E731
+        if cfg.feature_norm is not None:
+            norm = (lambda inner: lambda x: inner(x) * cfg.feature_norm / np.linalg.norm(inner(x)))(norm)
         js, vs, ws, step_deltas = [], [], [], []
         for b in range(f.shape[0]):
             x, x2 = norm(f[b]), norm(f2[b])
@@ -118,6 +120,7 @@ VARIANTS = {
     "first step": {},
     "z-scoring": dict(normalize_features=True, alpha_v=0.02, alpha_w=0.02),
     "temperature": dict(temperature=0.5),
+    "fixed feature norm": dict(normalize_features=True, feature_norm=0.7, alpha_v=0.05, alpha_w=0.05),
     "all options": dict(
         critic_discount=0.4, projection="none", weight_decay=0.02, alpha_w=0.1,
         normalize_features=True, temperature=2.0, alpha_v=0.02, alpha_theta=0.3,
@@ -441,6 +444,7 @@ def test_cuda_matches_cpu():
         (dict(weight_decay=-0.1), "weight_decay must be a finite float >= 0"),
         (dict(alpha_theta=0.5, weight_decay=3.0), "alpha_theta \\* weight_decay must be <= 1"),
         (dict(normalize_features=1), "normalize_features must be a bool"),
+        (dict(feature_norm=0.0), "feature_norm must be None or a finite float > 0"),
     ],
 )
 def test_config_rejects_impossible_values(kwargs, match):
@@ -487,3 +491,28 @@ def test_inputs_are_validated_with_the_argument_named():
     for call, error, match in cases:
         with pytest.raises(error, match=match):
             call()
+
+
+def test_a_normalize_window_follows_drifting_features_and_none_remembers_everything():
+    # Features whose distribution jumps halfway: with a window of 200 samples the z-scoring's
+    # statistics are those of the new distribution a few windows later; without one they are
+    # those of all samples alike (the mixture's mean and variance).
+    gen = torch.Generator().manual_seed(0)
+    data = [torch.randn(20, 3, generator=gen, dtype=F64) * (1.0 if t < 100 else 2.0) + (0.0 if t < 100 else 4.0)
+            for t in range(200)]
+    agents = {w: NaturalActorCritic(3, actions_deg=PAPER_ACTIONS_DEG, dtype=F64, normalize_features=True,
+                                    normalize_window=w) for w in (None, 200)}
+    for f in data:
+        for agent in agents.values():
+            agent.update(f, torch.zeros(20, dtype=torch.long), torch.zeros(20, dtype=F64), f)
+    everything = torch.cat(data)
+    plain = agents[None]
+    assert plain.feature_count.item() == 4000
+    torch.testing.assert_close(plain.feature_mean, everything.mean(0))
+    torch.testing.assert_close(plain.feature_m2 / 3999, everything.var(0))
+    windowed = agents[200]
+    assert windowed.feature_count.item() == 200
+    torch.testing.assert_close(windowed.feature_mean, torch.full((3,), 4.0, dtype=F64), atol=0.3, rtol=0)
+    torch.testing.assert_close(windowed.feature_m2 / 199, torch.full((3,), 4.0, dtype=F64), atol=1.0, rtol=0)
+    with pytest.raises(ValueError, match="normalize_window must be None or an int >= 2"):
+        ActorCriticConfig(normalize_window=1)

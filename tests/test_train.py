@@ -281,3 +281,30 @@ def test_a_checkpoint_from_before_the_symmetries_loads_without_them():
     assert checkpoint_config({"config": stored}, "old.pt").learner.symmetry == ()
     stored["learner"]["symmetry"] = ["stereo"]
     assert checkpoint_config({"config": stored}, "new.pt").learner.symmetry == ("stereo",)
+
+
+def test_keep_best_writes_the_best_training_window_and_evaluates_it(tmp_path, textures):
+    cfg = _cfg(textures, "train.metrics_window=10", "eval.enabled=true")
+    summary = run_experiment(cfg, tmp_path)
+    lines = [line for line in _lines(tmp_path)
+             if line["iteration"] * 5 // 2 >= 10]  # windows of 10 fixation ends (5 envs, h = 2)
+    scores = {line["iteration"]: line["pursuit_mae_deg"] + line["vergence_mae_deg"] for line in lines}
+    best_iteration = min(scores, key=lambda i: (scores[i], i))
+    assert summary["best"]["iteration"] == best_iteration < 12  # not simply the last state
+    assert summary["best"]["score"] == pytest.approx(scores[best_iteration])
+    best = load_checkpoint(tmp_path / "best.pt")
+    assert best["iteration"] == best_iteration and best["best"]["iteration"] == best_iteration
+    assert summary["evaluation"]["checkpoint"] == "best.pt"
+    # The evaluation is of best.pt's learner: evaluating it again gives the same numbers.
+    from aectorch.evaluate import evaluate
+    from aectorch.sim import TextureBank
+
+    _, learner = load_learner(tmp_path / "best.pt")
+    again = evaluate(learner, TextureBank.from_folder(textures), distances_m=[1.0], batch_size=8,
+                     fixation_iterations=2, progress=False)
+    assert again["pursuit_mae_deg"] == pytest.approx(summary["evaluation"]["pursuit_mae_deg"])
+    # Without keep_best nothing is chosen and the last state is evaluated.
+    off = tmp_path / "off"
+    summary = run_experiment(_cfg(textures, "train.metrics_window=10", "train.keep_best=false", "eval.enabled=true"), off)
+    assert "best" not in summary and not (off / "best.pt").exists()
+    assert summary["evaluation"]["checkpoint"] == "checkpoint.pt"

@@ -122,6 +122,17 @@ class ActorCriticConfig:
         normalize_eps: added to the variance of the z-scoring (> 0). A feature that has
             barely varied yet is divided by about its square root: raise it for
             features that are constant for a while.
+        normalize_window: ``None`` (default: every sample counts alike, the plain running
+            z-score), or the number of samples (>= 2) the z-scoring's statistics remember: once
+            that many are in, the count stays there and older samples are down-weighted
+            geometrically (each update merges the batch into statistics of at most this weight).
+            The dictionaries keep learning, so the features' distribution drifts; with every
+            sample weighted alike the statistics follow it ever more slowly.
+        feature_norm: ``None`` (default), or a norm every feature vector the actor and critic see
+            is scaled to, after the z-scoring if that is on (> 0). The critic's step is stable
+            only while ``alpha_v ||f||^2 < 2``; z-scored features of unusual states (an eye far
+            off its target) can be several times longer than the typical ones, and a fixed norm
+            keeps every step inside the bound (the normalised-LMS form of the TD step).
         actor_init: initial actor weights are uniform in ``[-actor_init, actor_init]``
             (>= 0; lineage 0.4; the paper: "initially random").
         critic_init: initial critic weights are uniform in ``[-critic_init,
@@ -139,6 +150,8 @@ class ActorCriticConfig:
     weight_decay: float = 0.0
     normalize_features: bool = False
     normalize_eps: float = 1e-8
+    normalize_window: int | None = None
+    feature_norm: float | None = None
     actor_init: float = 0.4
     critic_init: float = 0.05
 
@@ -158,6 +171,13 @@ class ActorCriticConfig:
             require(name, *non_negative)
         if self.alpha_w is not None:
             require("alpha_w", positive[0], "None or a finite float > 0")
+        if self.feature_norm is not None:
+            require("feature_norm", positive[0], "None or a finite float > 0")
+        if self.normalize_window is not None and (
+            isinstance(self.normalize_window, bool) or not isinstance(self.normalize_window, int)
+            or self.normalize_window < 2
+        ):
+            raise ValueError(f"{owner}.normalize_window must be None or an int >= 2, got {self.normalize_window!r}")
         if self.projection not in _PROJECTIONS:
             raise ValueError(
                 f"{owner}.projection must be one of {', '.join(map(repr, _PROJECTIONS))}, "
@@ -359,17 +379,23 @@ class NaturalActorCritic(nn.Module):
 
     # ------------------------------------------------------------------ policy
     def normalize(self, features: torch.Tensor) -> torch.Tensor:
-        """The features as the actor and critic see them: z-scored when enabled, else unchanged.
+        """The features as the actor and critic see them: z-scored and scaled to ``feature_norm``
+        when enabled, else unchanged.
 
         Shape:
             features `[B, F]` -> `[B, F]` (no checks, no statistics update).
         """
-        if not self.config.normalize_features:
-            return features
-        n = self.feature_count.to(features.dtype)
-        sample_var = self.feature_m2 / (n - 1).clamp_min(1)
-        var = torch.where(n > 1, sample_var, torch.ones_like(sample_var))
-        return (features - self.feature_mean) / torch.sqrt(var + self.config.normalize_eps)
+        cfg = self.config
+        x = features
+        if cfg.normalize_features:
+            n = self.feature_count.to(features.dtype)
+            sample_var = self.feature_m2 / (n - 1).clamp_min(1)
+            var = torch.where(n > 1, sample_var, torch.ones_like(sample_var))
+            x = (features - self.feature_mean) / torch.sqrt(var + cfg.normalize_eps)
+        if cfg.feature_norm is not None:
+            norm = torch.linalg.vector_norm(x, dim=-1, keepdim=True)
+            x = x * (cfg.feature_norm / norm.clamp_min(torch.finfo(x.dtype).tiny))
+        return x
 
     def _log_policy(self, x: torch.Tensor, temperature: float) -> torch.Tensor:
         return torch.log_softmax(x @ self.actor_weight.t() / temperature, dim=-1)
@@ -557,13 +583,23 @@ class NaturalActorCritic(nn.Module):
         m = mask.to(f.dtype)[:, None]
         nb = reduce(m.sum())
         n = self.feature_count.to(f.dtype)
+        m2_old = self.feature_m2
+        window = self.config.normalize_window
+        if window is not None:  # the old statistics weigh at most `window - nb` samples
+            n_eff = torch.minimum(n, (window - nb).clamp_min(1))
+            m2_old = m2_old * (n_eff / n.clamp_min(1))
+            n = n_eff
         total = (n + nb).clamp_min(1)
         mean_b = reduce((m * f).sum(0)) / nb.clamp_min(1)
         m2_b = reduce((m * (f - mean_b).square()).sum(0))
         diff = mean_b - self.feature_mean
         mean = self.feature_mean + diff * (nb / total)
-        m2 = self.feature_m2 + m2_b + diff.square() * (n * nb / total)
-        return self.feature_count + reduce(mask.sum()), mean, m2
+        m2 = m2_old + m2_b + diff.square() * (n * nb / total)
+        if window is None:
+            count = self.feature_count + reduce(mask.sum())
+        else:  # the weight of the statistics, at most `window`
+            count = n.round().to(self.feature_count.dtype) + reduce(mask.sum())
+        return count, mean, m2
 
 
 def _project(theta: torch.Tensor, projection: str, bound: float) -> torch.Tensor:
