@@ -3,8 +3,8 @@
     .venv/bin/python scripts/results_table.py runs/seed0 runs/seed1 runs/seed2 [--eval heldout.json]
 
 For every run folder it reads ``summary.json`` (training time, the last training window's
-metrics), ``evaluation.json`` (the held-out procedural textures evaluated at the end of
-training) and, when present, the file named by ``--eval`` (e.g. an evaluation on unseen
+metrics; with ``train.keep_best`` the iteration of ``best.pt``, the state every evaluation is
+of), ``evaluation.json`` (the held-out procedural textures evaluated at the end of training) and, when present, the file named by ``--eval`` (e.g. an evaluation on unseen
 photographs made with ``python -m aectorch.evaluate ... out=<run>/heldout.json``). It prints one
 markdown row per run and, for two runs or more, the mean and standard deviation.
 """
@@ -21,6 +21,7 @@ from pathlib import Path
 COLUMNS = [
     ("seed", "seed"),
     ("iterations", "iterations"),
+    ("best", "evaluated (best.pt: iteration)"),
     ("train_min", "train (min)"),
     ("window_pursuit", "train window pursuit (deg)"),
     ("window_vergence", "train window vergence (deg)"),
@@ -46,6 +47,7 @@ def _row(run: Path, eval_name: str | None) -> dict:
     return {
         "seed": seed,
         "iterations": summary["iterations"],
+        "best": summary["best"]["iteration"] if summary.get("best") else "last",
         "train_min": summary["train_seconds"] / 60,
         "window_pursuit": final["pursuit_mae_deg"],
         "window_vergence": final["vergence_mae_deg"],
