@@ -396,7 +396,8 @@ def _train(cfg: ExperimentConfig, run_dir, callback, shard) -> dict:
                 if callback is not None:
                     callback(done, record)
                 watchdog.check(done, record, learner)  # raises in mode "stop": `last` is healthy
-                if done % cfg.train.log_every == 0 or done == total:
+                logged = done % cfg.train.log_every == 0 or done == total
+                if logged:
                     roll = env.roll_deg[0].tolist()
                     line = {"iteration": done, "env_iterations": done * batch,
                             "elapsed_s": elapsed(), "roll_left_deg": roll[0], "roll_right_deg": roll[1],
@@ -412,8 +413,7 @@ def _train(cfg: ExperimentConfig, run_dir, callback, shard) -> dict:
                                         vergence=f"{line['vergence_mae_deg']:.3f}",
                                         depth=f"{line['depth_mae_m']:.3f}", refresh=False)
                 state = _state(learner, env, metrics, watchdog, shard)
-                if cfg.train.keep_best and (done % cfg.train.log_every == 0 or done == total) \
-                        and metrics.pursuit.numel() >= metrics.window_fixations:
+                if logged and cfg.train.keep_best and metrics.window_full:
                     score = line["pursuit_mae_deg"] + line["vergence_mae_deg"]
                     if best["score"] is None or score < best["score"]:
                         best.update(iteration=done, score=score, pursuit_mae_deg=line["pursuit_mae_deg"],
@@ -461,7 +461,7 @@ def _train(cfg: ExperimentConfig, run_dir, callback, shard) -> dict:
 
 
 def _finish(cfg, run_dir: Path, learner, env, initial, events, train_seconds, session: dict,
-            best: dict | None = None) -> dict:
+            best: dict) -> dict:
     total = cfg.train.iterations
     records = _read_lines(run_dir / "metrics.jsonl")
     # The last line (always written at the last iteration) holds the final interval's averages.
@@ -506,7 +506,7 @@ def _finish(cfg, run_dir: Path, learner, env, initial, events, train_seconds, se
     close = getattr(env.renderer, "close", None)
     if close is not None:
         close()
-    if best is not None and best.get("iteration") is not None:
+    if best["iteration"] is not None:
         summary["best"] = {k: _json_value(v) for k, v in best.items()}
     if cfg.eval.enabled:
         from aectorch.evaluate import evaluate

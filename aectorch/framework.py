@@ -256,18 +256,16 @@ class JointLearner(nn.Module):
                      generator=self.generator, dtype=dtype, device=device)
         self.pursuit = NaturalActorCritic(features, **agent)
         self.vergence = NaturalActorCritic(features, **agent)
-        # The transformed transition of each cue: (feature index, action index), or None.
+        # The index of each action's negation: a symmetric cue's transformed transition takes it
+        # (the features take the encoder's `feature_permutation`). A buffer, so `.to()` moves it.
         actions = torch.tensor(config.actions_deg, dtype=torch.float64)
-        negate = (actions[None, :] == -actions[:, None]).to(torch.int64).argmax(-1).to(device)
-        self._symmetry: dict[str, tuple[Tensor, Tensor] | None] = {
-            key: None if encoder.symmetry is None else (encoder.feature_permutation, negate)
-            for key, encoder in (("m", self.parallax), ("s", self.stereo))
-        }
+        negation = (actions[None, :] == -actions[:, None]).to(torch.int64).argmax(-1)
+        self.register_buffer("action_negation", negation.to(device) if config.symmetry else None, persistent=False)
         with torch.no_grad():  # start the policies and critics symmetric as well
-            for key, agent_ in (("m", self.pursuit), ("s", self.vergence)):
-                if self._symmetry[key] is not None:
-                    fmap, amap = self._symmetry[key]
-                    agent_.actor_weight.copy_((agent_.actor_weight + agent_.actor_weight[amap][:, fmap]) * 0.5)
+            for encoder, agent_ in ((self.parallax, self.pursuit), (self.stereo, self.vergence)):
+                fmap = encoder.feature_permutation
+                if fmap is not None:
+                    agent_.actor_weight.copy_((agent_.actor_weight + agent_.actor_weight[self.action_negation][:, fmap]) * 0.5)
                     agent_.critic_weight.copy_((agent_.critic_weight + agent_.critic_weight[fmap]) * 0.5)
         self.depth = DepthMLP(in_features=4, hidden=config.depth_hidden, out_features=1).to(
             device=device, dtype=dtype
@@ -303,11 +301,10 @@ class JointLearner(nn.Module):
             if learn and previous is not None:
                 learned = reward - previous[2] if self.config.reward == "improvement" else reward
                 f_prev, a_prev, f_next = previous[0], previous[1], features
-                transform = self._symmetry[key]
-                if transform is not None:  # also learn from the transformed transition
-                    fmap, amap = transform
+                fmap = encoder.feature_permutation
+                if fmap is not None:  # also learn from the transformed transition
                     f_prev = torch.cat((f_prev, f_prev[:, fmap]))
-                    a_prev = torch.cat((a_prev, amap[a_prev]))
+                    a_prev = torch.cat((a_prev, self.action_negation[a_prev]))
                     f_next = torch.cat((f_next, f_next[:, fmap]))
                     learned = torch.cat((learned, learned))
                 update = agent.update(f_prev, a_prev, learned, f_next, reduce=reduce)

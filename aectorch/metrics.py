@@ -122,6 +122,11 @@ class TrainingMetrics:
             previous = self.atom_counts[cue]
             self.atom_counts[cue] = counts if previous is None else previous + counts
 
+    @property
+    def window_full(self) -> bool:
+        """Whether the pursuit and vergence windows hold ``window_fixations`` fixation ends."""
+        return self.pursuit.numel() >= self.window_fixations
+
     def summary(self, *, reset: bool = True) -> dict[str, float]:
         """The metrics as a flat dict of floats; ``reset`` starts a new averaging interval."""
         out = {

@@ -4,7 +4,8 @@
 
 For every run folder it reads ``summary.json`` (training time, the last training window's
 metrics; with ``train.keep_best`` the iteration of ``best.pt``, the state every evaluation is
-of), ``evaluation.json`` (the held-out procedural textures evaluated at the end of training) and, when present, the file named by ``--eval`` (e.g. an evaluation on unseen
+of), ``evaluation.json`` (the held-out procedural textures evaluated at the end of training)
+and, when present, the file named by ``--eval`` (e.g. an evaluation on unseen
 photographs made with ``python -m aectorch.evaluate ... out=<run>/heldout.json``). It prints one
 markdown row per run and, for two runs or more, the mean and standard deviation.
 """

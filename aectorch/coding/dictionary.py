@@ -96,7 +96,8 @@ class SparseDictionary(nn.Module):
             ``mirror[mirror]`` the identity (e.g. `aectorch.coding.patch_permutation`). The atoms
             then come in mirror pairs: atom ``j + N/2`` is atom ``j`` permuted (N even), kept so
             by every `learn_` step (`symmetrize_`). The code of a permuted signal is then the
-            code of the signal with every atom replaced by its partner (`partner`), so the pooled
+            code of the signal with every atom replaced by its partner (the buffer `partner`,
+            ``(j + N/2) mod N``; ``None`` without a mirror), so the pooled
             activities of permuted signals are the permuted activities: ``f(x[..., mirror]) =
             f(x)[..., partner]`` (up to ties).
         dtype, device: of the atoms (default: torch's defaults).
@@ -146,13 +147,15 @@ class SparseDictionary(nn.Module):
         self.algorithm = algorithm
         atoms = torch.randn(dim, num_atoms, generator=generator, dtype=dtype, device="cpu")
         self.atoms = nn.Parameter(atoms.to(device) if device is not None else atoms)
-        self.mirror: torch.Tensor | None
-        if mirror is None:
-            self.mirror = None
-        else:
-            mirror = _check_mirror(mirror, dim, num_atoms)
-            self.register_buffer("mirror", mirror.to(self.atoms.device), persistent=False)
-            self.symmetrize_()
+        # With a mirror: the signal index and each atom's partner, (j + N/2) mod N (derived, so not
+        # saved; buffers so that `.to()` moves them with the atoms).
+        partner = None
+        if mirror is not None:
+            mirror = _check_mirror(mirror, dim, num_atoms).to(self.atoms.device)
+            partner = torch.arange(num_atoms, device=self.atoms.device).add(num_atoms // 2).remainder(num_atoms)
+        self.register_buffer("mirror", mirror, persistent=False)
+        self.register_buffer("partner", partner, persistent=False)
+        self.symmetrize_()
         self.renormalize_()
 
     def extra_repr(self) -> str:
@@ -160,14 +163,6 @@ class SparseDictionary(nn.Module):
             f"num_atoms={self.num_atoms}, dim={self.dim}, sparsity={self.sparsity}, "
             f"algorithm={self.algorithm!r}"
         )
-
-    @property
-    def partner(self) -> torch.Tensor | None:
-        """With `mirror`: the index of each atom's mirror partner, ``(j + N/2) mod N``, `[N]`."""
-        if self.mirror is None:
-            return None
-        n = self.num_atoms
-        return torch.arange(n, device=self.atoms.device).add(n // 2).remainder(n)
 
     @torch.no_grad()
     def symmetrize_(self) -> "SparseDictionary":

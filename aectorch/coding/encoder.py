@@ -57,7 +57,7 @@ class BinocularEncoder(nn.Module):
             ``"mirror"`` mirrors both images left-right (the motion-parallax cue's symmetry: it
             negates the pursuit needed), ``"swap"`` exchanges the two images (the stereo cue's: it
             negates the disparity). The features of the transformed pair are then
-            ``features[..., feature_permutation]``.
+            ``features[..., feature_permutation]`` (a buffer, ``None`` without a symmetry).
         generator: optional `torch.Generator` for the initial atoms.
         dtype, device: of the dictionaries.
 
@@ -119,6 +119,16 @@ class BinocularEncoder(nn.Module):
                 for s in self.scales
             }
         )
+        # With a symmetry: the index mapping the features of a pair to those of the transformed pair
+        # (each atom's partner, scale by scale), `[num_features]`; else None. Derived, not saved.
+        permutation = None
+        if symmetry is not None:
+            parts, offset = [], 0
+            for d in self.dictionaries.values():
+                parts.append(d.partner + offset)
+                offset += d.num_atoms
+            permutation = torch.cat(parts)
+        self.register_buffer("feature_permutation", permutation, persistent=False)
 
     def __getattr__(self, name: str):
         # `encoder.coarse` / `encoder.fine` reach the per-scale dictionaries.
@@ -129,18 +139,6 @@ class BinocularEncoder(nn.Module):
             if dictionaries is not None and name in dictionaries:
                 return dictionaries[name]
             raise
-
-    @property
-    def feature_permutation(self) -> torch.Tensor | None:
-        """With `symmetry`: the index that maps the features of a pair to those of the transformed
-        pair (each atom's partner, scale by scale), `[num_features]`; else ``None``."""
-        if self.symmetry is None:
-            return None
-        parts, offset = [], 0
-        for d in self.dictionaries.values():
-            parts.append(d.partner + offset)
-            offset += d.num_atoms
-        return torch.cat(parts)
 
     @property
     def num_features(self) -> int:
