@@ -293,8 +293,6 @@ def _train(cfg: ExperimentConfig, run_dir, callback, shard) -> dict:
     from omegaconf import OmegaConf
 
     main = shard is None or shard.is_main  # the process that writes the run folder
-    batch = cfg.env.num_envs if shard is None else shard.total
-    torch.set_num_threads(cfg.train.threads)
     checkpoint = None
     # Early stopping by the training window (`train.keep_best`): the best score and its iteration.
     best: dict = {"iteration": None, "score": None}
@@ -302,6 +300,8 @@ def _train(cfg: ExperimentConfig, run_dir, callback, shard) -> dict:
         run_dir = Path(cfg.train.resume)
         checkpoint = load_checkpoint(run_dir / "checkpoint.pt")
         cfg = resume_config(cfg, checkpoint)
+    batch = cfg.env.num_envs if shard is None else shard.total
+    torch.set_num_threads(cfg.train.threads)
     run_dir = Path(run_dir)
     if main:
         run_dir.mkdir(parents=True, exist_ok=True)

@@ -308,3 +308,44 @@ def test_keep_best_writes_the_best_training_window_and_evaluates_it(tmp_path, te
     summary = run_experiment(_cfg(textures, "train.metrics_window=10", "train.keep_best=false", "eval.enabled=true"), off)
     assert "best" not in summary and not (off / "best.pt").exists()
     assert summary["evaluation"]["checkpoint"] == "checkpoint.pt"
+
+
+def _fork_script():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("fork_run", ROOT / "scripts" / "fork_run.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_fork_continues_a_run_with_changed_settings(tmp_path, textures, capsys):
+    fork_run = _fork_script()
+    straight, source = tmp_path / "straight", tmp_path / "source"
+    run_experiment(_cfg(textures), straight)
+    run_experiment(_cfg(textures, "train.iterations=8"), source)
+    # Without overrides a fork is a resume into another folder: bit-identical to the straight run.
+    assert fork_run.main([str(source / "checkpoint.pt"), str(tmp_path / "same"), "--iterations", "12",
+                          "--no-progress"]) == 0
+    _assert_same_state(load_checkpoint(straight / "checkpoint.pt")["learner"],
+                       load_checkpoint(tmp_path / "same" / "checkpoint.pt")["learner"])
+    assert [line["iteration"] for line in _lines(tmp_path / "same")] == \
+        [line["iteration"] for line in _lines(straight)]
+    # With a frozen dictionary the dictionaries stay those of iteration 8, the policies move on.
+    assert fork_run.main([str(source / "checkpoint.pt"), str(tmp_path / "frozen"), "learner.dictionary_lr=0",
+                          "--iterations", "12", "--no-progress"]) == 0
+    before = load_checkpoint(source / "checkpoint.pt")
+    after = load_checkpoint(tmp_path / "frozen" / "checkpoint.pt")
+    assert after["iteration"] == 12 and after["config"]["learner"]["dictionary_lr"] == 0
+    atoms = [k for k in before["learner"] if k.endswith("atoms")]
+    assert atoms and all(torch.equal(before["learner"][k], after["learner"][k]) for k in atoms)
+    assert not torch.equal(before["learner"]["pursuit.actor_weight"], after["learner"]["pursuit.actor_weight"])
+    assert load_checkpoint(source / "checkpoint.pt")["iteration"] == 8  # the source is untouched
+    # Bad arguments stop before anything is written, naming what is wrong.
+    for args, message in [(["learner.dictionary_lr=-1"], "dictionary_lr"), (["nosuch.key=1"], "nosuch"),
+                          (["--iterations", "8"], "above the checkpoint's iteration 8")]:
+        target = tmp_path / "bad"
+        argv = [str(source / "checkpoint.pt"), str(target), *args]
+        argv += [] if "--iterations" in args else ["--iterations", "12"]
+        assert fork_run.main(argv) == 2
+        assert message in capsys.readouterr().err and not target.exists()

@@ -1,0 +1,72 @@
+"""Continue a run from one of its checkpoints, with some settings changed, in a new folder.
+
+    .venv/bin/python scripts/fork_run.py <run>/best.pt <new folder> key=value ... --iterations N
+
+The question it answers: "from this state on, what if ...?" (a frozen dictionary, a slower
+actor). The new folder gets the checkpoint, its config with the ``key=value`` overrides (the
+dotted names of ``train.py``; validated like a fresh config, so a bad one stops here naming the
+field) and the source run's ``metrics.jsonl`` up to the checkpoint's iteration; the run then
+continues there exactly like ``train.py train.resume=<new folder> train.iterations=N`` (bit for
+bit, without overrides). The checkpoint's early-stopping record (``best``) is dropped: the fork
+chooses its own best window. The source run is not touched.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+from pathlib import Path
+
+
+def fork(checkpoint: Path, folder: Path, overrides: list[str], iterations: int) -> None:
+    """Write the fork's folder (``ValueError`` before writing anything when an argument is bad)."""
+    from omegaconf import OmegaConf
+
+    from aectorch.experiment import checkpoint_config, load_checkpoint, save_checkpoint
+
+    if folder.exists() and any(folder.iterdir()):
+        raise ValueError(f"folder {str(folder)!r} exists and is not empty; forks go to a new folder")
+    for item in overrides:
+        if "=" not in item:
+            raise ValueError(f"override {item!r} is not key=value")
+    payload = load_checkpoint(checkpoint)
+    if iterations <= payload["iteration"]:
+        raise ValueError(f"--iterations must be above the checkpoint's iteration {payload['iteration']}, "
+                         f"got {iterations}")
+    merged = OmegaConf.merge(OmegaConf.create(payload["config"]), OmegaConf.from_dotlist(overrides))
+    payload["config"] = OmegaConf.to_container(merged)
+    checkpoint_config(payload, checkpoint)  # names the field of a bad override
+    payload.pop("best", None)
+    folder.mkdir(parents=True, exist_ok=True)
+    save_checkpoint(folder / "checkpoint.pt", payload)
+    metrics = checkpoint.parent / "metrics.jsonl"
+    if metrics.exists():
+        shutil.copy(metrics, folder / "metrics.jsonl")  # the resume keeps the lines up to the checkpoint
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("checkpoint", type=Path, help="checkpoint.pt or best.pt of a run")
+    parser.add_argument("folder", type=Path, help="the new run folder")
+    parser.add_argument("overrides", nargs="*", help="key=value settings to change")
+    parser.add_argument("--iterations", type=int, required=True, help="continue until this iteration")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    args = parser.parse_args(argv)
+
+    from aectorch.config import to_experiment_config
+    from aectorch.experiment import run_experiment
+
+    try:
+        fork(args.checkpoint, args.folder, args.overrides, args.iterations)
+    except ValueError as err:
+        print(f"Error: {err}", file=sys.stderr)
+        return 2
+    cfg = to_experiment_config({"train": {"resume": str(args.folder), "iterations": args.iterations,
+                                          "progress": not args.no_progress}})
+    run_experiment(cfg, args.folder)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
