@@ -69,6 +69,8 @@ PAPER_PRESET: dict[str, Any] = {
     "env.shift_m": 0.1,
     "env.pursuit_start_deg": 0.0,
     "env.vergence_start_deg": 0.0,
+    "env.pursuit_start_spread_deg": 0.0,
+    "env.vergence_start_spread_deg": 0.0,
 }
 
 #: The paper's perturbation experiment (section 4, Fig. 4), ``+experiment=roll_perturbation``.
@@ -138,6 +140,11 @@ class EnvConfig:
         shift_m: the body's lateral shift in each fixation, metres (paper: 0.1).
         pursuit_start_deg: left-eye pan at each fixation's start, degrees (paper: 0).
         vergence_start_deg: vergence at each fixation's start, degrees (paper: 0 = parallel).
+        pursuit_start_spread_deg: while training, each fixation's start pan is drawn uniformly
+            from ``pursuit_start_deg +- pursuit_start_spread_deg`` per environment (>= 0; 0, the
+            paper, starts every fixation at ``pursuit_start_deg``). The evaluation always starts
+            from the standard state (0, 0).
+        vergence_start_spread_deg: the same for the vergence at each fixation's start (>= 0).
         device: torch device of the environment and the learner (``"cpu"``, ``"cuda"``, ...).
         dtype: ``"float32"`` or ``"float64"``, of the environment and the learner.
     """
@@ -150,6 +157,8 @@ class EnvConfig:
     shift_m: float = 0.1
     pursuit_start_deg: float = 0.0
     vergence_start_deg: float = 0.0
+    pursuit_start_spread_deg: float = 0.0
+    vergence_start_spread_deg: float = 0.0
     device: str = "cpu"
     dtype: str = "float32"
 
@@ -167,6 +176,9 @@ class EnvConfig:
         for name in ("pursuit_start_deg", "vergence_start_deg"):
             if not _is_real(getattr(self, name)):
                 raise ValueError(f"{owner}.{name} must be a finite number (degrees), got {getattr(self, name)!r}")
+        for name in ("pursuit_start_spread_deg", "vergence_start_spread_deg"):
+            if not (_is_real(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ValueError(f"{owner}.{name} must be a finite number >= 0 (degrees), got {getattr(self, name)!r}")
         _require_device(owner, "device", self.device)
         if self.dtype not in _DTYPES:
             raise ValueError(f"{owner}.dtype must be 'float32' or 'float64', got {self.dtype!r}")

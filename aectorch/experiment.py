@@ -73,6 +73,11 @@ def build_textures(folder: str | None, split: str, cfg: ExperimentConfig) -> Tex
     return TextureBank.from_folder(folder, progress=None if cfg.train.progress else False, **kwargs)
 
 
+def _start(value: float, spread: float) -> float | tuple[float, float]:
+    """A start angle for `ActiveDepthEnv`: the value, or the range ``value +- spread``."""
+    return (value - spread, value + spread) if spread > 0 else value
+
+
 def build_env(cfg: ExperimentConfig, shard=None) -> ActiveDepthEnv:
     """The training environments of ``cfg.env``, seeded from ``cfg.seed`` (this rank's slice of the
     whole batch under `aectorch.distributed`)."""
@@ -84,8 +89,8 @@ def build_env(cfg: ExperimentConfig, shard=None) -> ActiveDepthEnv:
         distances_m=e.distances_m,
         fixation_iterations=e.fixation_iterations,
         shift_m=e.shift_m,
-        pursuit_start_deg=e.pursuit_start_deg,
-        vergence_start_deg=e.vergence_start_deg,
+        pursuit_start_deg=_start(e.pursuit_start_deg, e.pursuit_start_spread_deg),
+        vergence_start_deg=_start(e.vergence_start_deg, e.vergence_start_spread_deg),
         seed=cfg.seed,
         device=e.device,
         dtype=e.torch_dtype,

@@ -310,6 +310,22 @@ def test_keep_best_writes_the_best_training_window_and_evaluates_it(tmp_path, te
     assert summary["evaluation"]["checkpoint"] == "checkpoint.pt"
 
 
+def test_start_spread_draws_the_training_start_states(textures):
+    from aectorch.experiment import build_env
+
+    plain = build_env(_cfg(textures))
+    assert torch.all(plain.left_pan_deg == 0) and torch.all(plain.vergence_deg == 0)
+    env = build_env(_cfg(textures, "env.pursuit_start_deg=1.0", "env.pursuit_start_spread_deg=3.0",
+                         "env.vergence_start_spread_deg=0.5"))
+    pan, vergence = env.left_pan_deg, env.vergence_deg
+    assert pan.min() >= -2.0 and pan.max() <= 4.0 and pan.unique().numel() == pan.numel()
+    assert vergence.abs().max() <= 0.5 and vergence.unique().numel() == vergence.numel()
+    for override in ("env.pursuit_start_spread_deg=-1", "env.vergence_start_spread_deg=nan"):
+        field = override.split("=")[0]
+        with pytest.raises(ValueError, match=field.replace(".", r"\.")):
+            _cfg(textures, override)
+
+
 def _fork_script():
     import importlib.util
 
