@@ -175,6 +175,15 @@ def evaluate(
                 "vergence_mae_deg": summarise(vergence[mask])["mae"],
                 "depth_mae_m": summarise(depth_error[mask])["mae"],
             })
+        result["per_texture"] = []
+        for i, name in enumerate(bank.names):
+            mask = index.cpu() == i
+            result["per_texture"].append({
+                "texture": name,
+                "pursuit_mae_deg": summarise(pursuit[mask])["mae"],
+                "vergence_mae_deg": summarise(vergence[mask])["mae"],
+                "depth_mae_m": summarise(depth_error[mask])["mae"],
+            })
 
         if vergence_test:
             generator = torch.Generator().manual_seed(seed)

@@ -37,6 +37,11 @@ def test_evaluate_runs_every_texture_at_every_distance_frozen():
     result = evaluate(learner, bank, distances_m=[1.0, 2.0], batch_size=4, fixation_iterations=2, steps=3)
     assert result["trials"] == 6 and result["pursuit"]["n"] == 12 and result["vergence"]["n"] == 12
     assert [row["distance_m"] for row in result["per_distance"]] == [1.0, 2.0]
+    rows = result["per_texture"]  # every texture has as many trials: their mean is the overall MAE
+    assert [row["texture"] for row in rows] == bank.names
+    for key in ("pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m"):
+        assert np.mean([row[key] for row in rows]) == pytest.approx(result[key])
+    assert len({row["pursuit_mae_deg"] for row in rows}) > 1
     assert result["depth"]["n"] == 6 and np.isfinite(result["depth_mae_m"])
     test = result["vergence_test"]
     assert test["degrees"]["n"] == 6
