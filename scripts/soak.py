@@ -33,27 +33,73 @@ def rss_mb() -> float:
     return math.nan
 
 
-def report(run: Path) -> dict:
-    """Summary of a soak folder: iterations, non-finite metrics, memory at start/end and its slope."""
+def _slope_per_10k(points: list[tuple[float, float]]) -> float:
+    """Least-squares slope of (iteration, MB) points, in MB per 10,000 iterations."""
+    if len(points) < 2:
+        return math.nan
+    mx = sum(x for x, _ in points) / len(points)
+    my = sum(y for _, y in points) / len(points)
+    var = sum((x - mx) ** 2 for x, _ in points)
+    return sum((x - mx) * (y - my) for x, y in points) / var * 10_000 if var else math.nan
+
+
+def processes(memory: list[dict], starts: list[float] = ()) -> list[list[dict]]:
+    """The memory samples split by the process that took them: a sample belongs to the last
+    process started (``starts``: the run's session start times, from ``provenance.json``) before
+    its time; a new process is also where the iteration does not increase (a resume starts at its
+    checkpoint)."""
+    runs: list[list[dict]] = []
+    owner = None
+    for sample in memory:
+        mine = sum(1 for t in starts if t <= sample["time"])
+        previous = runs[-1][-1] if runs else None
+        if previous is None or mine != owner or sample["iteration"] <= previous["iteration"]:
+            runs.append([])
+        owner = mine
+        runs[-1].append(sample)
+    return runs
+
+
+def session_starts(run: Path) -> list[float]:
+    """Start times (Unix seconds) of the run's sessions in ``provenance.json`` (none if absent)."""
+    from datetime import datetime
+
+    path = run / "provenance.json"
+    if not path.is_file():
+        return []
+    sessions = json.loads(path.read_text()).get("sessions", [])
+    return [datetime.fromisoformat(s["started"]).timestamp() for s in sessions if s.get("started")]
+
+
+def _range(lines: list[dict], key: str, since: int = 0) -> list[float] | None:
+    values = [line[key] for line in lines if line["iteration"] >= since and isinstance(line.get(key), float)]
+    return [min(values), max(values)] if values else None
+
+
+def report(run: Path, since: int = 10_000) -> dict:
+    """Summary of a soak folder: iterations, non-finite metrics, the ranges of the health signals
+    (over the whole run, and the errors and entropies from iteration ``since`` on), and the
+    resident memory of every process with its least-squares growth."""
     lines = [json.loads(x) for x in (run / "metrics.jsonl").read_text().splitlines() if x.strip()]
     memory = [json.loads(x) for x in (run / "memory.jsonl").read_text().splitlines() if x.strip()]
     nonfinite = sum(1 for line in lines for k, v in line.items()
                     if k != "depth_mae_m" and isinstance(v, float) and not math.isfinite(v))
     nulls = sum(1 for line in lines for k, v in line.items() if v is None and k != "depth_mae_m")
     out = {"iterations": lines[-1]["iteration"] if lines else 0, "metrics_lines": len(lines),
-           "nonfinite_values": nonfinite, "null_values_besides_early_depth": nulls}
-    if len(memory) >= 3:
-        # A least-squares slope over the second half: single samples jump by tens of MB when a
-        # depth refit's Jacobian workspace is held by the allocator.
-        half = [m for m in memory if m["iteration"] >= memory[-1]["iteration"] / 2]
-        xs, ys = [m["iteration"] for m in half], [m["rss_mb"] for m in half]
-        mx, my = sum(xs) / len(xs), sum(ys) / len(ys)
-        var = sum((x - mx) ** 2 for x in xs)
-        slope = sum((x - mx) * (y - my) for x, y in zip(xs, ys)) / var if var else math.nan
-        out.update(rss_first_mb=memory[0]["rss_mb"], rss_last_mb=memory[-1]["rss_mb"],
-                   rss_min_mb=min(m["rss_mb"] for m in memory), rss_max_mb=max(m["rss_mb"] for m in memory),
-                   rss_second_half_min_max_mb=[min(ys), max(ys)],
-                   rss_growth_mb_per_10k_second_half=slope * 10_000)
+           "nonfinite_values": nonfinite, "null_values_besides_early_depth": nulls,
+           "td_error_range": {cue: _range(lines, f"{cue}/td_error") for cue in ("parallax", "stereo")},
+           f"from_iteration_{since}": {key: _range(lines, key, since) for key in (
+               "pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m", "parallax/entropy", "stereo/entropy")},
+           "last": {key: lines[-1].get(key) for key in ("pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m")}
+           if lines else {}}
+    if memory:
+        # Single samples jump by tens of MB when a depth refit's Jacobian workspace is held by the
+        # allocator, and every process starts at its own level: slopes are per process.
+        out["memory_by_process"] = [{
+            "iterations": [part[0]["iteration"], part[-1]["iteration"]],
+            "rss_min_max_mb": [min(m["rss_mb"] for m in part), max(m["rss_mb"] for m in part)],
+            "growth_mb_per_10k": _slope_per_10k([(m["iteration"], m["rss_mb"]) for m in part]),
+        } for part in processes(memory, session_starts(run))]
     return out
 
 
