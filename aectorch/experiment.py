@@ -272,6 +272,10 @@ def run_experiment(
             (1-based count of completed iterations); an exception it raises interrupts the run
             like Ctrl-C does (a checkpoint of the last completed iteration is written first).
     """
+    checkpoint = None
+    if cfg.train.resume is not None:  # the stored config decides everything, from here on
+        checkpoint = load_checkpoint(Path(cfg.train.resume) / "checkpoint.pt")
+        cfg = resume_config(cfg, checkpoint)
     validate_resources(cfg)
     previous = (torch.are_deterministic_algorithms_enabled(), torch.is_deterministic_algorithms_warn_only_enabled())
     if cfg.train.deterministic:
@@ -279,32 +283,30 @@ def run_experiment(
             os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")  # cuBLAS's condition for it
         torch.use_deterministic_algorithms(True, warn_only=True)
     try:
-        return _run(cfg, run_dir, callback)
+        return _run(cfg, run_dir, callback, checkpoint)
     finally:  # a process-wide switch: leave it as the caller had it
         torch.use_deterministic_algorithms(previous[0], warn_only=previous[1])
 
 
-def _run(cfg: ExperimentConfig, run_dir, callback) -> dict:
+def _run(cfg: ExperimentConfig, run_dir, callback, checkpoint: dict | None) -> dict:
     from aectorch import distributed
 
     shard = distributed.setup(cfg.env.num_envs, cfg.env.device)
     try:
-        return _train(cfg, run_dir, callback, shard)
+        return _train(cfg, run_dir, callback, shard, checkpoint)
     finally:
         distributed.teardown()
 
 
-def _train(cfg: ExperimentConfig, run_dir, callback, shard) -> dict:
+def _train(cfg: ExperimentConfig, run_dir, callback, shard, checkpoint: dict | None) -> dict:
+    """The run; ``cfg`` is already the stored config when ``checkpoint`` (the resumed state) is given."""
     from omegaconf import OmegaConf
 
     main = shard is None or shard.is_main  # the process that writes the run folder
-    checkpoint = None
     # Early stopping by the training window (`train.keep_best`): the best score and its iteration.
     best: dict = {"iteration": None, "score": None}
-    if cfg.train.resume is not None:
+    if checkpoint is not None:
         run_dir = Path(cfg.train.resume)
-        checkpoint = load_checkpoint(run_dir / "checkpoint.pt")
-        cfg = resume_config(cfg, checkpoint)
     batch = cfg.env.num_envs if shard is None else shard.total
     torch.set_num_threads(cfg.train.threads)
     run_dir = Path(run_dir)
