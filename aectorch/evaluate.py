@@ -155,35 +155,23 @@ def evaluate(
                     bar.update(stop - start)
         pursuit, vergence = torch.cat(pursuit).cpu(), torch.cat(vergence).cpu()
         depth_error = torch.cat(depth_error).cpu()
+        errors = {"pursuit": pursuit, "vergence": vergence, "depth": depth_error}
+        names = {"pursuit": "pursuit_mae_deg", "vergence": "vergence_mae_deg", "depth": "depth_mae_m"}
+
+        def maes(mask: Tensor) -> dict:
+            """The three MAEs of the trials in ``mask`` (both fixations of each)."""
+            return {names[key]: summarise(x[mask])["mae"] for key, x in errors.items()}
+
+        summaries = {key: summarise(x) for key, x in errors.items()}
         result = {
-            "pursuit_mae_deg": summarise(pursuit)["mae"],
-            "vergence_mae_deg": summarise(vergence)["mae"],
-            "depth_mae_m": summarise(depth_error)["mae"],
-            "pursuit": summarise(pursuit),
-            "vergence": summarise(vergence),
-            "depth": summarise(depth_error),
+            **{names[key]: summary["mae"] for key, summary in summaries.items()},
+            **summaries,
             "trials": total,
             "textures": len(bank),
             "distances_m": distances,
-            "per_distance": [],
+            "per_distance": [{"distance_m": d, **maes((distance - d).abs() < 1e-9)} for d in distances],
+            "per_texture": [{"texture": name, **maes(index == i)} for i, name in enumerate(bank.names)],
         }
-        for d in distances:
-            mask = (distance - d).abs() < 1e-9
-            result["per_distance"].append({
-                "distance_m": d,
-                "pursuit_mae_deg": summarise(pursuit[mask])["mae"],
-                "vergence_mae_deg": summarise(vergence[mask])["mae"],
-                "depth_mae_m": summarise(depth_error[mask])["mae"],
-            })
-        result["per_texture"] = []
-        for i, name in enumerate(bank.names):
-            mask = index.cpu() == i
-            result["per_texture"].append({
-                "texture": name,
-                "pursuit_mae_deg": summarise(pursuit[mask])["mae"],
-                "vergence_mae_deg": summarise(vergence[mask])["mae"],
-                "depth_mae_m": summarise(depth_error[mask])["mae"],
-            })
 
         if vergence_test:
             generator = torch.Generator().manual_seed(seed)

@@ -8,7 +8,9 @@ in mode ``stop``), except ``train.iterations``, no final evaluation and figures 
 If the folder already holds a checkpoint the run is resumed, so a soak can be spread over
 several sessions (Ctrl-C or SIGTERM leaves a checkpoint). Every ``--memory-every`` iterations
 the process's resident set (VmRSS) is appended to ``memory.jsonl`` in the run folder;
-``--report`` prints a summary of both logs (NaN-free metrics, memory growth per 10k iterations);
+``--report`` prints a summary of both logs (non-finite metrics, the ranges of the TD errors,
+errors and entropies, and the resident memory and its growth per 10k iterations for every
+process of the run);
 ``--plot <png>`` also draws the curves (errors, rewards, entropies, TD errors, resident memory).
 """
 

@@ -2,21 +2,10 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _script(name: str):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
 
 def _run(folder: Path, lines: list[dict], events=None) -> Path:
     folder.mkdir()
@@ -26,8 +15,8 @@ def _run(folder: Path, lines: list[dict], events=None) -> Path:
     return folder
 
 
-def test_compare_runs_prints_the_runs_side_by_side(tmp_path, capsys):
-    compare = _script("compare_runs")
+def test_compare_runs_prints_the_runs_side_by_side(tmp_path, capsys, script):
+    compare = script("compare_runs")
     a = _run(tmp_path / "a", [{"iteration": i, "pursuit_mae_deg": i / 100, "vergence_mae_deg": None}
                               for i in (25, 50, 75, 100)], events=[{"iteration": 60, "label": "rolled"}])
     b = _run(tmp_path / "b", [{"iteration": i, "pursuit_mae_deg": 2.0, "vergence_mae_deg": 0.5} for i in (50, 100)])
@@ -46,22 +35,22 @@ def test_compare_runs_prints_the_runs_side_by_side(tmp_path, capsys):
     (["--names", "same", "same"], "distinct"),
     (["--every", "0"], "--every"),
 ])
-def test_compare_runs_rejects_bad_arguments(tmp_path, capsys, args, message):
-    compare = _script("compare_runs")
+def test_compare_runs_rejects_bad_arguments(tmp_path, capsys, args, message, script):
+    compare = script("compare_runs")
     a = _run(tmp_path / "a", [{"iteration": 1}])
     b = _run(tmp_path / "b", [{"iteration": 1}])
     assert compare.main([str(a), str(b), *args]) == 2
     assert message in capsys.readouterr().err
 
 
-def test_compare_runs_names_a_folder_without_metrics(tmp_path, capsys):
-    compare = _script("compare_runs")
+def test_compare_runs_names_a_folder_without_metrics(tmp_path, capsys, script):
+    compare = script("compare_runs")
     assert compare.main([str(tmp_path)]) == 2
     assert "has no metrics.jsonl" in capsys.readouterr().err
 
 
-def test_soak_report_splits_memory_by_process_and_finds_growth(tmp_path):
-    soak = _script("soak")
+def test_soak_report_splits_memory_by_process_and_finds_growth(tmp_path, script):
+    soak = script("soak")
     lines = [{"iteration": i, "pursuit_mae_deg": 1.0, "vergence_mae_deg": 0.5, "depth_mae_m": None if i < 20 else 0.1,
               "parallax/td_error": 0.01 * (1 + i % 3), "stereo/td_error": 0.02, "parallax/entropy": 0.1,
               "stereo/entropy": 0.05} for i in range(10, 110, 10)]

@@ -326,17 +326,8 @@ def test_start_spread_draws_the_training_start_states(textures):
             _cfg(textures, override)
 
 
-def _fork_script():
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("fork_run", ROOT / "scripts" / "fork_run.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_fork_continues_a_run_with_changed_settings(tmp_path, textures, capsys):
-    fork_run = _fork_script()
+def test_fork_continues_a_run_with_changed_settings(tmp_path, textures, capsys, script):
+    fork_run = script("fork_run")
     straight, source = tmp_path / "straight", tmp_path / "source"
     run_experiment(_cfg(textures), straight)
     run_experiment(_cfg(textures, "train.iterations=8"), source)
