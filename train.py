@@ -13,8 +13,9 @@ checkpoint.pt, figures/, evaluation.json and summary.json. See docs/training.md.
     torchrun --standalone --nproc_per_node=2 train.py env.num_envs=16   # 2 processes x 16 envs
 
 Invalid values and bad files exit with status 2 and one ``error: ...`` line, a run stopped by
-the watchdog (`aectorch.watchdog`) with status 3; set ``AECTORCH_DEBUG=1`` for the full
-traceback.
+the watchdog (`aectorch.watchdog`) with status 3, and one interrupted by Ctrl-C or SIGTERM, after
+writing its checkpoint and printing how to resume, with status 130; set ``AECTORCH_DEBUG=1`` for
+the full traceback.
 """
 
 from __future__ import annotations
@@ -109,6 +110,10 @@ def main(raw: DictConfig) -> dict:
         if _debug():
             raise
         sys.exit(3)  # the message and the checkpoint's iteration are printed already
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the checkpoint and the resume line are printed
+        if _debug():
+            raise
+        sys.exit(130)
     except ValueError as err:  # a file found bad while building (an image, a checkpoint's state)
         if _debug():
             raise

@@ -176,6 +176,9 @@ def main() -> None:
 
     try:
         run_experiment(cfg, args.run, callback=sample)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: run_experiment wrote the checkpoint
+        print(f"the same command continues it: python scripts/soak.py {args.run}", file=sys.stderr)
+        sys.exit(130)
     finally:
         memory.close()
     print(json.dumps(report(args.run), indent=2))

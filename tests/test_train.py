@@ -172,6 +172,31 @@ def test_sigterm_checkpoints_the_last_completed_iteration(tmp_path, textures):
                        load_checkpoint(run / "checkpoint.pt")["learner"])
 
 
+def test_train_py_exits_130_without_a_traceback_on_sigterm(tmp_path, textures):
+    # The command line: one message with the checkpoint and how to resume, status 130, no traceback.
+    import signal
+    import time
+
+    run = tmp_path / "run"
+    env = dict(os.environ, PYOPENGL_PLATFORM="osmesa", OMP_NUM_THREADS="1")
+    env.pop("AECTORCH_DEBUG", None)
+    args = [*TINY, *QUIET, "train.iterations=100000", f"env.textures={textures}", f"hydra.run.dir={run}"]
+    proc = subprocess.Popen([sys.executable, str(ROOT / "train.py"), *args], cwd=tmp_path, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 240
+        while not (run / "checkpoint.pt").exists():
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()[1][-2000:]
+            time.sleep(0.2)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, err[-2000:]
+    assert "Traceback" not in err and f"train.resume={run}" in err, err[-2000:]
+    assert load_checkpoint(run / "checkpoint.pt")["iteration"] >= 4
+
+
 def test_checkpoint_errors_name_the_path(tmp_path):
     with pytest.raises(ValueError, match="no checkpoint at .*missing.pt"):
         load_checkpoint(tmp_path / "missing.pt")
