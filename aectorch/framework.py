@@ -79,7 +79,8 @@ class LearnerConfig:
         num_atoms: atoms per dictionary, N (paper: 288).
         sparsity: non-zero coefficients per patch (paper: 10).
         algorithm: ``"mp"`` (the paper's matching pursuit) or ``"omp"``.
-        scales: foveal scales, ``("coarse", "fine")`` (paper) or one of them.
+        scales: foveal scales, ``("coarse", "fine")`` (paper), one of them, or with ``"wide"``
+            (`aectorch.coding.patches.WIDE`, not in the paper: the coarse crop at 3.56 deg/px).
         dictionary_lr: dictionary learning rate per iteration (the lineage: 0.01-0.5; default 0.1).
         pooling: ``"mean"`` over patches (the lineage; keeps the features' norm near 1, which the
             critic's step size needs) or ``"sum"`` (eq. 3 literally).
@@ -169,8 +170,8 @@ class LearnerConfig:
         if self.symmetry and self.num_atoms % 2:
             raise ValueError(f"LearnerConfig.num_atoms must be even with LearnerConfig.symmetry (atoms come in "
                              f"pairs), got {self.num_atoms}")
-        if not self.scales or any(s not in ("coarse", "fine") for s in self.scales):
-            raise ValueError(f"LearnerConfig.scales must be a non-empty subset of ('coarse', 'fine'), got {self.scales!r}")
+        if not self.scales or any(s not in ("wide", "coarse", "fine") for s in self.scales):
+            raise ValueError(f"LearnerConfig.scales must be a non-empty subset of ('wide', 'coarse', 'fine'), got {self.scales!r}")
         for name in ("num_atoms", "sparsity", "depth_hidden", "depth_every_trials",
                      "depth_max_samples", "depth_max_epochs"):
             value = getattr(self, name)

@@ -34,6 +34,17 @@ def test_iteration_records_both_cues_and_the_ground_truth():
     assert record.parallax.td_error.shape == (2,) and record.fixation_end
 
 
+def test_three_scales_with_the_wide_one():
+    # learner.scales=[wide,coarse,fine]: three dictionaries per cue, three reward terms, 3 x 32 features.
+    env, learner = make(scales=("wide", "coarse", "fine"))
+    for _ in range(2):
+        record = learner.iteration(env)
+    for cue in (record.parallax, record.stereo):
+        assert cue.errors.shape == (2, 3) and torch.allclose(cue.reward, -cue.errors.sum(1))
+        assert torch.isfinite(cue.td_error).all()
+    assert learner.parallax.num_features == 96 and learner.parallax.dictionaries["wide"].atoms.shape[0] == 72
+
+
 def test_no_learning_across_a_fixation_boundary():
     env, learner = make(h=2)
     records = [learner.iteration(env) for _ in range(4)]

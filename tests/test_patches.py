@@ -16,13 +16,14 @@ from aectorch.coding.patches import (
     COARSE,
     FINE,
     FovealPatches,
+    WIDE,
     Scale,
     as_scale,
     extract_patches,
     pyramid_down,
 )
 
-SCALES = [COARSE, FINE]
+SCALES = [COARSE, FINE, WIDE]
 BINOMIAL = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0
 
 
@@ -83,6 +84,7 @@ def test_scale_properties():
 
 def test_as_scale():
     assert as_scale("coarse") is COARSE and as_scale("fine") is FINE and as_scale(FINE) is FINE
+    assert as_scale("wide") is WIDE and (WIDE.grid, WIDE.num_patches, WIDE.dim) == (3, 9, 72)
     with pytest.raises(ValueError, match="scale must be"):
         as_scale("medium")
     with pytest.raises(TypeError, match="scale must be"):
@@ -155,8 +157,8 @@ def test_pyramid_validation():
 def test_shapes(scale):
     first, second = _rand(3, 240, 320, seed=1), _rand(3, 240, 320, seed=2)
     out = extract_patches(first, second, scale)
-    assert out.shape == (3, scale.num_patches, 200)
-    assert out.shape == (3, {"coarse": 49, "fine": 64}[scale.name], 200)
+    assert out.shape == (3, scale.num_patches, scale.dim)
+    assert out.shape == (3, {"coarse": 49, "fine": 64, "wide": 9}[scale.name], {"wide": 72}.get(scale.name, 200))
     assert extract_patches(first, second, scale.name).shape == out.shape
 
 
@@ -174,18 +176,19 @@ def test_matches_numpy_oracle(scale, size):
 def test_halves_normalised_and_ordered(scale):
     first, second = _rand(2, 240, 320, seed=5), _rand(2, 240, 320, seed=6)
     out = extract_patches(first, second, scale)
-    halves = out.view(2, scale.num_patches, 2, 100)
+    h = scale.dim // 2
+    halves = out.view(2, scale.num_patches, 2, h)
     torch.testing.assert_close(halves.mean(-1), torch.zeros(2, scale.num_patches, 2, dtype=out.dtype))
     torch.testing.assert_close(halves.norm(dim=-1), torch.ones(2, scale.num_patches, 2, dtype=out.dtype))
     torch.testing.assert_close(out.square().sum(-1), torch.full((2, scale.num_patches), 2.0, dtype=out.dtype))
     # The first half comes from `first`: swapping the images swaps the halves.
     swapped = extract_patches(second, first, scale)
-    torch.testing.assert_close(swapped[..., :100], out[..., 100:], rtol=0, atol=0)
-    torch.testing.assert_close(swapped[..., 100:], out[..., :100], rtol=0, atol=0)
+    torch.testing.assert_close(swapped[..., :h], out[..., h:], rtol=0, atol=0)
+    torch.testing.assert_close(swapped[..., h:], out[..., :h], rtol=0, atol=0)
     # ... and equals the half of a pair whose first image is `first` (second image irrelevant).
     other = extract_patches(first, _rand(2, 240, 320, seed=7), scale)
-    torch.testing.assert_close(other[..., :100], out[..., :100], rtol=0, atol=0)
-    assert not torch.allclose(other[..., 100:], out[..., 100:])
+    torch.testing.assert_close(other[..., :h], out[..., :h], rtol=0, atol=0)
+    assert not torch.allclose(other[..., h:], out[..., h:])
 
 
 def test_crop_is_central():
@@ -211,10 +214,10 @@ def test_flat_images_give_zeros(dtype, scale):
     assert torch.equal(out, torch.zeros_like(out))
 
     textured = _rand(6, 240, 320, seed=10, dtype=dtype)
-    half = extract_patches(flat, textured, scale)
+    half, h = extract_patches(flat, textured, scale), scale.dim // 2
     assert not torch.isnan(half).any()
-    assert torch.equal(half[..., :100], torch.zeros_like(half[..., :100]))
-    torch.testing.assert_close(half[..., 100:].norm(dim=-1), torch.ones(6, scale.num_patches, dtype=dtype))
+    assert torch.equal(half[..., :h], torch.zeros_like(half[..., :h]))
+    torch.testing.assert_close(half[..., h:].norm(dim=-1), torch.ones(6, scale.num_patches, dtype=dtype))
 
 
 def test_flat_region_gives_zero_patches_only_there():
@@ -384,9 +387,9 @@ def test_property_halves_unit_or_zero(h, w, b, kinds, seed, double, scale):
     first = _image_batch(kinds[0], b, h, w, seed, dtype)
     second = _image_batch(kinds[1], b, h, w, seed + 1, dtype)
     out = extract_patches(first, second, scale)
-    assert out.shape == (b, scale.num_patches, 200) and out.dtype == dtype
+    assert out.shape == (b, scale.num_patches, scale.dim) and out.dtype == dtype
     assert torch.isfinite(out).all()
-    halves = out.view(-1, 100)
+    halves = out.view(-1, scale.dim // 2)
     zero = (halves == 0).all(-1)
     unit = ((halves.mean(-1).abs() < 1e-6) & ((halves.norm(dim=-1) - 1).abs() < 1e-5))
     assert (zero | unit).all()

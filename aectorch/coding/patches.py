@@ -21,6 +21,7 @@ __all__ = [
     "Scale",
     "COARSE",
     "FINE",
+    "WIDE",
     "as_scale",
     "pyramid_down",
     "extract_patches",
@@ -152,7 +153,10 @@ COARSE = Scale("coarse", crop=128, downsample=8, stride=1)
 FINE = Scale("fine", crop=80, downsample=2, stride=4)
 """Foveal scale: 80 px crop reduced by 2 to 40 x 40, 10 x 10 patches at stride 4, 64 patches."""
 
-_NAMED_SCALES = {"coarse": COARSE, "fine": FINE}
+WIDE = Scale("wide", crop=128, downsample=16, patch_size=6, stride=1)
+"""Wide scale (not in the paper): 128 px crop reduced by 16 to 8 x 8, 6 x 6 patches at stride 1, 9 patches."""
+
+_NAMED_SCALES = {"wide": WIDE, "coarse": COARSE, "fine": FINE}
 
 
 def as_scale(scale: Scale | str) -> Scale:
