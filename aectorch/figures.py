@@ -62,7 +62,9 @@ def _save(fig, path: str | os.PathLike) -> Path:
     if out.suffix == "":
         raise ValueError(f"path must name a file with an image suffix such as '.png', got {str(path)!r}")
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
+    # tight_layout leaves the suptitle out of account: keep the top 0.45 inch free for it.
+    top = 1.0 if fig._suptitle is None else 1.0 - 0.45 / fig.get_figheight()
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, top))
     fig.savefig(out, dpi=DPI)
     return out
 
