@@ -36,6 +36,7 @@ import torch
 from torch import Tensor, nn
 
 from aectorch.coding import BinocularEncoder
+from aectorch.coding.patches import SCALE_NAMES
 from aectorch.control import ActorCriticConfig, NaturalActorCritic
 from aectorch.depth import DepthMLP, fit_levenberg_marquardt
 from aectorch.profiling import stage
@@ -170,8 +171,8 @@ class LearnerConfig:
         if self.symmetry and self.num_atoms % 2:
             raise ValueError(f"LearnerConfig.num_atoms must be even with LearnerConfig.symmetry (atoms come in "
                              f"pairs), got {self.num_atoms}")
-        if not self.scales or any(s not in ("wide", "coarse", "fine") for s in self.scales):
-            raise ValueError(f"LearnerConfig.scales must be a non-empty subset of ('wide', 'coarse', 'fine'), got {self.scales!r}")
+        if not self.scales or any(s not in SCALE_NAMES for s in self.scales):
+            raise ValueError(f"LearnerConfig.scales must be a non-empty subset of {SCALE_NAMES}, got {self.scales!r}")
         for name in ("num_atoms", "sparsity", "depth_hidden", "depth_every_trials",
                      "depth_max_samples", "depth_max_epochs"):
             value = getattr(self, name)

@@ -22,6 +22,7 @@ __all__ = [
     "COARSE",
     "FINE",
     "WIDE",
+    "SCALE_NAMES",
     "as_scale",
     "pyramid_down",
     "extract_patches",
@@ -157,6 +158,9 @@ WIDE = Scale("wide", crop=128, downsample=16, patch_size=6, stride=1)
 """Wide scale (not in the paper): 128 px crop reduced by 16 to 8 x 8, 6 x 6 patches at stride 1, 9 patches."""
 
 _NAMED_SCALES = {"wide": WIDE, "coarse": COARSE, "fine": FINE}
+
+#: The names :func:`as_scale` (and ``LearnerConfig.scales``) accept, widest first.
+SCALE_NAMES: tuple[str, ...] = tuple(_NAMED_SCALES)
 
 
 def as_scale(scale: Scale | str) -> Scale:
