@@ -220,7 +220,7 @@ class TrainConfig:
             trials its depth MAE average over (>= 1; the paper: 1000).
     """
 
-    iterations: int = 3000
+    iterations: int = 2400
     compile: bool = False
     resume: Optional[str] = None
     log_every: int = 25

@@ -121,7 +121,11 @@ def _check_events(events: Sequence[tuple[int, str]], name: str = "events") -> li
 
 
 def _log_if_positive(ax, *arrays: np.ndarray) -> None:
-    """Logarithmic y axis when all finite values are positive; ticks read 0.2, 1, 4 (not 4 x 10^0)."""
+    """Logarithmic y axis when all finite values are positive and span at least a factor of 4.
+
+    Ticks read 0.2, 1, 4 (not 4 x 10^0). Over a smaller span a log axis has too few ticks to read
+    (between 0.1 and 0.2 there is none), so the axis stays linear.
+    """
     from matplotlib.ticker import LogFormatterSciNotation
 
     class _PlainLogFormatter(LogFormatterSciNotation):
@@ -129,7 +133,7 @@ def _log_if_positive(ax, *arrays: np.ndarray) -> None:
             return f"{x:g}" if super().__call__(x, pos) else ""
 
     values = np.concatenate([a[np.isfinite(a)] for a in arrays])
-    if values.size and bool((values > 0).all()):
+    if values.size and bool((values > 0).all()) and values.max() >= 4 * values.min():
         ax.set_yscale("log")
         ax.yaxis.set_major_formatter(_PlainLogFormatter())
         ax.yaxis.set_minor_formatter(_PlainLogFormatter(labelOnlyBase=False, minor_thresholds=(2, 0.5)))

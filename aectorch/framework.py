@@ -3,8 +3,8 @@
 It composes the three learners and drives an :class:`~aectorch.sim.ActiveDepthEnv`:
 
 - two :class:`~aectorch.coding.BinocularEncoder` s, one per depth cue: motion parallax (*m*:
-  the dominant eye before and after the body shift) and stereo (*s*: both eyes), each with its
-  coarse and fine dictionary;
+  the dominant eye before and after the body shift) and stereo (*s*: both eyes), each with a
+  dictionary per scale (the paper's coarse and fine scale, and by default a wider one);
 - two :class:`~aectorch.control.NaturalActorCritic` s: pursuit of the dominant eye (fed by cue
   *m*) and vergence of the other eye (fed by cue *s*);
 - the :class:`~aectorch.depth.DepthMLP`, retrained with our Levenberg-Marquardt on the final eye
@@ -41,12 +41,17 @@ from aectorch.control import ActorCriticConfig, NaturalActorCritic
 from aectorch.depth import DepthMLP, fit_levenberg_marquardt
 from aectorch.profiling import stage
 
-__all__ = ["DEFAULT_ACTIONS_DEG", "PAPER_ACTIONS_DEG", "default_control", "CueRecord", "IterationRecord", "JointLearner", "LearnerConfig"]
+__all__ = ["DEFAULT_ACTIONS_DEG", "DEFAULT_SCALES", "PAPER_ACTIONS_DEG", "default_control", "CueRecord", "IterationRecord", "JointLearner", "LearnerConfig"]
 
-#: The default action set: the paper's seven increments plus +-0.5, +-1 and +-2 degrees, so that a
-#: fixation's 30 iterations can reach the 5.7 degrees of pursuit that 1 m needs (the paper's
-#: largest step, 0.2 degrees, needs 29 of them).
-DEFAULT_ACTIONS_DEG = (-2.0, -1.0, -0.5, -0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
+#: The default action set: the paper's seven increments plus +-0.5 and +-1 degrees, so that a
+#: fixation's 30 iterations can reach the 5.7 degrees of pursuit that 1 m needs in six steps (the
+#: paper's largest step, 0.2 degrees, needs 29 of them). A largest step of 2 degrees (the default
+#: before 2026-12-02) made the greedy policy of near trials cycle between states 2 degrees apart
+#: (docs/results.md, "A smaller largest step").
+DEFAULT_ACTIONS_DEG = (-1.0, -0.5, -0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2, 0.5, 1.0)
+#: The default foveal scales: the paper's coarse and fine scale and a wider one
+#: (:data:`aectorch.coding.patches.WIDE`) that tells the direction of large pursuit errors.
+DEFAULT_SCALES = ("wide", "coarse", "fine")
 #: The paper's action set A.
 PAPER_ACTIONS_DEG = (-0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2)
 
@@ -54,7 +59,8 @@ PAPER_ACTIONS_DEG = (-0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2)
 def default_control() -> ActorCriticConfig:
     """The actor-critic settings :class:`JointLearner` uses by default (see docs/paper-mapping.md).
 
-    The lineage's z-scored features (Welford) with step sizes for their norm (about sqrt(576)),
+    The lineage's z-scored features (Welford) with step sizes for their norm (about sqrt(864)
+    with the three default scales, sqrt(576) with the paper's two),
     a near-zero initial policy (uniform), the critic discounted by 0.3 (the lineage's 0.3-0.6;
     the improvement reward needs gamma < 1), and a fast actor: the advantage parameters w
     estimate the advantage, the actor follows them with step 10.
@@ -80,8 +86,10 @@ class LearnerConfig:
         num_atoms: atoms per dictionary, N (paper: 288).
         sparsity: non-zero coefficients per patch (paper: 10).
         algorithm: ``"mp"`` (the paper's matching pursuit) or ``"omp"``.
-        scales: foveal scales, ``("coarse", "fine")`` (paper), one of them, or with ``"wide"``
-            (`aectorch.coding.patches.WIDE`, not in the paper: the coarse crop at 3.56 deg/px).
+        scales: foveal scales, names from :data:`aectorch.coding.patches.SCALE_NAMES`; default
+            :data:`DEFAULT_SCALES`, ``("wide", "coarse", "fine")``: the paper's ``("coarse",
+            "fine")`` and ``"wide"`` (`aectorch.coding.patches.WIDE`, not in the paper: the
+            coarse crop at 3.56 deg/px). ``"full"`` (the central 40 px unreduced) is optional.
         dictionary_lr: dictionary learning rate per iteration (the lineage: 0.01-0.5; default 0.1).
         pooling: ``"mean"`` over patches (the lineage; keeps the features' norm near 1, which the
             critic's step size needs) or ``"sum"`` (eq. 3 literally).
@@ -94,7 +102,7 @@ class LearnerConfig:
             coefficients), and the critic's and the advantage parameters' steps diverge once
             ``alpha * ||f||^2 > 2``; unit features keep that bound fixed.
         actions_deg: the action set A of pan increments (paper: +-0.2, +-0.1, +-0.05, 0;
-            default :data:`DEFAULT_ACTIONS_DEG` adds +-0.5, +-1 and +-2).
+            default :data:`DEFAULT_ACTIONS_DEG` adds +-0.5 and +-1).
         control: actor-critic hyperparameters shared by pursuit and vergence (default
             :func:`default_control`; ``ActorCriticConfig()`` is the paper's form).
         skip_fixation_boundary: do not learn from the transition between two fixations.
@@ -128,7 +136,7 @@ class LearnerConfig:
     num_atoms: int = 288
     sparsity: int = 10
     algorithm: str = "mp"
-    scales: tuple[str, ...] = ("coarse", "fine")
+    scales: tuple[str, ...] = DEFAULT_SCALES
     dictionary_lr: float = 0.1
     pooling: str = "mean"
     feature_scale: float = 10.0

@@ -44,7 +44,8 @@ class TrainingMetrics:
         num_envs: environments B of the records (checked).
         window_fixations: fixation ends the pursuit and vergence errors average over (>= 1).
         window_trials: predicted trials the depth error averages over (>= 1).
-        scales: the learner's scales, in the order of ``CueRecord.errors``' columns.
+        scales: the learner's scales, in the order of ``CueRecord.errors``' columns (default
+            ``JointLearner``'s, :data:`aectorch.framework.DEFAULT_SCALES`).
 
     Example:
         >>> import torch
@@ -65,7 +66,7 @@ class TrainingMetrics:
         window_fixations: int = 1000,
         window_trials: int = 1000,
         *,
-        scales: Sequence[str] = ("coarse", "fine"),
+        scales: Sequence[str] = ("wide", "coarse", "fine"),
     ) -> None:
         for name, value in (("num_envs", num_envs), ("window_fixations", window_fixations),
                             ("window_trials", window_trials)):

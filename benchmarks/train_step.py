@@ -3,8 +3,10 @@
 One env-iteration is one environment doing both cues of one iteration: rendering, foveal
 patches, sparse coding, rewards, actions, dictionary and policy learning (and, amortised, the
 depth MLP's Levenberg-Marquardt refits). ``JointLearner.iteration`` with B environments does B
-env-iterations. Measured with the default configuration (``LearnerConfig()``, MP, 288 atoms,
-two scales, 13 actions) for every combination of:
+env-iterations. Measured with the learner of the recorded tables (``--learner recorded``, the
+defaults of 2026-12-01: MP, 288 atoms, the paper's two scales, 13 actions) or with today's
+defaults (``--learner default``, ``LearnerConfig()``: three scales, 11 actions) for every
+combination of:
 
   * B (``--batches``, default 1, 16, 64, 256);
   * ``eager`` or ``compile`` (``train.compile=true``: ``torch.compile`` of both encoders and of
@@ -58,6 +60,25 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 FIT_TRIALS = 2000          # stored trials the amortised depth refit is timed on
 REFIT_EVERY_TRIALS = 256   # LearnerConfig.depth_every_trials
+#: ``--learner``: the learner settings measured. ``recorded`` is what benchmarks/results/*.json and
+#: docs/performance.md were measured with (the defaults until 2026-12-01).
+LEARNERS = {
+    "recorded": {"scales": ("coarse", "fine"),
+                 "actions_deg": (-2.0, -1.0, -0.5, -0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)},
+    "default": {},
+}
+_LEARNER_VARIABLE = "AECTORCH_BENCH_LEARNER"  # passes --learner on to the worker processes
+
+
+def _learner_name() -> str:
+    return os.environ.get(_LEARNER_VARIABLE, "recorded")
+
+
+def learner_config():
+    """The ``LearnerConfig`` of ``--learner`` (the workers read it from the environment)."""
+    from aectorch.framework import LearnerConfig
+
+    return LearnerConfig(**LEARNERS[_learner_name()])
 TRIAL_ITERATIONS = 60      # 2 fixations x h = 30
 
 
@@ -100,12 +121,12 @@ def flops_per_env_iteration(device: str) -> float:
     import torch
     from torch.utils.flop_counter import FlopCounterMode
 
-    from aectorch.framework import JointLearner, LearnerConfig
+    from aectorch.framework import JointLearner
     from aectorch.sim import ActiveDepthEnv
 
     batch = 64
     env = ActiveDepthEnv(batch, seed=0, device=device)
-    learner = JointLearner(LearnerConfig(), generator=torch.Generator().manual_seed(0), device=device)
+    learner = JointLearner(learner_config(), generator=torch.Generator().manual_seed(0), device=device)
     learner.iteration(env)  # so that the next one also updates the actor-critics
     # With the torch backend: FlopCounterMode cannot see the matrix product inside the fused
     # pursuit operator, and the work is the same whichever backend does it.
@@ -120,9 +141,9 @@ def depth_refit_seconds(device: str) -> float:
     """One Levenberg-Marquardt refit of the depth MLP on FIT_TRIALS stored trials."""
     import torch
 
-    from aectorch.framework import JointLearner, LearnerConfig
+    from aectorch.framework import JointLearner
 
-    learner = JointLearner(LearnerConfig(), generator=torch.Generator().manual_seed(0), device=device)
+    learner = JointLearner(learner_config(), generator=torch.Generator().manual_seed(0), device=device)
     g = torch.Generator().manual_seed(1)
     d = 1 + 2 * torch.rand(FIT_TRIALS, generator=g, dtype=torch.float64)
     pursuit = torch.rad2deg(torch.atan(0.1 / d))
@@ -153,7 +174,7 @@ def measure(renderer: str, batch: int, mode: str, iterations: int, warmup: int, 
 
     from aectorch.coding import extract_patches
     from aectorch.experiment import _compile
-    from aectorch.framework import JointLearner, LearnerConfig
+    from aectorch.framework import JointLearner
     from aectorch.profiling import StageTimer
     from aectorch.sim import ActiveDepthEnv
 
@@ -163,7 +184,7 @@ def measure(renderer: str, batch: int, mode: str, iterations: int, warmup: int, 
     base = _rss_mb()
     _reset_peak()
     env = ActiveDepthEnv(batch, renderer=renderer, seed=0, device=device)
-    learner = JointLearner(LearnerConfig(), generator=torch.Generator().manual_seed(0), device=device)
+    learner = JointLearner(learner_config(), generator=torch.Generator().manual_seed(0), device=device)
     if mode == "compile":
         _compile(learner, env)
     compile_start = time.perf_counter()
@@ -214,11 +235,11 @@ def leak(iterations: int, batch: int, device: str, samples: int = 50) -> dict:
     """Resident memory over a long run: is there growth beyond the bounded depth store?"""
     import torch
 
-    from aectorch.framework import JointLearner, LearnerConfig
+    from aectorch.framework import JointLearner
     from aectorch.sim import ActiveDepthEnv
 
     env = ActiveDepthEnv(batch, seed=0, device=device)
-    learner = JointLearner(LearnerConfig(), generator=torch.Generator().manual_seed(0), device=device)
+    learner = JointLearner(learner_config(), generator=torch.Generator().manual_seed(0), device=device)
     every = max(1, iterations // samples)
     trace = []
     start = time.perf_counter()
@@ -249,14 +270,14 @@ def interleave(configs: list[str], rounds: int, block: int, warmup: int, device:
     import torch
 
     from aectorch.experiment import _compile
-    from aectorch.framework import JointLearner, LearnerConfig
+    from aectorch.framework import JointLearner
     from aectorch.sim import ActiveDepthEnv
 
     setups = []
     for text in configs:
         renderer, batch, mode = text.split(":")
         env = ActiveDepthEnv(int(batch), renderer=renderer, seed=0, device=device)
-        learner = JointLearner(LearnerConfig(), generator=torch.Generator().manual_seed(0), device=device)
+        learner = JointLearner(learner_config(), generator=torch.Generator().manual_seed(0), device=device)
         if mode == "compile":
             _compile(learner, env)
         for _ in range(warmup):
@@ -338,6 +359,9 @@ def plot(report: dict, path: Path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 16, 64, 256])
+    parser.add_argument("--learner", choices=sorted(LEARNERS), default=None,
+                        help="recorded: the learner of the recorded tables (2 scales, 13 actions; the default); "
+                             "default: today's LearnerConfig() (3 scales, 11 actions)")
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--modes", nargs="+", default=["eager", "compile"], choices=["eager", "compile"])
     parser.add_argument("--renderers", nargs="+", default=["torch", "pyrender"], choices=["torch", "pyrender"])
@@ -363,8 +387,10 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=10, help="--interleave: rounds of blocks")
     parser.add_argument("--block", type=int, default=3, help="--interleave: iterations per block")
     args = parser.parse_args()
+    if args.learner is not None:  # the workers inherit it; a worker without --learner keeps its parent's
+        os.environ[_LEARNER_VARIABLE] = args.learner
     if args.interleave and not args.worker:
-        report = {"benchmark": "train_step --interleave", "rounds": args.rounds, "block": args.block, "rows": []}
+        report = {"benchmark": "train_step --interleave", "learner": _learner_name(), "rounds": args.rounds, "block": args.block, "rows": []}
         for threads in args.threads:
             env = dict(os.environ, OMP_NUM_THREADS=str(threads), LP_NUM_THREADS=str(threads),
                        MKL_NUM_THREADS=str(threads), PYOPENGL_PLATFORM=os.environ.get("PYOPENGL_PLATFORM", "osmesa"))
@@ -406,7 +432,7 @@ def main() -> None:
               f"{rss[-1][1]:.0f} MB at the end; second-half slope "
               f"{report['slope_mb_per_1000_iterations_second_half']:+.2f} MB per 1000 iterations")
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"benchmark": "train_step --leak", **report}, indent=2) + "\n")
+        args.json.write_text(json.dumps({"benchmark": "train_step --leak", "learner": _learner_name(), **report}, indent=2) + "\n")
         print(f"wrote {args.json}")
         return
     if args.worker:
@@ -476,6 +502,7 @@ def main() -> None:
 
     report = {
         "benchmark": "train_step",
+        "learner": _learner_name(),
         "machine": machine_info(),
         "iterations": args.iterations,
         "warmup": args.warmup,

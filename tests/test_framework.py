@@ -22,7 +22,7 @@ def make(num_envs=2, h=2, **config):
 
 
 def test_iteration_records_both_cues_and_the_ground_truth():
-    env, learner = make()
+    env, learner = make(scales=("coarse", "fine"))  # the paper's two scales
     record = learner.iteration(env)
     for cue in (record.parallax, record.stereo):
         assert cue.reward.shape == (2,) and cue.errors.shape == (2, 2)
@@ -34,15 +34,27 @@ def test_iteration_records_both_cues_and_the_ground_truth():
     assert record.parallax.td_error.shape == (2,) and record.fixation_end
 
 
-def test_three_scales_with_the_wide_one():
-    # learner.scales=[wide,coarse,fine]: three dictionaries per cue, three reward terms, 3 x 32 features.
-    env, learner = make(scales=("wide", "coarse", "fine"))
+def test_three_scales_with_the_wide_one_by_default():
+    # learner.scales=[wide,coarse,fine], the default: three dictionaries per cue, three reward
+    # terms, 3 x 32 features.
+    env, learner = make()
+    assert learner.config.scales == ("wide", "coarse", "fine")
     for _ in range(2):
         record = learner.iteration(env)
     for cue in (record.parallax, record.stereo):
         assert cue.errors.shape == (2, 3) and torch.allclose(cue.reward, -cue.errors.sum(1))
         assert torch.isfinite(cue.td_error).all()
     assert learner.parallax.num_features == 96 and learner.parallax.dictionaries["wide"].atoms.shape[0] == 72
+
+
+def test_four_scales_with_the_full_resolution_one():
+    env, learner = make(scales=("wide", "coarse", "fine", "full"))
+    for _ in range(2):
+        record = learner.iteration(env)
+    for cue in (record.parallax, record.stereo):
+        assert cue.errors.shape == (2, 4) and torch.allclose(cue.reward, -cue.errors.sum(1))
+        assert torch.isfinite(cue.td_error).all()
+    assert learner.stereo.num_features == 128 and learner.stereo.dictionaries["full"].atoms.shape[0] == 200
 
 
 def test_no_learning_across_a_fixation_boundary():

@@ -17,13 +17,14 @@ from aectorch.coding.patches import (
     FINE,
     FovealPatches,
     WIDE,
+    FULL,
     Scale,
     as_scale,
     extract_patches,
     pyramid_down,
 )
 
-SCALES = [COARSE, FINE, WIDE]
+SCALES = [COARSE, FINE, WIDE, FULL]
 BINOMIAL = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0
 
 
@@ -85,6 +86,7 @@ def test_scale_properties():
 def test_as_scale():
     assert as_scale("coarse") is COARSE and as_scale("fine") is FINE and as_scale(FINE) is FINE
     assert as_scale("wide") is WIDE and (WIDE.grid, WIDE.num_patches, WIDE.dim) == (3, 9, 72)
+    assert as_scale("full") is FULL and (FULL.levels, FULL.grid, FULL.num_patches, FULL.dim) == (0, 7, 49, 200)
     with pytest.raises(ValueError, match="scale must be"):
         as_scale("medium")
     with pytest.raises(TypeError, match="scale must be"):
@@ -158,7 +160,7 @@ def test_shapes(scale):
     first, second = _rand(3, 240, 320, seed=1), _rand(3, 240, 320, seed=2)
     out = extract_patches(first, second, scale)
     assert out.shape == (3, scale.num_patches, scale.dim)
-    assert out.shape == (3, {"coarse": 49, "fine": 64, "wide": 9}[scale.name], {"wide": 72}.get(scale.name, 200))
+    assert out.shape == (3, {"coarse": 49, "fine": 64, "wide": 9, "full": 49}[scale.name], {"wide": 72}.get(scale.name, 200))
     assert extract_patches(first, second, scale.name).shape == out.shape
 
 

@@ -93,14 +93,15 @@ def test_train_py_writes_the_run_folder(tmp_path, textures):
             "pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m"}
     for cue in ("parallax", "stereo"):
         keys |= {f"{cue}/reward", f"{cue}/entropy", f"{cue}/td_error"}
-        keys |= {f"{cue}/{s}/{m}" for s in ("coarse", "fine") for m in ("error", "atom_usage")}
+        keys |= {f"{cue}/{s}/{m}" for s in ("wide", "coarse", "fine") for m in ("error", "atom_usage")}
     assert set(lines[-1]) == keys and lines[-1]["env_iterations"] == 60
     # The roll: the right eye from iteration 6 (0-based; line 6 reports after it), both from 9.
     rolls = [(line["iteration"], line["roll_left_deg"], line["roll_right_deg"]) for line in lines]
     assert rolls == [(2, 0, 0), (4, 0, 0), (6, 0, 0), (8, 0, 3), (10, 3, 3), (12, 3, 3)]
     checkpoint = load_checkpoint(run / "checkpoint.pt")
     assert checkpoint["iteration"] == 12 and checkpoint["env"]["roll_deg"].eq(3).all()
-    assert set(checkpoint["initial_dictionaries"]) == {"parallax/coarse", "parallax/fine", "stereo/coarse", "stereo/fine"}
+    assert set(checkpoint["initial_dictionaries"]) == {f"{cue}/{s}" for cue in ("parallax", "stereo")
+                                                       for s in ("wide", "coarse", "fine")}
     evaluation = json.loads((run / "evaluation.json").read_text())
     assert evaluation["trials"] == 3
     summary = json.loads((run / "summary.json").read_text())
@@ -291,9 +292,13 @@ def test_compile_gives_the_same_run_as_eager(tmp_path, textures):
             if key == "elapsed_s" or value is None:
                 continue
             assert b[key] == pytest.approx(value, rel=1e-4, abs=1e-5), key
+    # The wide scale's 6 x 6 patches come from four pyramid levels of smoothing, so their contrast
+    # is low and normalising them amplifies float32 rounding: its features differ by up to ~2e-5
+    # (relative) between the fused compiled kernels and eager (the other scales ~3e-7), and the
+    # running feature variances (feature_m2) accumulate that to ~2e-4 over six iterations.
     for key, value in eager_state.items():
         if isinstance(value, torch.Tensor) and value.is_floating_point():
-            torch.testing.assert_close(compiled_state[key], value, rtol=1e-4, atol=1e-5, msg=key)
+            torch.testing.assert_close(compiled_state[key], value, rtol=1e-3, atol=1e-5, msg=key)
 
 
 def test_a_checkpoint_from_before_the_symmetries_loads_without_them():

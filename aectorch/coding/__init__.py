@@ -7,7 +7,7 @@ from aectorch.coding.dictionary import (
     reconstruction_error,
 )
 from aectorch.coding.encoder import BinocularEncoder, EncoderOutput
-from aectorch.coding.patches import COARSE, FINE, WIDE, FovealPatches, Scale, extract_patches, patch_permutation, pyramid_down
+from aectorch.coding.patches import COARSE, FINE, FULL, WIDE, FovealPatches, Scale, extract_patches, patch_permutation, pyramid_down
 from aectorch.coding.pursuit import gram_matrix, matching_pursuit, omp, use_backend
 from aectorch.coding.sparse_code import SparseCode
 
@@ -22,6 +22,7 @@ __all__ = [
     "SparseCode",
     "SparseDictionary",
     "WIDE",
+    "FULL",
     "extract_patches",
     "gram_matrix",
     "matching_pursuit",

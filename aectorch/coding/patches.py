@@ -22,6 +22,7 @@ __all__ = [
     "COARSE",
     "FINE",
     "WIDE",
+    "FULL",
     "SCALE_NAMES",
     "as_scale",
     "pyramid_down",
@@ -157,17 +158,20 @@ FINE = Scale("fine", crop=80, downsample=2, stride=4)
 WIDE = Scale("wide", crop=128, downsample=16, patch_size=6, stride=1)
 """Wide scale (not in the paper): 128 px crop reduced by 16 to 8 x 8, 6 x 6 patches at stride 1, 9 patches."""
 
-_NAMED_SCALES = {"wide": WIDE, "coarse": COARSE, "fine": FINE}
+FULL = Scale("full", crop=40, downsample=1, stride=5)
+"""Full-resolution scale (not in the paper): the central 40 px unreduced, 10 x 10 patches at stride 5, 49 patches."""
+
+_NAMED_SCALES = {"wide": WIDE, "coarse": COARSE, "fine": FINE, "full": FULL}
 
 #: The names :func:`as_scale` (and ``LearnerConfig.scales``) accept, widest first.
 SCALE_NAMES: tuple[str, ...] = tuple(_NAMED_SCALES)
 
 
 def as_scale(scale: Scale | str) -> Scale:
-    """Return ``scale`` itself, or the named default scale for ``"coarse"`` / ``"fine"``.
+    """Return ``scale`` itself, or the named scale (one of :data:`SCALE_NAMES`).
 
     Args:
-        scale: a :class:`Scale`, or one of the strings ``"coarse"`` and ``"fine"``.
+        scale: a :class:`Scale`, or one of the strings ``"wide"``, ``"coarse"``, ``"fine"``, ``"full"``.
 
     Returns:
         The :class:`Scale`.
