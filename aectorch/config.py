@@ -218,6 +218,14 @@ class TrainConfig:
             choose it, never held-out data. ``checkpoint.pt`` stays the latest state (to resume).
         metrics_window: fixation ends the training window's pursuit and vergence MAE (eq. 9) and
             trials its depth MAE average over (>= 1; the paper: 1000).
+        depth_calibration_trials: after training, before the evaluation: the evaluated state
+            (``best.pt``, or the last state) runs this many greedy, frozen trials on the
+            training textures (trial i: texture i mod T, distance i mod len(``env.distances_m``)),
+            and its depth MLP is refitted on their final eye angles alone
+            (``JointLearner.calibrate_depth``; during training the MLP learns from trials with
+            *sampled* actions). Written to ``calibrated.pt``, which the evaluation then
+            evaluates. 0 (default) turns it off; fewer than 10 skip it (>= 0; not in the paper;
+            docs/results.md, "Depth calibration", says why it is off).
     """
 
     iterations: int = 2400
@@ -232,10 +240,12 @@ class TrainConfig:
     deterministic: bool = True
     keep_best: bool = True
     metrics_window: int = 1000
+    depth_calibration_trials: int = 0
 
     def __post_init__(self) -> None:
         owner = "train"
         _require_int(owner, "iterations", self.iterations, 1)
+        _require_int(owner, "depth_calibration_trials", self.depth_calibration_trials, 0)
         _require_int(owner, "log_every", self.log_every, 1)
         _require_int(owner, "metrics_window", self.metrics_window, 1)
         _require_int(owner, "checkpoint_every", self.checkpoint_every, 1)

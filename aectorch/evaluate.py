@@ -31,7 +31,7 @@ from torch import Tensor
 from aectorch._cli import UsageError, parse_key_values, run_main
 from aectorch.sim import DEFAULT_DISTANCES_M, RENDERERS, ActiveDepthEnv, TextureBank
 
-__all__ = ["evaluate", "main", "summarise"]
+__all__ = ["evaluate", "main", "run_trials", "summarise"]
 
 #: Evaluation policies: the argmax action (the protocol) or actions sampled as in training.
 POLICIES = ("greedy", "sampled")
@@ -59,6 +59,151 @@ def _conditions(num_textures: int, distances: Sequence[float]) -> tuple[Tensor, 
     index = torch.arange(num_textures).repeat_interleave(len(distances))
     distance = torch.tensor(list(distances), dtype=torch.float64).repeat(num_textures)
     return index, distance
+
+
+def _close(envs) -> None:
+    for env in envs:
+        close = getattr(env.renderer, "close", None)
+        if close is not None:
+            close()
+
+
+def _check_trial_arguments(distances_m: Sequence[float], batch_size: int, policy: str) -> list[float]:
+    if policy not in POLICIES:
+        raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {policy!r}")
+    distances = [float(d) for d in distances_m]
+    if not distances or any(not math.isfinite(d) or d <= 0 for d in distances):
+        raise ValueError(f"distances_m must be distances > 0 (metres), got {distances_m!r}")
+    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
+        raise ValueError(f"batch_size must be an int >= 1, got {batch_size!r}")
+    return distances
+
+
+def _check_conditions(conditions, num_textures: int, distances: list[float]) -> tuple[Tensor, Tensor]:
+    if not (isinstance(conditions, (tuple, list)) and len(conditions) == 2
+            and all(isinstance(c, Tensor) and c.dim() == 1 for c in conditions)
+            and conditions[0].shape == conditions[1].shape and conditions[0].numel() > 0):
+        raise ValueError("conditions must be (texture_index, distance_m), two non-empty 1-D tensors of one length")
+    index, distance = conditions[0].long().cpu(), conditions[1].double().cpu()
+    if bool(((index < 0) | (index >= num_textures)).any()):
+        raise ValueError(f"conditions' texture indices must be in [0, {num_textures})")
+    known = torch.tensor(distances, dtype=torch.float64)
+    if not bool(((distance[:, None] - known).abs() < 1e-9).any(1).all()):
+        raise ValueError(f"conditions' distances must be among distances_m {distances}")
+    return index, distance
+
+
+def _paper_trials(learner, bank: TextureBank, index: Tensor, distance: Tensor, env_for, batch_size: int,
+                  fixation_iterations: int, greedy: bool, bar) -> dict[str, Tensor]:
+    """The paper's test: one full trial per (texture index, distance), learning frozen."""
+    device, dtype = next(learner.parameters()).device, next(learner.parameters()).dtype
+    total = index.numel()
+    out: dict[str, list[Tensor]] = {"pursuit_deg": [], "vergence_deg": [], "q_deg": [], "depth_error_m": []}
+    with torch.no_grad():
+        for start in range(0, total, batch_size):
+            stop = min(start + batch_size, total)
+            env = env_for(stop - start, fixation_iterations)
+            env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
+            learner.forget_transitions()
+            finals_p, finals_v = [], []
+            while True:
+                record = learner.iteration(env, learn=False, greedy=greedy)
+                if record.fixation_end:
+                    finals_p.append(record.pursuit_error_deg)
+                    finals_v.append(record.vergence_error_deg)
+                if record.trial_end:
+                    break
+            out["pursuit_deg"].append(torch.stack(finals_p, 1))  # [b, 2 fixations]
+            out["vergence_deg"].append(torch.stack(finals_v, 1))
+            out["q_deg"].append(record.q_deg)
+            out["depth_error_m"].append(record.depth_prediction_m - record.distance_m)
+            if bar is not None:
+                bar.update(stop - start)
+    result = {key: torch.cat(value).cpu() for key, value in out.items()}
+    result["texture_index"], result["distance_m"] = index, distance
+    return result
+
+
+def run_trials(
+    learner,
+    textures: TextureBank | Tensor,
+    *,
+    distances_m: Sequence[float] = DEFAULT_DISTANCES_M,
+    renderer: str = "torch",
+    batch_size: int = 256,
+    fixation_iterations: int = 30,
+    shift_m: float = 0.1,
+    seed: int = 0,
+    policy: str = "greedy",
+    progress: bool | str = False,
+    conditions: tuple[Tensor, Tensor] | None = None,
+) -> dict[str, Tensor]:
+    """The paper's test as tensors: every texture x distance runs one trial, learning frozen.
+
+    The trial loop of :func:`evaluate`, for callers that want the raw results: e.g. the final
+    eye movements ``q_deg`` of greedy trials on the training textures, which
+    ``train.depth_calibration_trials`` refits the depth MLP on (:meth:`JointLearner.calibrate_depth`).
+
+    Args:
+        learner: a :class:`~aectorch.framework.JointLearner` (not modified).
+        textures: the trials' textures.
+        distances_m: object distances; every texture is tested at every distance.
+        renderer: ``"torch"`` or ``"pyrender"``.
+        batch_size: environments simulated at once.
+        fixation_iterations: h, iterations per fixation.
+        shift_m: the body shift.
+        seed: seeds the environments and, with ``policy="sampled"``, the actions.
+        policy: ``"greedy"`` or ``"sampled"``, as for :func:`evaluate`.
+        progress: show a progress bar (a string: its label; ``True``: "trials").
+        conditions: ``(texture_index, distance_m)``, two ``[N]`` tensors: run these N trials
+            instead of every texture at every distance (the distances must be among
+            ``distances_m``).
+
+    Returns:
+        CPU tensors over the N = textures x distances trials (texture-major): ``pursuit_deg`` and
+        ``vergence_deg`` ``[N, 2]`` (signed errors at the end of each fixation), ``q_deg``
+        ``[N, 4]`` (the MLP's inputs), ``depth_error_m`` ``[N]`` (NaN before the MLP's first fit),
+        ``texture_index`` and ``distance_m`` ``[N]``.
+
+    Example:
+        >>> import torch
+        >>> from aectorch.framework import JointLearner, LearnerConfig
+        >>> learner = JointLearner(LearnerConfig(num_atoms=16), generator=torch.Generator().manual_seed(0))
+        >>> out = run_trials(learner, torch.rand(2, 64, 64), distances_m=[1.0, 2.0], fixation_iterations=2)
+        >>> out["q_deg"].shape, out["distance_m"].tolist()
+        (torch.Size([4, 4]), [1.0, 2.0, 1.0, 2.0])
+    """
+    greedy = policy == "greedy"
+    distances = _check_trial_arguments(distances_m, batch_size, policy)
+    bank = textures if isinstance(textures, TextureBank) else TextureBank(textures)
+    parameter = next(learner.parameters())
+    if conditions is None:
+        index, distance = _conditions(len(bank), distances)
+    else:
+        index, distance = _check_conditions(conditions, len(bank), distances)
+    envs: dict[int, ActiveDepthEnv] = {}
+
+    def env_for(size: int, h: int) -> ActiveDepthEnv:
+        if size not in envs:
+            envs[size] = ActiveDepthEnv(size, textures=bank, renderer=renderer, distances_m=distances,
+                                        fixation_iterations=h, shift_m=shift_m, seed=seed,
+                                        device=parameter.device, dtype=parameter.dtype)
+        return envs[size]
+
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=index.numel(), desc=progress if isinstance(progress, str) else "trials", unit="trial")
+    saved_generator = learner.generator.get_state()
+    learner.generator.manual_seed(seed)
+    try:
+        return _paper_trials(learner, bank, index, distance, env_for, batch_size, fixation_iterations, greedy, bar)
+    finally:
+        learner.generator.set_state(saved_generator)
+        _close(envs.values())
+        if bar is not None:
+            bar.close()
 
 
 def evaluate(
@@ -101,15 +246,9 @@ def evaluate(
         (:func:`summarise`) under ``pursuit``, ``vergence``, ``depth``; a per-distance
         breakdown; ``trials``; and ``vergence_test`` when asked.
     """
-    if policy not in POLICIES:
-        raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {policy!r}")
     greedy = policy == "greedy"
+    distances = _check_trial_arguments(distances_m, batch_size, policy)
     bank = textures if isinstance(textures, TextureBank) else TextureBank(textures)
-    distances = [float(d) for d in distances_m]
-    if not distances or any(not math.isfinite(d) or d <= 0 for d in distances):
-        raise ValueError(f"distances_m must be distances > 0 (metres), got {distances_m!r}")
-    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
-        raise ValueError(f"batch_size must be an int >= 1, got {batch_size!r}")
     parameter = next(learner.parameters())
     device, dtype = parameter.device, parameter.dtype
     index, distance = _conditions(len(bank), distances)
@@ -134,28 +273,10 @@ def evaluate(
 
     def run() -> dict:
         """The two tests (the closure keeps evaluate's prepared arguments)."""
-        pursuit, vergence, depth_error = [], [], []
-        with torch.no_grad():
-            for start, stop in chunks:
-                env = env_for(stop - start, fixation_iterations)
-                env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
-                learner.forget_transitions()
-                finals_p, finals_v = [], []
-                while True:
-                    record = learner.iteration(env, learn=False, greedy=greedy)
-                    if record.fixation_end:
-                        finals_p.append(record.pursuit_error_deg)
-                        finals_v.append(record.vergence_error_deg)
-                    if record.trial_end:
-                        break
-                pursuit.append(torch.stack(finals_p, 1))  # [b, 2 fixations]
-                vergence.append(torch.stack(finals_v, 1))
-                depth_error.append(record.depth_prediction_m - record.distance_m)
-                if bar is not None:
-                    bar.update(stop - start)
-        pursuit, vergence = torch.cat(pursuit).cpu(), torch.cat(vergence).cpu()
-        depth_error = torch.cat(depth_error).cpu()
-        errors = {"pursuit": pursuit, "vergence": vergence, "depth": depth_error}
+        paper = _paper_trials(learner, bank, index, distance, env_for, batch_size, fixation_iterations,
+                              greedy, bar)
+        errors = {"pursuit": paper["pursuit_deg"], "vergence": paper["vergence_deg"],
+                  "depth": paper["depth_error_m"]}
         names = {"pursuit": "pursuit_mae_deg", "vergence": "vergence_mae_deg", "depth": "depth_mae_m"}
 
         def maes(mask: Tensor) -> dict:
@@ -211,10 +332,7 @@ def evaluate(
         learner.generator.set_state(saved_generator)
         if bar is not None:
             bar.close()
-        for env in envs.values():
-            close = getattr(env.renderer, "close", None)
-            if close is not None:
-                close()
+        _close(envs.values())
     result["policy"] = policy
     return result
 

@@ -37,7 +37,7 @@ from typing import Callable
 import torch
 
 from aectorch.config import ExperimentConfig, to_container, to_experiment_config, validate_resources
-from aectorch.framework import IterationRecord, JointLearner
+from aectorch.framework import _MIN_DEPTH_TRIALS, IterationRecord, JointLearner
 from aectorch.metrics import CUES, TrainingMetrics
 from aectorch.provenance import provenance
 from aectorch.sim import ActiveDepthEnv, TextureBank
@@ -522,6 +522,19 @@ def _finish(cfg, run_dir: Path, learner, env, initial, events, train_seconds, se
         if cfg.train.keep_best and (run_dir / "best.pt").exists():
             evaluated = "best.pt"  # the learner of the best training window
             restore(learner, load_checkpoint(run_dir / "best.pt")["learner"], run_dir / "best.pt", "learner")
+        if cfg.train.depth_calibration_trials > 0:
+            summary["depth_calibration"] = calibrate_depth(cfg, learner, env.textures)
+        if summary.get("depth_calibration", {}).get("skipped") is False:
+            done = summary["depth_calibration"]
+            before = "n/a" if done["depth_mae_m_before"] is None else f"{done['depth_mae_m_before']:.4g}"
+            print(f"depth calibration: the MLP refitted on {done['trials']} greedy trials of "
+                  f"{done['textures']} training textures (their depth MAE {before} -> "
+                  f"{done['depth_mae_m_after']:.4g} m); written to {run_dir / 'calibrated.pt'}")
+            stored = load_checkpoint(run_dir / evaluated)
+            stored["learner"] = copy.deepcopy(learner.state_dict())
+            stored["depth_calibration"] = {"source": evaluated, **summary["depth_calibration"]}
+            save_checkpoint(run_dir / "calibrated.pt", stored)
+            evaluated = "calibrated.pt"
 
         bank = build_textures(cfg.eval.textures, "test", cfg)
         result = evaluate(learner, bank, distances_m=cfg.eval.distances_m, renderer=cfg.env.renderer,
@@ -537,6 +550,37 @@ def _finish(cfg, run_dir: Path, learner, env, initial, events, train_seconds, se
     _write_json(run_dir / "summary.json", summary)
     _print_table(summary, run_dir)
     return summary
+
+
+def calibrate_depth(cfg: ExperimentConfig, learner: JointLearner, bank: TextureBank) -> dict:
+    """``train.depth_calibration_trials``: refit ``learner``'s depth MLP on its greedy trials.
+
+    ``cfg.train.depth_calibration_trials`` greedy, frozen trials on the training textures
+    ``bank`` (trial i: texture i mod T, distance i mod the number of ``cfg.env.distances_m``;
+    :func:`aectorch.evaluate.run_trials`), then :meth:`JointLearner.calibrate_depth` refits the
+    MLP on their final eye angles. Returns what it did (JSON-ready): the trials, the depth MAE on
+    them before and after, and the fit's epochs and stop reason.
+    """
+    from aectorch.evaluate import run_trials
+
+    count = cfg.train.depth_calibration_trials
+    if count < _MIN_DEPTH_TRIALS:
+        print(f"depth calibration skipped: {count} trials, fewer than the {_MIN_DEPTH_TRIALS} a fit needs",
+              file=sys.stderr)
+        return {"trials": count, "skipped": True}
+    distances = [float(d) for d in cfg.env.distances_m]
+    i = torch.arange(count)
+    conditions = (i % len(bank), torch.tensor(distances, dtype=torch.float64)[i % len(distances)])
+    trials = run_trials(learner, bank, distances_m=distances, renderer=cfg.env.renderer,
+                        batch_size=cfg.eval.batch_size, fixation_iterations=cfg.env.fixation_iterations,
+                        shift_m=cfg.env.shift_m, seed=cfg.seed, conditions=conditions,
+                        progress="depth calibration" if cfg.train.progress else False)
+    before = trials["depth_error_m"].abs().mean().item()
+    fit = learner.calibrate_depth(trials["q_deg"], trials["distance_m"], seed=cfg.seed)
+    after = (learner.predict_depth(trials["q_deg"]).cpu().double() - trials["distance_m"]).abs().mean().item()
+    return {"trials": count, "textures": min(count, len(bank)), "skipped": False,
+            "depth_mae_m_before": _json_value(before), "depth_mae_m_after": _json_value(after),
+            "epochs": int(fit.epochs), "stop": str(fit.stop_reason)}
 
 
 def _read_lines(path: Path) -> list[dict]:

@@ -421,6 +421,42 @@ class JointLearner(nn.Module):
         self._trials_at_last_fit = self.trials_seen
         return result
 
+    def calibrate_depth(self, q_deg: Tensor, distance_m: Tensor, *, seed: int | None = None):
+        """Refit the depth MLP on the given trials only, from its current weights.
+
+        Training fits the MLP on trials made with *sampled* actions, whose final eye angles
+        scatter more than those of the greedy policy that is evaluated; refitted on greedy
+        trials of the training textures (:func:`aectorch.evaluate.run_trials`), the MLP maps the
+        evaluated policy's own ``q`` to distance (``train.depth_calibration_trials``). The
+        stored training trials (``depth_inputs``, ``depth_targets``) are not changed.
+
+        Args:
+            q_deg: the trials' final eye angles, ``[N, 4]`` (N >= 10).
+            distance_m: their true distances, ``[N]``.
+            seed: seeds the fit's validation split (default: drawn from the learner's generator).
+
+        Returns:
+            The Levenberg-Marquardt fit's result.
+        """
+        if not isinstance(q_deg, Tensor) or q_deg.dim() != 2 or q_deg.shape[1] != 4:
+            raise ValueError(f"q_deg must be a tensor of shape [N, 4], got {getattr(q_deg, 'shape', type(q_deg))}")
+        if not isinstance(distance_m, Tensor) or distance_m.shape != q_deg.shape[:1]:
+            raise ValueError(f"distance_m must be a tensor of shape [{q_deg.shape[0]}], "
+                             f"got {getattr(distance_m, 'shape', type(distance_m))}")
+        if q_deg.shape[0] < _MIN_DEPTH_TRIALS:
+            raise ValueError(f"calibrate_depth needs at least {_MIN_DEPTH_TRIALS} trials, got {q_deg.shape[0]}")
+        if not (torch.isfinite(q_deg).all() and torch.isfinite(distance_m).all()):
+            raise ValueError("q_deg and distance_m must be finite")
+        if seed is None:
+            seed = int(torch.randint(0, 2**31 - 1, (1,), generator=self.generator))
+        like = self.depth_inputs
+        result = fit_levenberg_marquardt(
+            self.depth, q_deg.to(like), distance_m.to(like), max_epochs=self.config.depth_max_epochs,
+            seed=seed, init=None if bool(self.depth_trained) else "nguyen-widrow",
+        )
+        self.depth_trained.fill_(True)
+        return result
+
     # -- checkpoints -------------------------------------------------------------------------------
     def get_extra_state(self) -> dict:
         return {

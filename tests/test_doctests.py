@@ -22,7 +22,7 @@ PACKAGES = (aectorch.coding, aectorch.sim, aectorch.control, aectorch.depth)
 MODULES = sorted(
     f"{package.__name__}.{m.name}" for package in PACKAGES for m in pkgutil.iter_modules(package.__path__)
 ) + ["aectorch.framework", "aectorch.figures", "aectorch.profiling", "aectorch.watchdog",
-     "aectorch.provenance"]  # top-level modules with examples
+     "aectorch.provenance", "aectorch.evaluate"]  # top-level modules with examples
 
 
 def test_module_discovery_finds_the_modules():

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from aectorch.evaluate import evaluate, summarise
+from aectorch.evaluate import evaluate, run_trials, summarise
 from aectorch.framework import JointLearner, LearnerConfig
 from aectorch.sim import ActiveDepthEnv, TextureBank
 
@@ -88,3 +88,45 @@ def test_sampled_policy_differs_from_greedy_and_leaves_the_learner_as_it_was():
             assert torch.equal(value, after[key]), key
     with pytest.raises(ValueError, match="policy must be one of greedy, sampled"):
         evaluate(learner, bank, policy="argmax")
+
+
+def test_run_trials_gives_the_trials_evaluate_summarises():
+    bank = TextureBank(torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0)))
+    learner = JointLearner(LearnerConfig(num_atoms=32, depth_every_trials=12),
+                           generator=torch.Generator().manual_seed(0))
+    env = ActiveDepthEnv(4, textures=bank, fixation_iterations=1, seed=0)
+    for _ in range(6):
+        learner.iteration(env)
+    before = copy.deepcopy(learner.state_dict())
+    out = run_trials(learner, bank, distances_m=[1.0, 2.0], batch_size=4, fixation_iterations=2)
+    result = evaluate(learner, bank, distances_m=[1.0, 2.0], batch_size=4, fixation_iterations=2,
+                      vergence_test=False)
+    assert out["q_deg"].shape == (6, 4) and out["pursuit_deg"].shape == (6, 2)
+    assert out["texture_index"].tolist() == [0, 0, 1, 1, 2, 2] and out["distance_m"].tolist() == [1.0, 2.0] * 3
+    assert out["pursuit_deg"].abs().mean().item() == pytest.approx(result["pursuit_mae_deg"])
+    assert out["vergence_deg"].abs().mean().item() == pytest.approx(result["vergence_mae_deg"])
+    assert out["depth_error_m"].abs().mean().item() == pytest.approx(result["depth_mae_m"])
+    # q is the MLP's input: its prediction from q is the trial's distance plus the depth error.
+    predicted = learner.predict_depth(out["q_deg"]).double()
+    assert torch.allclose(predicted - out["distance_m"], out["depth_error_m"].double(), atol=1e-5)
+    after = learner.state_dict()
+    assert all(torch.equal(before[k], after[k]) for k in before if isinstance(before[k], torch.Tensor))
+    with pytest.raises(ValueError, match="policy"):
+        run_trials(learner, bank, policy="best")
+
+
+def test_run_trials_runs_the_given_conditions():
+    bank = TextureBank(torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0)))
+    learner = JointLearner(LearnerConfig(num_atoms=32), generator=torch.Generator().manual_seed(0))
+    grid = run_trials(learner, bank, distances_m=[1.0, 2.0], batch_size=8, fixation_iterations=2)
+    pick = (torch.tensor([2, 0]), torch.tensor([1.0, 2.0], dtype=torch.float64))
+    some = run_trials(learner, bank, distances_m=[1.0, 2.0], batch_size=8, fixation_iterations=2, conditions=pick)
+    assert some["texture_index"].tolist() == [2, 0] and some["distance_m"].tolist() == [1.0, 2.0]
+    # The same trials as in the grid (texture-major: rows 4 and 1), whatever else is in the batch.
+    assert torch.allclose(some["q_deg"], grid["q_deg"][[4, 1]], atol=1e-4)
+    with pytest.raises(ValueError, match="among distances_m"):
+        run_trials(learner, bank, distances_m=[1.0, 2.0], conditions=(torch.tensor([0]), torch.tensor([1.5])))
+    with pytest.raises(ValueError, match="texture indices"):
+        run_trials(learner, bank, distances_m=[1.0, 2.0], conditions=(torch.tensor([3]), torch.tensor([1.0])))
+    with pytest.raises(ValueError, match="conditions must be"):
+        run_trials(learner, bank, distances_m=[1.0, 2.0], conditions=(torch.tensor([0, 1]), torch.tensor([1.0])))

@@ -80,6 +80,37 @@ def test_trials_feed_the_depth_mlp_honestly():
     assert learner.depth_inputs.shape == (16, 4) and learner.trials_seen == 16
 
 
+def _geometry_q(distance: torch.Tensor, noise: float, seed: int) -> torch.Tensor:
+    # q1..q4 of perfect fixations (pursuit of the 0.1 m shift, vergence of the 0.06 m baseline), plus noise.
+    pursuit = torch.rad2deg(torch.atan(0.1 / distance))
+    vergence = torch.rad2deg(2 * torch.atan(0.03 / distance))
+    q = torch.stack((-pursuit, vergence, pursuit, vergence), -1)
+    return q + noise * torch.randn(q.shape, generator=torch.Generator().manual_seed(seed), dtype=q.dtype)
+
+
+def test_calibrate_depth_refits_on_the_given_trials_only():
+    env, learner = make(num_envs=4, h=1, depth_every_trials=12)
+    for _ in range(8):  # the MLP is fitted once during training, on 12 trials
+        learner.iteration(env)
+    stored = (learner.depth_inputs.clone(), learner.depth_targets.clone(), learner.trials_seen)
+    distance = 1 + 2 * torch.rand(200, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    q = _geometry_q(distance, 0.01, seed=3)
+    learner.calibrate_depth(q, distance, seed=0)
+    fresh = 1 + 2 * torch.rand(100, generator=torch.Generator().manual_seed(4), dtype=torch.float64)
+    error = (learner.predict_depth(_geometry_q(fresh, 0.01, seed=5)).double() - fresh).abs().mean()
+    assert error < 0.05  # the geometry's depth, learned from the calibration trials alone
+    assert torch.equal(learner.depth_inputs, stored[0]) and torch.equal(learner.depth_targets, stored[1])
+    assert learner.trials_seen == stored[2]
+    with pytest.raises(ValueError, match="q_deg"):
+        learner.calibrate_depth(q[:, :3], distance)
+    with pytest.raises(ValueError, match="distance_m"):
+        learner.calibrate_depth(q, distance[:-1])
+    with pytest.raises(ValueError, match="at least 10"):
+        learner.calibrate_depth(q[:5], distance[:5])
+    with pytest.raises(ValueError, match="finite"):
+        learner.calibrate_depth(torch.full((20, 4), float("nan")), distance[:20])
+
+
 def test_learn_false_freezes_everything():
     env, learner = make()
     learner.iteration(env)

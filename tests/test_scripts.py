@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -72,3 +73,41 @@ def test_soak_report_splits_memory_by_process_and_finds_growth(tmp_path, script)
     # Without provenance the boundary is invisible here (the iterations increase): one process.
     (tmp_path / "provenance.json").unlink()
     assert len(soak.report(tmp_path)["memory_by_process"]) == 1
+
+
+def test_depth_calibration_script_gives_what_train_py_evaluates(tmp_path, capsys, script):
+    """scripts/depth_calibration.py --design spread reproduces train.depth_calibration_trials."""
+    import numpy as np
+    import torch
+    from omegaconf import OmegaConf
+    from PIL import Image
+
+    from aectorch.config import to_experiment_config
+    from aectorch.experiment import run_experiment
+
+    torch.set_num_threads(1)
+    folder = tmp_path / "textures"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        Image.fromarray((rng.random((64, 64)) * 255).astype(np.uint8)).save(folder / f"t{i}.png")
+    dotlist = ["env.num_envs=5", "env.fixation_iterations=2", "env.distances_m=[1.0,1.5,2.0,2.5,3.0]",
+               "learner.num_atoms=16", "learner.depth_every_trials=10", "eval.distances_m=[1.0]",
+               "eval.batch_size=8", "train.iterations=12", "train.log_every=2", "train.progress=false",
+               "train.figures=false", "train.tensorboard=false", "train.metrics_window=10",
+               f"env.textures={folder}", f"eval.textures={folder}"]
+    calibrated = run_experiment(to_experiment_config(OmegaConf.from_dotlist(dotlist + ["train.depth_calibration_trials=15"])),
+                                tmp_path / "run")
+    capsys.readouterr()
+    calibration = script("depth_calibration")
+    out = tmp_path / "out.json"
+    assert calibration.main([str(tmp_path / "run" / "best.pt"), "--trials", "15", "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result == json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    plain = run_experiment(to_experiment_config(OmegaConf.from_dotlist(dotlist)), tmp_path / "plain")
+    # best.pt of so short a run has no fitted MLP yet (NaN); the calibration fits one.
+    assert result["before"]["textures"] == pytest.approx(plain["evaluation"]["depth_mae_m"], nan_ok=True)
+    assert result["after"]["textures"] == pytest.approx(calibrated["evaluation"]["depth_mae_m"])
+    assert math.isfinite(result["after"]["textures"])
+    with pytest.raises(SystemExit):
+        calibration.main([str(tmp_path / "run" / "best.pt"), "--trials", "5"])

@@ -325,6 +325,7 @@ def test_keep_best_writes_the_best_training_window_and_evaluates_it(tmp_path, te
     best = load_checkpoint(tmp_path / "best.pt")
     assert best["iteration"] == best_iteration and best["best"]["iteration"] == best_iteration
     assert summary["evaluation"]["checkpoint"] == "best.pt"
+    assert "depth_calibration" not in summary and not (tmp_path / "calibrated.pt").exists()  # off by default
     # The evaluation is of best.pt's learner: evaluating it again gives the same numbers.
     from aectorch.evaluate import evaluate
     from aectorch.sim import TextureBank
@@ -338,6 +339,39 @@ def test_keep_best_writes_the_best_training_window_and_evaluates_it(tmp_path, te
     summary = run_experiment(_cfg(textures, "train.metrics_window=10", "train.keep_best=false", "eval.enabled=true"), off)
     assert "best" not in summary and not (off / "best.pt").exists()
     assert summary["evaluation"]["checkpoint"] == "checkpoint.pt"
+
+
+def test_depth_calibration_refits_the_evaluated_mlp_on_greedy_training_trials(tmp_path, textures):
+    five = "env.distances_m=[1.0,1.5,2.0,2.5,3.0]"
+    summary = run_experiment(_cfg(textures, five, "train.metrics_window=10", "eval.enabled=true",
+                                  "train.depth_calibration_trials=15"), tmp_path)
+    done = summary["depth_calibration"]
+    assert done["skipped"] is False and (done["textures"], done["trials"]) == (3, 15)
+    assert summary["evaluation"]["checkpoint"] == "calibrated.pt"
+    best, calibrated = load_checkpoint(tmp_path / "best.pt"), load_checkpoint(tmp_path / "calibrated.pt")
+    assert calibrated["iteration"] == best["iteration"] and calibrated["depth_calibration"]["source"] == "best.pt"
+    changed = {k for k, v in best["learner"].items()
+               if isinstance(v, torch.Tensor) and not torch.equal(v, calibrated["learner"][k])}
+    # Only the MLP moved (and its trained flag, when training had not fitted it yet).
+    assert changed and all(k.startswith("depth.") or k == "depth_trained" for k in changed), changed
+    # Its depth MAE on the 15 calibration trials (texture i mod 3, distance i mod 5: every pair
+    # once) is what the summary says.
+    from aectorch.evaluate import evaluate, run_trials
+    from aectorch.sim import TextureBank
+
+    _, learner = load_learner(tmp_path / "calibrated.pt")
+    bank = TextureBank.from_folder(textures)
+    trials = run_trials(learner, bank, distances_m=[1.0, 1.5, 2.0, 2.5, 3.0], batch_size=8,
+                        fixation_iterations=2, seed=0)
+    assert trials["depth_error_m"].abs().mean().item() == pytest.approx(done["depth_mae_m_after"], rel=1e-5)
+    # The evaluation is of calibrated.pt: evaluating it again gives the same numbers.
+    again = evaluate(learner, bank, distances_m=[1.0], batch_size=8, fixation_iterations=2)
+    assert again["depth_mae_m"] == pytest.approx(summary["evaluation"]["depth_mae_m"])
+    off = run_experiment(_cfg(textures, five, "train.metrics_window=10", "eval.enabled=true",
+                              "train.depth_calibration_trials=5"), tmp_path / "off")
+    assert off["depth_calibration"] == {"trials": 5, "skipped": True}  # too few for a fit
+    assert off["evaluation"]["checkpoint"] == "best.pt" and not (tmp_path / "off" / "calibrated.pt").exists()
+    assert off["evaluation"]["pursuit_mae_deg"] == pytest.approx(summary["evaluation"]["pursuit_mae_deg"])
 
 
 def test_start_spread_draws_the_training_start_states(textures):
