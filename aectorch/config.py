@@ -218,7 +218,8 @@ class TrainConfig:
             choose it, never held-out data. ``checkpoint.pt`` stays the latest state (to resume).
         metrics_window: fixation ends the training window's pursuit and vergence MAE (eq. 9) and
             trials its depth MAE average over (>= 1; the paper: 1000).
-        depth_calibration_trials: after training, before the evaluation: the evaluated state
+        depth_calibration_trials: after training, before the evaluation (so only with
+            ``eval.enabled``): the evaluated state
             (``best.pt``, or the last state) runs this many greedy, frozen trials on the
             training textures (trial i: texture i mod T, distance i mod len(``env.distances_m``)),
             and its depth MLP is refitted on their final eye angles alone
