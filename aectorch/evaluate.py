@@ -19,6 +19,7 @@ From the command line, on a checkpoint written by ``train.py`` (see :func:`main`
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -61,11 +62,36 @@ def _conditions(num_textures: int, distances: Sequence[float]) -> tuple[Tensor, 
     return index, distance
 
 
-def _close(envs) -> None:
-    for env in envs:
-        close = getattr(env.renderer, "close", None)
-        if close is not None:
-            close()
+@contextlib.contextmanager
+def _trial_session(learner, bank: TextureBank, distances: list[float], renderer: str, shift_m: float,
+                   seed: int, bar=None):
+    """``env_for(size, h)``: environments of ``bank`` made once per (size, h), all closed at the end.
+
+    For the session the learner's generator (sampled actions) is seeded from ``seed``; it gets
+    its own state back afterwards, and the progress bar ``bar`` is closed.
+    """
+    parameter = next(learner.parameters())
+    envs: dict[tuple[int, int], ActiveDepthEnv] = {}
+
+    def env_for(size: int, h: int) -> ActiveDepthEnv:
+        if (size, h) not in envs:
+            envs[size, h] = ActiveDepthEnv(size, textures=bank, renderer=renderer, distances_m=distances,
+                                           fixation_iterations=h, shift_m=shift_m, seed=seed,
+                                           device=parameter.device, dtype=parameter.dtype)
+        return envs[size, h]
+
+    saved_generator = learner.generator.get_state()
+    learner.generator.manual_seed(seed)
+    try:
+        yield env_for
+    finally:
+        learner.generator.set_state(saved_generator)
+        if bar is not None:
+            bar.close()
+        for env in envs.values():
+            close = getattr(env.renderer, "close", None)
+            if close is not None:
+                close()
 
 
 def _check_trial_arguments(distances_m: Sequence[float], batch_size: int, policy: str) -> list[float]:
@@ -93,7 +119,7 @@ def _check_conditions(conditions, num_textures: int, distances: list[float]) -> 
     return index, distance
 
 
-def _paper_trials(learner, bank: TextureBank, index: Tensor, distance: Tensor, env_for, batch_size: int,
+def _paper_trials(learner, index: Tensor, distance: Tensor, env_for, batch_size: int,
                   fixation_iterations: int, greedy: bool, bar) -> dict[str, Tensor]:
     """The paper's test: one full trial per (texture index, distance), learning frozen."""
     device, dtype = next(learner.parameters()).device, next(learner.parameters()).dtype
@@ -176,34 +202,17 @@ def run_trials(
     greedy = policy == "greedy"
     distances = _check_trial_arguments(distances_m, batch_size, policy)
     bank = textures if isinstance(textures, TextureBank) else TextureBank(textures)
-    parameter = next(learner.parameters())
     if conditions is None:
         index, distance = _conditions(len(bank), distances)
     else:
         index, distance = _check_conditions(conditions, len(bank), distances)
-    envs: dict[int, ActiveDepthEnv] = {}
-
-    def env_for(size: int, h: int) -> ActiveDepthEnv:
-        if size not in envs:
-            envs[size] = ActiveDepthEnv(size, textures=bank, renderer=renderer, distances_m=distances,
-                                        fixation_iterations=h, shift_m=shift_m, seed=seed,
-                                        device=parameter.device, dtype=parameter.dtype)
-        return envs[size]
-
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
         bar = tqdm(total=index.numel(), desc=progress if isinstance(progress, str) else "trials", unit="trial")
-    saved_generator = learner.generator.get_state()
-    learner.generator.manual_seed(seed)
-    try:
-        return _paper_trials(learner, bank, index, distance, env_for, batch_size, fixation_iterations, greedy, bar)
-    finally:
-        learner.generator.set_state(saved_generator)
-        _close(envs.values())
-        if bar is not None:
-            bar.close()
+    with _trial_session(learner, bank, distances, renderer, shift_m, seed, bar) as env_for:
+        return _paper_trials(learner, index, distance, env_for, batch_size, fixation_iterations, greedy, bar)
 
 
 def evaluate(
@@ -260,21 +269,9 @@ def evaluate(
 
         bar = tqdm(total=total * (2 if vergence_test else 1), desc="evaluate", unit="trial")
 
-    envs: dict[tuple[int, int], ActiveDepthEnv] = {}
-
-    def env_for(size: int, h: int) -> ActiveDepthEnv:
-        key = (size, h)
-        if key not in envs:
-            envs[key] = ActiveDepthEnv(
-                size, textures=bank, renderer=renderer, distances_m=distances,
-                fixation_iterations=h, shift_m=shift_m, seed=seed, device=device, dtype=dtype,
-            )
-        return envs[key]
-
-    def run() -> dict:
+    def run(env_for) -> dict:
         """The two tests (the closure keeps evaluate's prepared arguments)."""
-        paper = _paper_trials(learner, bank, index, distance, env_for, batch_size, fixation_iterations,
-                              greedy, bar)
+        paper = _paper_trials(learner, index, distance, env_for, batch_size, fixation_iterations, greedy, bar)
         errors = {"pursuit": paper["pursuit_deg"], "vergence": paper["vergence_deg"],
                   "depth": paper["depth_error_m"]}
         names = {"pursuit": "pursuit_mae_deg", "vergence": "vergence_mae_deg", "depth": "depth_mae_m"}
@@ -322,17 +319,10 @@ def evaluate(
             }
         return result
 
-    # Sampled actions come from the learner's generator: seed it from ``seed`` for the
-    # evaluation and give the learner its own state back afterwards.
-    saved_generator = learner.generator.get_state()
-    learner.generator.manual_seed(seed)
-    try:
-        result = run()
-    finally:
-        learner.generator.set_state(saved_generator)
-        if bar is not None:
-            bar.close()
-        _close(envs.values())
+    # Sampled actions come from the learner's generator: the session seeds it from ``seed`` for
+    # the evaluation and gives the learner its own state back afterwards.
+    with _trial_session(learner, bank, distances, renderer, shift_m, seed, bar) as env_for:
+        result = run(env_for)
     result["policy"] = policy
     return result
 

@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Callable
 
 import torch
+from torch import Tensor
 
 from aectorch.config import ExperimentConfig, to_container, to_experiment_config, validate_resources
 from aectorch.framework import _MIN_DEPTH_TRIALS, IterationRecord, JointLearner
@@ -522,17 +523,17 @@ def _finish(cfg, run_dir: Path, learner, env, initial, events, train_seconds, se
         if cfg.train.keep_best and (run_dir / "best.pt").exists():
             evaluated = "best.pt"  # the learner of the best training window
             restore(learner, load_checkpoint(run_dir / "best.pt")["learner"], run_dir / "best.pt", "learner")
-        if cfg.train.depth_calibration_trials > 0:
-            summary["depth_calibration"] = calibrate_depth(cfg, learner, env.textures)
-        if summary.get("depth_calibration", {}).get("skipped") is False:
-            done = summary["depth_calibration"]
+        done = calibrate_depth(cfg, learner, env.textures) if cfg.train.depth_calibration_trials > 0 else None
+        if done is not None:
+            summary["depth_calibration"] = done
+        if done is not None and not done["skipped"]:
             before = "n/a" if done["depth_mae_m_before"] is None else f"{done['depth_mae_m_before']:.4g}"
             print(f"depth calibration: the MLP refitted on {done['trials']} greedy trials of "
                   f"{done['textures']} training textures (their depth MAE {before} -> "
                   f"{done['depth_mae_m_after']:.4g} m); written to {run_dir / 'calibrated.pt'}")
             stored = load_checkpoint(run_dir / evaluated)
             stored["learner"] = copy.deepcopy(learner.state_dict())
-            stored["depth_calibration"] = {"source": evaluated, **summary["depth_calibration"]}
+            stored["depth_calibration"] = {"source": evaluated, **done}
             save_checkpoint(run_dir / "calibrated.pt", stored)
             evaluated = "calibrated.pt"
 
@@ -552,6 +553,26 @@ def _finish(cfg, run_dir: Path, learner, env, initial, events, train_seconds, se
     return summary
 
 
+def calibration_conditions(count: int, num_textures: int, distances: list[float], *,
+                           design: str = "spread") -> tuple[Tensor, Tensor]:
+    """The ``(texture_index, distance_m)`` of ``count`` depth-calibration trials.
+
+    ``"spread"`` (what ``train.depth_calibration_trials`` runs): trial i shows texture
+    i mod ``num_textures`` at ``distances[i mod len(distances)]``. ``"grid"``: the first
+    ``count / len(distances)`` textures, each at every distance.
+    """
+    i = torch.arange(count)
+    if design == "spread":
+        index = i % num_textures
+    elif design == "grid":
+        index = i // len(distances)
+        if count and int(index.max()) >= num_textures:
+            raise ValueError(f"a grid of {count} trials needs {int(index.max()) + 1} textures, got {num_textures}")
+    else:
+        raise ValueError(f"design must be 'spread' or 'grid', got {design!r}")
+    return index, torch.tensor(distances, dtype=torch.float64)[i % len(distances)]
+
+
 def calibrate_depth(cfg: ExperimentConfig, learner: JointLearner, bank: TextureBank) -> dict:
     """``train.depth_calibration_trials``: refit ``learner``'s depth MLP on its greedy trials.
 
@@ -569,8 +590,7 @@ def calibrate_depth(cfg: ExperimentConfig, learner: JointLearner, bank: TextureB
               file=sys.stderr)
         return {"trials": count, "skipped": True}
     distances = [float(d) for d in cfg.env.distances_m]
-    i = torch.arange(count)
-    conditions = (i % len(bank), torch.tensor(distances, dtype=torch.float64)[i % len(distances)])
+    conditions = calibration_conditions(count, len(bank), distances)
     trials = run_trials(learner, bank, distances_m=distances, renderer=cfg.env.renderer,
                         batch_size=cfg.eval.batch_size, fixation_iterations=cfg.env.fixation_iterations,
                         shift_m=cfg.env.shift_m, seed=cfg.seed, conditions=conditions,

@@ -36,7 +36,7 @@ import torch
 from torch import Tensor, nn
 
 from aectorch.coding import BinocularEncoder
-from aectorch.coding.patches import SCALE_NAMES
+from aectorch.coding.patches import DEFAULT_SCALES, SCALE_NAMES
 from aectorch.control import ActorCriticConfig, NaturalActorCritic
 from aectorch.depth import DepthMLP, fit_levenberg_marquardt
 from aectorch.profiling import stage
@@ -49,9 +49,6 @@ __all__ = ["DEFAULT_ACTIONS_DEG", "DEFAULT_SCALES", "PAPER_ACTIONS_DEG", "defaul
 #: before 2026-12-02) made the greedy policy of near trials cycle between states 2 degrees apart
 #: (docs/results.md, "A smaller largest step").
 DEFAULT_ACTIONS_DEG = (-1.0, -0.5, -0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2, 0.5, 1.0)
-#: The default foveal scales: the paper's coarse and fine scale and a wider one
-#: (:data:`aectorch.coding.patches.WIDE`) that tells the direction of large pursuit errors.
-DEFAULT_SCALES = ("wide", "coarse", "fine")
 #: The paper's action set A.
 PAPER_ACTIONS_DEG = (-0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2)
 
@@ -409,16 +406,20 @@ class JointLearner(nn.Module):
             raise ValueError(
                 f"fit_depth needs at least {_MIN_DEPTH_TRIALS} finished trials, has {self.depth_inputs.shape[0]}"
             )
+        result = self._fit_depth_mlp(self.depth_inputs, self.depth_targets, seed)
+        self._trials_at_last_fit = self.trials_seen
+        return result
+
+    def _fit_depth_mlp(self, q_deg: Tensor, distance_m: Tensor, seed: int | None):
+        """Levenberg-Marquardt on these trials; Nguyen-Widrow weights before the first fit."""
         if seed is None:
             seed = int(torch.randint(0, 2**31 - 1, (1,), generator=self.generator))
-        first = not bool(self.depth_trained)
+        like = self.depth_inputs
         result = fit_levenberg_marquardt(
-            self.depth, self.depth_inputs, self.depth_targets,
-            max_epochs=self.config.depth_max_epochs, seed=seed,
-            init="nguyen-widrow" if first else None,
+            self.depth, q_deg.to(like), distance_m.to(like), max_epochs=self.config.depth_max_epochs,
+            seed=seed, init=None if bool(self.depth_trained) else "nguyen-widrow",
         )
         self.depth_trained.fill_(True)
-        self._trials_at_last_fit = self.trials_seen
         return result
 
     def calibrate_depth(self, q_deg: Tensor, distance_m: Tensor, *, seed: int | None = None):
@@ -447,15 +448,7 @@ class JointLearner(nn.Module):
             raise ValueError(f"calibrate_depth needs at least {_MIN_DEPTH_TRIALS} trials, got {q_deg.shape[0]}")
         if not (torch.isfinite(q_deg).all() and torch.isfinite(distance_m).all()):
             raise ValueError("q_deg and distance_m must be finite")
-        if seed is None:
-            seed = int(torch.randint(0, 2**31 - 1, (1,), generator=self.generator))
-        like = self.depth_inputs
-        result = fit_levenberg_marquardt(
-            self.depth, q_deg.to(like), distance_m.to(like), max_epochs=self.config.depth_max_epochs,
-            seed=seed, init=None if bool(self.depth_trained) else "nguyen-widrow",
-        )
-        self.depth_trained.fill_(True)
-        return result
+        return self._fit_depth_mlp(q_deg, distance_m, seed)
 
     # -- checkpoints -------------------------------------------------------------------------------
     def get_extra_state(self) -> dict:

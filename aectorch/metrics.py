@@ -28,6 +28,8 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
+from aectorch.coding.patches import DEFAULT_SCALES
+
 __all__ = ["CUES", "TrainingMetrics"]
 
 CUES = ("parallax", "stereo")
@@ -45,7 +47,7 @@ class TrainingMetrics:
         window_fixations: fixation ends the pursuit and vergence errors average over (>= 1).
         window_trials: predicted trials the depth error averages over (>= 1).
         scales: the learner's scales, in the order of ``CueRecord.errors``' columns (default
-            ``JointLearner``'s, :data:`aectorch.framework.DEFAULT_SCALES`).
+            ``JointLearner``'s, :data:`aectorch.coding.patches.DEFAULT_SCALES`).
 
     Example:
         >>> import torch
@@ -66,7 +68,7 @@ class TrainingMetrics:
         window_fixations: int = 1000,
         window_trials: int = 1000,
         *,
-        scales: Sequence[str] = ("wide", "coarse", "fine"),
+        scales: Sequence[str] = DEFAULT_SCALES,
     ) -> None:
         for name, value in (("num_envs", num_envs), ("window_fixations", window_fixations),
                             ("window_trials", window_trials)):

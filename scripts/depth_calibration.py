@@ -36,21 +36,17 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--trials must be at least 10 (a fit needs 10), got {args.trials}")
 
     from aectorch.evaluate import evaluate, run_trials
-    from aectorch.experiment import load_learner
+    from aectorch.experiment import calibration_conditions, load_learner
     from aectorch.sim import DEFAULT_DISTANCES_M, TextureBank
 
     torch.set_num_threads(1)
     cfg, learner = load_learner(args.checkpoint)
     train = TextureBank.default("train") if cfg.env.textures is None else TextureBank.from_folder(cfg.env.textures)
     distances = [float(d) for d in cfg.env.distances_m]
-    i = torch.arange(args.trials)
-    if args.design == "spread":
-        index = i % len(train)
-    else:
-        index = i // len(distances)
-        if int(index.max()) >= len(train):
-            parser.error(f"--design grid needs {int(index.max()) + 1} training textures, the run has {len(train)}")
-    conditions = (index, torch.tensor(distances, dtype=torch.float64)[i % len(distances)])
+    try:
+        conditions = calibration_conditions(args.trials, len(train), distances, design=args.design)
+    except ValueError as err:
+        parser.error(str(err))
     common = dict(renderer=cfg.env.renderer, batch_size=cfg.eval.batch_size,
                   fixation_iterations=cfg.env.fixation_iterations, shift_m=cfg.env.shift_m)
     test = TextureBank.default("test") if cfg.eval.textures is None else TextureBank.from_folder(cfg.eval.textures)

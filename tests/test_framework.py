@@ -34,27 +34,22 @@ def test_iteration_records_both_cues_and_the_ground_truth():
     assert record.parallax.td_error.shape == (2,) and record.fixation_end
 
 
-def test_three_scales_with_the_wide_one_by_default():
-    # learner.scales=[wide,coarse,fine], the default: three dictionaries per cue, three reward
-    # terms, 3 x 32 features.
-    env, learner = make()
-    assert learner.config.scales == ("wide", "coarse", "fine")
+@pytest.mark.parametrize("scales, newest, dim", [
+    (None, "wide", 72),                                   # the default: wide, coarse, fine
+    (("wide", "coarse", "fine", "full"), "full", 200),   # with the full-resolution scale
+])
+def test_every_scale_gets_a_dictionary_a_reward_term_and_features(scales, newest, dim):
+    env, learner = make() if scales is None else make(scales=scales)
+    if scales is None:
+        assert learner.config.scales == ("wide", "coarse", "fine")
+    n = len(learner.config.scales)
     for _ in range(2):
         record = learner.iteration(env)
     for cue in (record.parallax, record.stereo):
-        assert cue.errors.shape == (2, 3) and torch.allclose(cue.reward, -cue.errors.sum(1))
+        assert cue.errors.shape == (2, n) and torch.allclose(cue.reward, -cue.errors.sum(1))
         assert torch.isfinite(cue.td_error).all()
-    assert learner.parallax.num_features == 96 and learner.parallax.dictionaries["wide"].atoms.shape[0] == 72
-
-
-def test_four_scales_with_the_full_resolution_one():
-    env, learner = make(scales=("wide", "coarse", "fine", "full"))
-    for _ in range(2):
-        record = learner.iteration(env)
-    for cue in (record.parallax, record.stereo):
-        assert cue.errors.shape == (2, 4) and torch.allclose(cue.reward, -cue.errors.sum(1))
-        assert torch.isfinite(cue.td_error).all()
-    assert learner.stereo.num_features == 128 and learner.stereo.dictionaries["full"].atoms.shape[0] == 200
+    for encoder in (learner.parallax, learner.stereo):  # 32 atoms per scale
+        assert encoder.num_features == 32 * n and encoder.dictionaries[newest].atoms.shape[0] == dim
 
 
 def test_no_learning_across_a_fixation_boundary():

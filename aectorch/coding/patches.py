@@ -24,6 +24,7 @@ __all__ = [
     "WIDE",
     "FULL",
     "SCALE_NAMES",
+    "DEFAULT_SCALES",
     "as_scale",
     "pyramid_down",
     "extract_patches",
@@ -165,6 +166,10 @@ _NAMED_SCALES = {"wide": WIDE, "coarse": COARSE, "fine": FINE, "full": FULL}
 
 #: The names :func:`as_scale` (and ``LearnerConfig.scales``) accept, widest first.
 SCALE_NAMES: tuple[str, ...] = tuple(_NAMED_SCALES)
+
+#: ``JointLearner``'s default scales (``LearnerConfig.scales``): the paper's coarse and fine scale
+#: and the wider one, which tells the direction of large pursuit errors.
+DEFAULT_SCALES: tuple[str, ...] = ("wide", "coarse", "fine")
 
 
 def as_scale(scale: Scale | str) -> Scale:
