@@ -502,3 +502,20 @@ def test_torch_renderer_rejects_out_of_range_texture_indices(scene, head):
     poses, plane_x = agreement_poses(head)
     with pytest.raises(IndexError, match=r"texture_index must be in \[0, 3\)"):
         TorchPlaneRenderer(scene)(poses, plane_x, torch.tensor([0, 1, 3]))
+
+
+def test_env_ideal_q_is_what_a_perfect_trial_ends_with(bank):
+    env = small_env(bank, fixation_iterations=40, dtype=torch.float64)
+    env.set_trial(torch.tensor([0, 1, 2]), torch.tensor([1.0, 1.7, 3.0], dtype=torch.float64))
+    ideal = env.ideal_q_deg()
+    torch.testing.assert_close(env.ideal_q_deg(torch.tensor([1.0, 1.7, 3.0])), ideal)
+    for _ in range(80):
+        env.apply_pursuit((env.optimal_left_pan_deg() - env.left_pan_deg).clamp(-0.5, 0.5))
+        info = env.apply_vergence((env.optimal_right_pan_deg() - env.right_pan_deg).clamp(-0.5, 0.5))
+    assert info.trial_end
+    torch.testing.assert_close(info.q_deg, ideal, atol=1e-9, rtol=0)
+    # vergence falls and the pursuit pans shrink with distance; the two fixations mirror
+    assert bool((ideal[1:, 1] < ideal[:-1, 1]).all()) and bool((ideal[:, 0] < 0).all())
+    torch.testing.assert_close(ideal[:, 2], -ideal[:, 0])
+    with pytest.raises(ValueError, match="distance_m"):
+        env.ideal_q_deg(torch.tensor([1.0, -2.0]))

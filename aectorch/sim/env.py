@@ -338,6 +338,34 @@ class ActiveDepthEnv:
         left = self.left_pan_deg if left_pan_deg is None else left_pan_deg
         return self.head.vergence_pan_deg(left, self.plane_x_m, self.body_shift_m)
 
+    def ideal_q_deg(self, distance_m: Tensor | None = None, *, start_pan_deg: float = 0.0) -> Tensor:
+        """The final eye movements ``q`` ``[N, 4]`` of a perfectly fixating trial, degrees.
+
+        What :attr:`IterationInfo.q_deg` holds at the end of a trial whose pursuit and vergence
+        errors are zero at both fixation ends (q1 left pan and q2 vergence after the leftward
+        shift, q3 and q4 after the rightward one): the geometry the depth MLP has to invert.
+
+        Args:
+            distance_m: object distances ``[N]`` (metres, > 0); default the current trials'.
+            start_pan_deg: the left pan each fixation starts from, which sets its target (the
+                evaluation's standard start state: 0).
+        """
+        d = self.distance_m if distance_m is None else torch.as_tensor(
+            distance_m, dtype=self.dtype, device=self.device)
+        if d.dim() != 1 or not bool((d > 0).all()):
+            raise ValueError(f"distance_m must be a [N] tensor of distances > 0 (metres), got {d!r}")
+        plane_x = d + float(self.head.eye_x_m)
+        zero = torch.zeros_like(d)
+        start = self.head.eye_centres(zero)[:, 0]
+        along = math.tan(math.radians(float(start_pan_deg))) * (plane_x - start[:, 0])
+        target = torch.stack((plane_x, start[:, 1] + along, start[:, 2]), dim=-1)
+        columns = []
+        for direction in (1.0, -1.0):
+            shift = zero + direction * self.shift_m
+            left = self.head.pursuit_pan_deg(target, shift)
+            columns += [left, self.head.vergence_pan_deg(left, plane_x, shift) - left]
+        return torch.stack(columns, dim=-1)
+
     # -- observations ----------------------------------------------------------------------
     def _render(self, shift_m: Tensor, pans: Tensor, eyes: slice, roll_deg: Tensor | None = None) -> Tensor:
         roll = self.roll_deg if roll_deg is None else roll_deg
