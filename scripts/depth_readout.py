@@ -20,7 +20,12 @@ the design for N). ``--cache`` keeps them in a file and reuses it. Read-outs:
   ``q`` is nearest to the trial's, in the L1 distance weighted by each input's robust error
   scale (1.4826 x the median absolute deviation of ``q - q_ideal(true distance)`` over the
   evaluated trials), from the two vergence inputs, the two pursuit inputs, or all four. It
-  ignores the systematic part of the eyes' errors, which a fitted read-out can learn.
+  ignores the systematic part of the eyes' errors, which a fitted read-out can learn;
+- ``Gaussian floor``: not a read-out but the mean absolute depth error of the best unbiased one
+  if the four inputs' errors were independent, Gaussian, of those robust scales and without
+  bias: ``sqrt(2 / pi) / ||(d q_ideal / d distance) / scale||`` at each trial's distance (the
+  eyes' heavier tails and biases make real read-outs worse; an MLP fitted to the same trials'
+  distribution can learn part of the bias).
 
 Also prints, per distance, the eye error (degrees, in one input alone; and in all four alike,
 combined by least squares) that moves the exact geometry's depth by 0.05 m.
@@ -30,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 
 import torch
@@ -63,6 +69,10 @@ def readouts(trials: dict, env, grid_m: torch.Tensor, fitted: dict[str, torch.Te
     errors = {name: (p.double() - d).abs() for name, p in fitted.items()}
     for name, inputs in DECODERS.items():
         errors[name] = (decode(q, grid_m, ideal, scale, inputs) - d).abs()
+    # Least squares over the four inputs with independent Gaussian errors of these scales, and
+    # no bias: the depth error's sd is 1 / ||slope / scale||, its mean absolute value sqrt(2/pi) sd.
+    slope = (env.ideal_q_deg(d + 1e-4) - env.ideal_q_deg(d - 1e-4)) / 2e-4
+    errors["Gaussian floor"] = math.sqrt(2 / math.pi) / (slope / scale).norm(dim=-1)
     distances = sorted({round(float(x), 4) for x in d})
     return {
         "trials": int(d.numel()),

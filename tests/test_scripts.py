@@ -140,6 +140,7 @@ def test_depth_readout_compares_read_outs_of_the_same_trials(tmp_path, capsys, s
     assert maes["calibrated 15"] == pytest.approx(calibrated["evaluation"]["depth_mae_m"])
     assert maes["calibrated 12"] != maes["calibrated 15"]
     assert all(math.isfinite(maes[k]) for k in ("vergence", "pursuit", "all four", "calibrated 15 + training"))
+    assert 0 < maes["Gaussian floor"] < math.inf
     assert result["textures"]["trials"] == 3 and [r["distance_m"] for r in result["textures"]["per_distance"]] == [1.0]
     tolerance = result["tolerance_deg_for_0.05_m"][0]  # 1.0 m: vergence 0.05 m is about 0.17 deg
     assert 0.1 < tolerance["q2"] < 0.25 and tolerance["all four alike"] > tolerance["q1"]
