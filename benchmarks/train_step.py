@@ -4,9 +4,10 @@ One env-iteration is one environment doing both cues of one iteration: rendering
 patches, sparse coding, rewards, actions, dictionary and policy learning (and, amortised, the
 depth MLP's Levenberg-Marquardt refits). ``JointLearner.iteration`` with B environments does B
 env-iterations. Measured with the learner of the recorded tables (``--learner recorded``, the
-defaults of 2026-12-01: MP, 288 atoms, the paper's two scales, 13 actions) or with today's
-defaults (``--learner default``, ``LearnerConfig()``: three scales, 11 actions) for every
-combination of:
+defaults of the morning of 2026-12-01: MP, 288 atoms, the paper's two scales, 13 actions, no cue
+symmetries), the two-scale defaults until 2026-12-02 (``--learner two-scale``: the same with the
+symmetries) or today's defaults (``--learner default``, ``LearnerConfig()``: three scales, 11
+actions, the symmetries) for every combination of:
 
   * B (``--batches``, default 1, 16, 64, 256);
   * ``eager`` or ``compile`` (``train.compile=true``: ``torch.compile`` of both encoders and of
@@ -62,9 +63,11 @@ FIT_TRIALS = 2000          # stored trials the amortised depth refit is timed on
 REFIT_EVERY_TRIALS = 256   # LearnerConfig.depth_every_trials
 #: ``--learner``: the learner settings measured. ``recorded`` is what benchmarks/results/*.json and
 #: docs/performance.md were measured with (the defaults until 2026-12-01).
+_TWO_SCALE = {"scales": ("coarse", "fine"),
+              "actions_deg": (-2.0, -1.0, -0.5, -0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)}
 LEARNERS = {
-    "recorded": {"scales": ("coarse", "fine"),
-                 "actions_deg": (-2.0, -1.0, -0.5, -0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)},
+    "recorded": {**_TWO_SCALE, "symmetry": ()},  # the tables of 2026-12-01, before the symmetries
+    "two-scale": _TWO_SCALE,                      # the defaults until 2026-12-02 (with the symmetries)
     "default": {},
 }
 _LEARNER_VARIABLE = "AECTORCH_BENCH_LEARNER"  # passes --learner on to the worker processes
@@ -360,8 +363,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 16, 64, 256])
     parser.add_argument("--learner", choices=sorted(LEARNERS), default=None,
-                        help="recorded: the learner of the recorded tables (2 scales, 13 actions; the default); "
-                             "default: today's LearnerConfig() (3 scales, 11 actions)")
+                        help="recorded: the learner of the recorded tables (2 scales, 13 actions, no "
+                             "symmetries; the default); two-scale: the same with the symmetries (the "
+                             "defaults until 2026-12-02); default: today's LearnerConfig() (3 scales, 11 actions)")
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--modes", nargs="+", default=["eager", "compile"], choices=["eager", "compile"])
     parser.add_argument("--renderers", nargs="+", default=["torch", "pyrender"], choices=["torch", "pyrender"])
