@@ -74,6 +74,16 @@ def build_textures(folder: str | None, split: str, cfg: ExperimentConfig) -> Tex
     return TextureBank.from_folder(folder, progress=None if cfg.train.progress else False, **kwargs)
 
 
+def trial_options(cfg: ExperimentConfig) -> dict:
+    """The keyword arguments of `aectorch.evaluate.evaluate` and `run_trials` that ``cfg`` sets.
+
+    The renderer, the fixation length and the body shift of the run's environments, and the
+    evaluation's batch size: what the end of `run_experiment` evaluates with.
+    """
+    return dict(renderer=cfg.env.renderer, batch_size=cfg.eval.batch_size,
+                fixation_iterations=cfg.env.fixation_iterations, shift_m=cfg.env.shift_m)
+
+
 def _start(value: float, spread: float) -> float | tuple[float, float]:
     """A start angle for `ActiveDepthEnv`: the value, or the range ``value +- spread``."""
     return (value - spread, value + spread) if spread > 0 else value
@@ -538,9 +548,8 @@ def _finish(cfg, run_dir: Path, learner, env, initial, events, train_seconds, se
             evaluated = "calibrated.pt"
 
         bank = build_textures(cfg.eval.textures, "test", cfg)
-        result = evaluate(learner, bank, distances_m=cfg.eval.distances_m, renderer=cfg.env.renderer,
-                          batch_size=cfg.eval.batch_size, fixation_iterations=cfg.env.fixation_iterations,
-                          shift_m=cfg.env.shift_m, progress=cfg.train.progress)
+        result = evaluate(learner, bank, distances_m=cfg.eval.distances_m, progress=cfg.train.progress,
+                          **trial_options(cfg))
         _write_json(run_dir / "evaluation.json", result)
         if figures is not None:
             figures.plot_evaluation(result, run_dir / "figures" / "evaluation.png")
@@ -591,10 +600,8 @@ def calibrate_depth(cfg: ExperimentConfig, learner: JointLearner, bank: TextureB
         return {"trials": count, "skipped": True}
     distances = [float(d) for d in cfg.env.distances_m]
     conditions = calibration_conditions(count, len(bank), distances)
-    trials = run_trials(learner, bank, distances_m=distances, renderer=cfg.env.renderer,
-                        batch_size=cfg.eval.batch_size, fixation_iterations=cfg.env.fixation_iterations,
-                        shift_m=cfg.env.shift_m, seed=cfg.seed, conditions=conditions,
-                        progress="depth calibration" if cfg.train.progress else False)
+    trials = run_trials(learner, bank, distances_m=distances, seed=cfg.seed, conditions=conditions,
+                        progress="depth calibration" if cfg.train.progress else False, **trial_options(cfg))
     before = trials["depth_error_m"].abs().mean().item()
     fit = learner.calibrate_depth(trials["q_deg"], trials["distance_m"], seed=cfg.seed)
     after = (learner.predict_depth(trials["q_deg"]).cpu().double() - trials["distance_m"]).abs().mean().item()

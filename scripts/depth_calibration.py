@@ -36,23 +36,21 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--trials must be at least 10 (a fit needs 10), got {args.trials}")
 
     from aectorch.evaluate import evaluate, run_trials
-    from aectorch.experiment import calibration_conditions, load_learner
-    from aectorch.sim import DEFAULT_DISTANCES_M, TextureBank
+    from aectorch.experiment import build_textures, calibration_conditions, load_learner, trial_options
+    from aectorch.sim import DEFAULT_DISTANCES_M
 
     torch.set_num_threads(1)
     cfg, learner = load_learner(args.checkpoint)
-    train = TextureBank.default("train") if cfg.env.textures is None else TextureBank.from_folder(cfg.env.textures)
+    train = build_textures(cfg.env.textures, "train", cfg)
     distances = [float(d) for d in cfg.env.distances_m]
     try:
         conditions = calibration_conditions(args.trials, len(train), distances, design=args.design)
     except ValueError as err:
         parser.error(str(err))
-    common = dict(renderer=cfg.env.renderer, batch_size=cfg.eval.batch_size,
-                  fixation_iterations=cfg.env.fixation_iterations, shift_m=cfg.env.shift_m)
-    test = TextureBank.default("test") if cfg.eval.textures is None else TextureBank.from_folder(cfg.eval.textures)
-    sets = [("textures", test, list(cfg.eval.distances_m))]
+    common = trial_options(cfg)
+    sets = [("textures", build_textures(cfg.eval.textures, "test", cfg), list(cfg.eval.distances_m))]
     if args.photos:
-        sets.append(("photos", TextureBank.from_folder(args.photos), list(DEFAULT_DISTANCES_M)))
+        sets.append(("photos", build_textures(args.photos, "test", cfg), list(DEFAULT_DISTANCES_M)))
 
     def depth_maes() -> dict:
         return {name: evaluate(learner, bank, distances_m=d, vergence_test=False, **common)["depth_mae_m"]

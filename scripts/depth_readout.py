@@ -54,6 +54,11 @@ def decode(q: torch.Tensor, grid_m: torch.Tensor, ideal: torch.Tensor, scale: to
     return torch.cat(out)
 
 
+def _slope(env, distance_m: torch.Tensor) -> torch.Tensor:
+    """d q_ideal / d distance ``[N, 4]``, degrees per metre (central differences)."""
+    return (env.ideal_q_deg(distance_m + 1e-4) - env.ideal_q_deg(distance_m - 1e-4)) / 2e-4
+
+
 def readouts(trials: dict, env, grid_m: torch.Tensor, fitted: dict[str, torch.Tensor]) -> dict:
     """Depth MAE (m) of each read-out, overall and per distance.
 
@@ -71,7 +76,7 @@ def readouts(trials: dict, env, grid_m: torch.Tensor, fitted: dict[str, torch.Te
         errors[name] = (decode(q, grid_m, ideal, scale, inputs) - d).abs()
     # Least squares over the four inputs with independent Gaussian errors of these scales, and
     # no bias: the depth error's sd is 1 / ||slope / scale||, its mean absolute value sqrt(2/pi) sd.
-    slope = (env.ideal_q_deg(d + 1e-4) - env.ideal_q_deg(d - 1e-4)) / 2e-4
+    slope = _slope(env, d)
     errors["Gaussian floor"] = math.sqrt(2 / math.pi) / (slope / scale).norm(dim=-1)
     distances = sorted({round(float(x), 4) for x in d})
     return {
@@ -87,7 +92,7 @@ def readouts(trials: dict, env, grid_m: torch.Tensor, fitted: dict[str, torch.Te
 def tolerance(env, distances: list[float], depth_m: float = 0.05) -> list[dict]:
     """Per distance: the eye error (deg) that moves the geometry's depth by ``depth_m``."""
     d = torch.tensor(distances, dtype=torch.float64)
-    slope = (env.ideal_q_deg(d + 1e-4) - env.ideal_q_deg(d - 1e-4)) / 2e-4  # deg per m, [N, 4]
+    slope = _slope(env, d)
     rows = []
     for x, s in zip(distances, slope):
         row = {"distance_m": x}
@@ -109,19 +114,18 @@ def _trials(learner, cfg, sets, calibration: int, cache: str | None, key: str) -
     from pathlib import Path
 
     from aectorch.evaluate import run_trials
-    from aectorch.experiment import calibration_conditions
+    from aectorch.experiment import build_textures, calibration_conditions, trial_options
 
     if cache and Path(cache).exists():
         stored = torch.load(cache, weights_only=False)
         if stored["checkpoint"] == key and set(stored["sets"]) >= {n for n, *_ in sets} \
                 and stored["calibration"] >= calibration:
             return stored["sets"]
-    common = dict(renderer=cfg.env.renderer, batch_size=cfg.eval.batch_size,
-                  fixation_iterations=cfg.env.fixation_iterations, shift_m=cfg.env.shift_m)
+    common = trial_options(cfg)
     out = {name: run_trials(learner, bank, distances_m=distances, progress=name, **common)
            for name, bank, distances in sets}
     if calibration:
-        train = _train_bank(cfg)
+        train = build_textures(cfg.env.textures, "train", cfg)
         distances = [float(x) for x in cfg.env.distances_m]
         conditions = calibration_conditions(calibration, len(train), distances)
         out["calibration"] = run_trials(learner, train, distances_m=distances, seed=cfg.seed,
@@ -129,12 +133,6 @@ def _trials(learner, cfg, sets, calibration: int, cache: str | None, key: str) -
     if cache:
         torch.save({"checkpoint": key, "sets": out, "calibration": calibration}, cache)
     return out
-
-
-def _train_bank(cfg):
-    from aectorch.sim import TextureBank
-
-    return TextureBank.default("train") if cfg.env.textures is None else TextureBank.from_folder(cfg.env.textures)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -149,17 +147,18 @@ def main(argv: list[str] | None = None) -> int:
     if any(n < 10 for n in args.calibration):
         parser.error(f"--calibration counts must be at least 10 (a fit needs 10), got {args.calibration}")
 
-    from aectorch.experiment import load_learner
-    from aectorch.sim import DEFAULT_DISTANCES_M, ActiveDepthEnv, TextureBank
+    from aectorch.experiment import build_textures, load_learner
+    from aectorch.sim import DEFAULT_DISTANCES_M, ActiveDepthEnv
 
     torch.set_num_threads(1)
     cfg, learner = load_learner(args.checkpoint)
-    test = TextureBank.default("test") if cfg.eval.textures is None else TextureBank.from_folder(cfg.eval.textures)
+    test = build_textures(cfg.eval.textures, "test", cfg)
     sets = [("textures", test, [float(x) for x in cfg.eval.distances_m])]
     if args.photos:
-        sets.append(("photos", TextureBank.from_folder(args.photos), list(DEFAULT_DISTANCES_M)))
-    trials = _trials(learner, cfg, sets, max(args.calibration, default=0), args.cache,
-                     os.path.abspath(args.checkpoint))
+        sets.append(("photos", build_textures(args.photos, "test", cfg), list(DEFAULT_DISTANCES_M)))
+    # What the cached trials depend on besides the calibration count: the checkpoint and the photographs.
+    key = f"{os.path.abspath(args.checkpoint)}|{os.path.abspath(args.photos) if args.photos else ''}"
+    trials = _trials(learner, cfg, sets, max(args.calibration, default=0), args.cache, key)
 
     names = [name for name, *_ in sets]
     fitted = {name: {"MLP": learner.predict_depth(trials[name]["q_deg"]).cpu()} for name in names}

@@ -284,14 +284,16 @@ class ActiveDepthEnv:
         self.pan_deg = self.head.clamp_pan_deg(
             torch.stack((left, left + self._uniform(self.vergence_start_deg)), dim=-1)
         )
-        left = self.pan_deg[:, 0]
-        # The fixation target: where the left axis meets the plane at the starting position.
-        start = self.head.eye_centres(zero)[:, 0]  # [B, 3]
-        along = torch.tan(torch.deg2rad(left)) * (self.plane_x_m - start[:, 0])
-        self.target_m = torch.stack((self.plane_x_m, start[:, 1] + along, start[:, 2]), dim=-1)
+        self.target_m = self._fixation_target(self.pan_deg[:, 0], self.plane_x_m)
         self._start_pans = self.pan_deg
         self._first_image: Tensor | None = None
         self._first_roll: Tensor | None = None
+
+    def _fixation_target(self, left_pan_deg: Tensor, plane_x_m: Tensor) -> Tensor:
+        """The fixation target ``[N, 3]``: where the left axis meets the plane at the start position."""
+        start = self.head.eye_centres(torch.zeros_like(plane_x_m))[:, 0]  # [N, 3]
+        along = torch.tan(torch.deg2rad(left_pan_deg)) * (plane_x_m - start[:, 0])
+        return torch.stack((plane_x_m, start[:, 1] + along, start[:, 2]), dim=-1)
 
     def set_pan_deg(self, pan_deg) -> None:
         """Put the eyes at the given pans ``[B, 2]`` (left, right; degrees), within their limits.
@@ -355,13 +357,10 @@ class ActiveDepthEnv:
         if d.dim() != 1 or not bool((d > 0).all()):
             raise ValueError(f"distance_m must be a [N] tensor of distances > 0 (metres), got {d!r}")
         plane_x = d + float(self.head.eye_x_m)
-        zero = torch.zeros_like(d)
-        start = self.head.eye_centres(zero)[:, 0]
-        along = math.tan(math.radians(float(start_pan_deg))) * (plane_x - start[:, 0])
-        target = torch.stack((plane_x, start[:, 1] + along, start[:, 2]), dim=-1)
+        target = self._fixation_target(torch.full_like(d, float(start_pan_deg)), plane_x)
         columns = []
         for direction in (1.0, -1.0):
-            shift = zero + direction * self.shift_m
+            shift = torch.full_like(d, direction * self.shift_m)
             left = self.head.pursuit_pan_deg(target, shift)
             columns += [left, self.head.vergence_pan_deg(left, plane_x, shift) - left]
         return torch.stack(columns, dim=-1)
