@@ -386,6 +386,81 @@ def test_env_perfect_controller_reaches_zero_error(bank):
     assert info.pursuit_error_deg.abs().max() < 1e-9 and info.vergence_error_deg.abs().max() < 1e-9
 
 
+def _perfect_fixation(env, max_step_deg):
+    """Run one fixation with a controller that knows the geometry and moves at most
+    ``max_step_deg`` per step; the pursuit and vergence errors after every iteration."""
+    errors = []
+    for _ in range(env.fixation_iterations):
+        env.parallax_observation()
+        env.apply_pursuit((env.optimal_left_pan_deg() - env.left_pan_deg).clamp(-max_step_deg, max_step_deg))
+        env.stereo_observation()
+        info = env.apply_vergence(
+            (env.optimal_right_pan_deg() - env.right_pan_deg).clamp(-max_step_deg, max_step_deg))
+        errors.append((info.pursuit_error_deg.abs().max().item(), info.vergence_error_deg.abs().max().item()))
+    return errors, info
+
+
+def test_env_spread_shift_moves_the_body_linearly_then_holds(bank):
+    env = small_env(bank, fixation_iterations=30, shift_iterations=20, dtype=torch.float64)
+    env.set_trial(torch.tensor([0, 1, 2]), torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
+    shifts = []
+    for fixation in (0, 1):
+        for i in range(30):
+            shifts.append(env.body_shift_m.clone())
+            assert env.fixation == fixation and env.iteration == i
+            run_iteration(env, torch.zeros(3), torch.zeros(3))
+    shifts = torch.stack(shifts)[:, 0]
+    expected = 0.1 * torch.tensor([min(1.0, (i + 1) / 20) for i in range(30)], dtype=torch.float64)
+    torch.testing.assert_close(shifts[:30], expected)
+    torch.testing.assert_close(shifts[30:], -expected)
+    # the first image of the parallax pair stays the fixation's start (straight ahead, no shift)
+    env.set_trial(torch.tensor([0, 1, 2]), torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
+    first = env.parallax_observation()[:, 0]
+    run_iteration(env, torch.zeros(3), torch.zeros(3))
+    torch.testing.assert_close(env.parallax_observation()[:, 0], first, rtol=0, atol=0)
+    zero = env._render(torch.zeros(3, dtype=torch.float64), torch.zeros(3, 2, dtype=torch.float64), slice(0, 1))[:, 0]
+    torch.testing.assert_close(first, zero, rtol=0, atol=0)
+
+
+def test_env_paper_steps_follow_a_spread_shift_with_yoked_pursuit(bank):
+    """The geometry of the protocol's reading (docs/paper-mapping.md): at 1 m an instant 0.1 m shift
+    needs 5.7 deg of pursuit, 29 of the paper's 0.2 deg steps, and the right eye alone needs
+    9.1 deg in the rightward fixation; spread over 20 iterations with both eyes pursuing, a
+    controller limited to the paper's largest step tracks the target within a step all along and
+    ends both fixations on target."""
+    d = torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64)
+    instant = small_env(bank, fixation_iterations=30, dtype=torch.float64)
+    instant.set_trial(torch.tensor([0, 1, 2]), d)
+    ideal = instant.ideal_q_deg()
+    torch.testing.assert_close(ideal[0, 0], torch.tensor(-5.7106, dtype=torch.float64), atol=1e-3, rtol=0)
+    assert abs(ideal[0, 2] + ideal[0, 3]) > 9.0  # the right eye's turn in the rightward fixation
+    errors, _ = _perfect_fixation(instant, 0.2)
+    assert errors[0][0] > 5.5 and errors[-1][0] < 1e-9  # 5.7 deg behind at first; 29 steps catch up
+    errors, _ = _perfect_fixation(instant, 0.2)
+    assert errors[-1][1] > 2.5  # 30 steps of 0.2 deg cannot turn the right eye 9.1 deg
+
+    spread = small_env(bank, fixation_iterations=30, shift_iterations=20, yoked_pursuit=True, dtype=torch.float64)
+    spread.set_trial(torch.tensor([0, 1, 2]), d)
+    for fixation in (0, 1):
+        errors, info = _perfect_fixation(spread, 0.2)
+        assert info.fixation_end and info.fixation == fixation
+        assert max(e[0] for e in errors) < 1.75  # the lag of 0.2 deg steps behind 0.29 deg per iteration
+        assert errors[-1][0] < 1e-9 and errors[-1][1] < 1e-9
+    assert info.trial_end
+    torch.testing.assert_close(info.q_deg, ideal, atol=1e-9, rtol=0)
+
+
+def test_env_yoked_pursuit_moves_both_eyes(bank):
+    env = small_env(bank, yoked_pursuit=True)
+    env.apply_pursuit(torch.tensor([0.2, -0.1, 0.0]))
+    torch.testing.assert_close(env.pan_deg, torch.tensor([[0.2, 0.2], [-0.1, -0.1], [0.0, 0.0]]))
+    env.apply_vergence(torch.tensor([0.05, 0.0, -0.05]))
+    torch.testing.assert_close(env.vergence_deg, torch.tensor([0.05, 0.0, -0.05]))
+    alone = small_env(bank)
+    alone.apply_pursuit(torch.tensor([0.2, -0.1, 0.0]))
+    torch.testing.assert_close(alone.right_pan_deg, torch.zeros(3))
+
+
 def test_env_start_states_and_limits(bank):
     env = small_env(bank, pursuit_start_deg=(-1.0, 1.0), vergence_start_deg=(-2.0, 2.0))
     assert env.left_pan_deg.abs().max() <= 1.0 and env.vergence_deg.abs().max() <= 2.0
@@ -434,6 +509,9 @@ def test_env_torch_and_pyrender_observations_match(bank):
         ({"textures": torch.rand(64, 64)}, ValueError, r"\[N, H, W\]"),
         ({"window": "middle"}, ValueError, "window"),
         ({"fixation_iterations": 0}, ValueError, "fixation_iterations"),
+        ({"shift_iterations": 0}, ValueError, "shift_iterations"),
+        ({"shift_iterations": 31}, ValueError, "shift_iterations"),
+        ({"yoked_pursuit": 1}, ValueError, "yoked_pursuit"),
     ],
 )
 def test_env_rejects_bad_configuration(bank, kwargs, error, match):

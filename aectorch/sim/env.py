@@ -114,6 +114,14 @@ class ActiveDepthEnv:
             centres along the robot's forward axis; each > 0); default 1.0 .. 3.0 m in 0.1 m steps.
         fixation_iterations: h, iterations per fixation (paper: 30).
         shift_m: δ, the body's lateral shift in each fixation (paper: 0.1 m).
+        shift_iterations: n, the body movement's profile: during iteration ``i`` (0-based) of a
+            fixation the body is at ``min(1, (i + 1) / n) * shift_m``, so the shift grows
+            linearly over the first n iterations and is then held (the paper's "successive images
+            during the self-induced lateral body movement"). 1 (default) puts the whole shift
+            before the first iteration. 1 <= n <= ``fixation_iterations``.
+        yoked_pursuit: the pursuit increment moves both eyes (Hering's law of equal innervation),
+            so vergence only has to add the convergence; ``False`` (default): it moves the
+            dominant (left) eye alone and the right eye must follow through vergence.
         pursuit_start_deg: left-eye pan at each fixation's start: a number or a ``(low, high)``
             range drawn uniformly per environment and fixation.
         vergence_start_deg: right pan minus left pan at each fixation's start (0 = parallel),
@@ -152,6 +160,8 @@ class ActiveDepthEnv:
         distances_m: Sequence[float] = DEFAULT_DISTANCES_M,
         fixation_iterations: int = 30,
         shift_m: float = 0.1,
+        shift_iterations: int = 1,
+        yoked_pursuit: bool = False,
         pursuit_start_deg=0.0,
         vergence_start_deg=0.0,
         window: str | PixelWindow = "crops",
@@ -177,6 +187,12 @@ class ActiveDepthEnv:
             raise ValueError(f"fixation_iterations must be an int >= 1, got {fixation_iterations!r}")
         if not (isinstance(shift_m, (int, float)) and math.isfinite(shift_m) and shift_m >= 0):
             raise ValueError(f"shift_m must be a number >= 0 (metres), got {shift_m!r}")
+        if (isinstance(shift_iterations, bool) or not isinstance(shift_iterations, int)
+                or not 1 <= shift_iterations <= fixation_iterations):
+            raise ValueError(f"shift_iterations must be an int in [1, fixation_iterations={fixation_iterations}], "
+                             f"got {shift_iterations!r}")
+        if not isinstance(yoked_pursuit, bool):
+            raise ValueError(f"yoked_pursuit must be True or False, got {yoked_pursuit!r}")
         if dtype not in (torch.float32, torch.float64):
             raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
         self.num_envs = num_envs
@@ -190,6 +206,8 @@ class ActiveDepthEnv:
         self.dtype = dtype
         self.fixation_iterations = fixation_iterations
         self.shift_m = float(shift_m)
+        self.shift_iterations = shift_iterations
+        self.yoked_pursuit = yoked_pursuit
         self.pursuit_start_deg = _range_or_value(pursuit_start_deg, "pursuit_start_deg")
         self.vergence_start_deg = _range_or_value(vergence_start_deg, "vergence_start_deg")
         self.camera = camera or PinholeCamera()
@@ -277,9 +295,7 @@ class ActiveDepthEnv:
     def _start_fixation(self, fixation: int) -> None:
         self.fixation = fixation
         self.iteration = 0
-        direction = 1.0 if fixation == 0 else -1.0
-        zero = torch.zeros(self.num_envs, dtype=self.dtype, device=self.device)
-        self.body_shift_m = zero + direction * self.shift_m
+        self.body_shift_m = self._body_shift(0)
         left = self._uniform(self.pursuit_start_deg)
         self.pan_deg = self.head.clamp_pan_deg(
             torch.stack((left, left + self._uniform(self.vergence_start_deg)), dim=-1)
@@ -288,6 +304,15 @@ class ActiveDepthEnv:
         self._start_pans = self.pan_deg
         self._first_image: Tensor | None = None
         self._first_roll: Tensor | None = None
+
+    def body_shift_fraction(self, iteration: int) -> float:
+        """The fraction of ``shift_m`` the body has moved during ``iteration`` of a fixation."""
+        return min(1.0, (iteration + 1) / self.shift_iterations)
+
+    def _body_shift(self, iteration: int) -> Tensor:
+        direction = 1.0 if self.fixation == 0 else -1.0
+        zero = torch.zeros(self.num_envs, dtype=self.dtype, device=self.device)
+        return zero + direction * self.shift_m * self.body_shift_fraction(iteration)
 
     def _fixation_target(self, left_pan_deg: Tensor, plane_x_m: Tensor) -> Tensor:
         """The fixation target ``[N, 3]``: where the left axis meets the plane at the start position."""
@@ -405,9 +430,12 @@ class ActiveDepthEnv:
         return delta.to(self.dtype)
 
     def apply_pursuit(self, delta_deg: Tensor) -> None:
-        """Add the pursuit increments ``[B]`` (degrees) to the left eye's pan (within its limits)."""
+        """Add the pursuit increments ``[B]`` (degrees) to the left eye's pan (within its limits).
+
+        With ``yoked_pursuit`` the right eye turns by the same increment.
+        """
         delta = self._check_increment(delta_deg, "delta_deg")
-        step = torch.stack((delta, torch.zeros_like(delta)), dim=-1)
+        step = torch.stack((delta, delta if self.yoked_pursuit else torch.zeros_like(delta)), dim=-1)
         self.pan_deg = self.head.clamp_pan_deg(self.pan_deg + step)
 
     def apply_vergence(self, delta_deg: Tensor) -> IterationInfo:
@@ -433,6 +461,8 @@ class ActiveDepthEnv:
             self._start_fixation(1)
         else:
             self.iteration += 1
+            if self.shift_iterations > 1:  # the body moves on
+                self.body_shift_m = self._body_shift(self.iteration)
         return IterationInfo(
             left_pan_deg=info_left,
             right_pan_deg=info_right,
@@ -492,5 +522,6 @@ class ActiveDepthEnv:
         return (
             f"ActiveDepthEnv(num_envs={self.num_envs}, renderer={self.renderer_name!r}, "
             f"textures={len(self.textures)}, h={self.fixation_iterations}, shift_m={self.shift_m}, "
+            f"shift_iterations={self.shift_iterations}, yoked_pursuit={self.yoked_pursuit}, "
             f"window={tuple(self.window)}, device={self.device}, dtype={self.dtype})"
         )
