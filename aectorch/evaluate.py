@@ -32,10 +32,57 @@ from torch import Tensor
 from aectorch._cli import UsageError, parse_key_values, run_main
 from aectorch.sim import DEFAULT_DISTANCES_M, RENDERERS, ActiveDepthEnv, TextureBank
 
-__all__ = ["evaluate", "main", "run_trials", "summarise"]
+__all__ = ["evaluate", "fractions", "main", "per_trial_rows", "run_trials", "summarise",
+           "WITHIN_DEG", "BEYOND_DEG"]
 
 #: Evaluation policies: the argmax action (the protocol) or actions sampled as in training.
 POLICIES = ("greedy", "sampled")
+#: An eye within this many degrees of its optimum counts as on target: one pixel (0.2226 deg/px).
+WITHIN_DEG = 0.22
+#: An eye farther than this from its optimum counts as failed.
+BEYOND_DEG = 2.0
+
+
+def fractions(pursuit_deg: Tensor, vergence_deg: Tensor) -> dict:
+    """The fractions of fixation ends on target (``|error| <= WITHIN_DEG``) and failed
+    (``|error| > BEYOND_DEG``), for pursuit, vergence and both together.
+
+    Args:
+        pursuit_deg, vergence_deg: signed errors of the same fixation ends, any equal shape.
+
+    Example:
+        >>> fractions(torch.tensor([0.1, 0.3, 3.0]), torch.tensor([0.0, 0.1, 0.1]))["both"]
+        {'within': 0.3333333333333333, 'beyond': 0.3333333333333333}
+    """
+    p, v = pursuit_deg.detach().double().reshape(-1).cpu().abs(), vergence_deg.detach().double().reshape(-1).cpu().abs()
+    if p.numel() == 0:
+        return {key: {"within": math.nan, "beyond": math.nan} for key in ("pursuit", "vergence", "both")}
+    return {
+        "pursuit": {"within": float((p <= WITHIN_DEG).double().mean()), "beyond": float((p > BEYOND_DEG).double().mean())},
+        "vergence": {"within": float((v <= WITHIN_DEG).double().mean()), "beyond": float((v > BEYOND_DEG).double().mean())},
+        "both": {"within": float(((p <= WITHIN_DEG) & (v <= WITHIN_DEG)).double().mean()),
+                 "beyond": float(((p > BEYOND_DEG) | (v > BEYOND_DEG)).double().mean())},
+    }
+
+
+def per_trial_rows(trials: dict[str, Tensor], names: Sequence[str]) -> list[dict]:
+    """One JSON row per trial of :func:`run_trials`' output: its texture's name, distance and the
+    signed errors of its final state (the end of its second, rightward fixation), plus both
+    fixation ends' pursuit and vergence errors as ``[leftward, rightward]``."""
+    rows = []
+    for i in range(trials["distance_m"].numel()):
+        p, v = trials["pursuit_deg"][i].tolist(), trials["vergence_deg"][i].tolist()
+        depth = float(trials["depth_error_m"][i])
+        rows.append({
+            "texture": names[int(trials["texture_index"][i])],
+            "distance_m": round(float(trials["distance_m"][i]), 6),
+            "pursuit_error_deg": p[-1],
+            "vergence_error_deg": v[-1],
+            "depth_error_m": depth if math.isfinite(depth) else None,
+            "pursuit_errors_deg": p,
+            "vergence_errors_deg": v,
+        })
+    return rows
 
 
 def summarise(errors: Tensor) -> dict:
@@ -64,21 +111,24 @@ def _conditions(num_textures: int, distances: Sequence[float]) -> tuple[Tensor, 
 
 @contextlib.contextmanager
 def _trial_session(learner, bank: TextureBank, distances: list[float], renderer: str, shift_m: float,
-                   seed: int, bar=None):
-    """``env_for(size, h)``: environments of ``bank`` made once per (size, h), all closed at the end.
+                   seed: int, bar=None, shift_iterations: int = 1, yoked_pursuit: bool = False):
+    """``env_for(size, h, instant=False)``: environments of ``bank`` made once per (size, h,
+    instant), all closed at the end. ``instant`` environments shift the body at once (the vergence
+    test, which starts at the shifted position); the others follow ``shift_iterations``.
 
     For the session the learner's generator (sampled actions) is seeded from ``seed``; it gets
     its own state back afterwards, and the progress bar ``bar`` is closed.
     """
     parameter = next(learner.parameters())
-    envs: dict[tuple[int, int], ActiveDepthEnv] = {}
+    envs: dict[tuple[int, int, bool], ActiveDepthEnv] = {}
 
-    def env_for(size: int, h: int) -> ActiveDepthEnv:
-        if (size, h) not in envs:
-            envs[size, h] = ActiveDepthEnv(size, textures=bank, renderer=renderer, distances_m=distances,
-                                           fixation_iterations=h, shift_m=shift_m, seed=seed,
-                                           device=parameter.device, dtype=parameter.dtype)
-        return envs[size, h]
+    def env_for(size: int, h: int, instant: bool = False) -> ActiveDepthEnv:
+        if (size, h, instant) not in envs:
+            envs[size, h, instant] = ActiveDepthEnv(
+                size, textures=bank, renderer=renderer, distances_m=distances, fixation_iterations=h,
+                shift_m=shift_m, shift_iterations=1 if instant else shift_iterations,
+                yoked_pursuit=yoked_pursuit, seed=seed, device=parameter.device, dtype=parameter.dtype)
+        return envs[size, h, instant]
 
     saved_generator = learner.generator.get_state()
     learner.generator.manual_seed(seed)
@@ -159,6 +209,8 @@ def run_trials(
     batch_size: int = 256,
     fixation_iterations: int = 30,
     shift_m: float = 0.1,
+    shift_iterations: int = 1,
+    yoked_pursuit: bool = False,
     seed: int = 0,
     policy: str = "greedy",
     progress: bool | str = False,
@@ -178,6 +230,8 @@ def run_trials(
         batch_size: environments simulated at once.
         fixation_iterations: h, iterations per fixation.
         shift_m: the body shift.
+        shift_iterations, yoked_pursuit: the body movement's profile and whether pursuit moves
+            both eyes (`ActiveDepthEnv`); a learner is evaluated under the protocol it trained in.
         seed: seeds the environments and, with ``policy="sampled"``, the actions.
         policy: ``"greedy"`` or ``"sampled"``, as for :func:`evaluate`.
         progress: show a progress bar (a string: its label; ``True``: "trials").
@@ -211,7 +265,8 @@ def run_trials(
         from tqdm.auto import tqdm
 
         bar = tqdm(total=index.numel(), desc=progress if isinstance(progress, str) else "trials", unit="trial")
-    with _trial_session(learner, bank, distances, renderer, shift_m, seed, bar) as env_for:
+    with _trial_session(learner, bank, distances, renderer, shift_m, seed, bar,
+                        shift_iterations, yoked_pursuit) as env_for:
         return _paper_trials(learner, index, distance, env_for, batch_size, fixation_iterations, greedy, bar)
 
 
@@ -224,6 +279,8 @@ def evaluate(
     batch_size: int = 256,
     fixation_iterations: int = 30,
     shift_m: float = 0.1,
+    shift_iterations: int = 1,
+    yoked_pursuit: bool = False,
     vergence_test: bool = True,
     offset_deg: float = 2.0,
     steps: int = 20,
@@ -242,6 +299,8 @@ def evaluate(
         renderer: ``"torch"`` or ``"pyrender"``.
         batch_size: environments simulated at once.
         fixation_iterations, shift_m: the trial protocol (paper: 30, 0.1 m).
+        shift_iterations, yoked_pursuit: the body movement's profile and whether pursuit moves
+            both eyes (`ActiveDepthEnv`); a learner is evaluated under the protocol it trained in.
         vergence_test: also run the earlier models' vergence test.
         offset_deg, steps: its initial vergence offsets (uniform in +-offset_deg) and step count.
         seed: seeds the vergence test's offsets.
@@ -252,8 +311,10 @@ def evaluate(
 
     Returns:
         ``pursuit_mae_deg``, ``vergence_mae_deg``, ``depth_mae_m`` and full summaries
-        (:func:`summarise`) under ``pursuit``, ``vergence``, ``depth``; a per-distance
-        breakdown; ``trials``; and ``vergence_test`` when asked.
+        (:func:`summarise`) under ``pursuit``, ``vergence``, ``depth``; ``fractions`` (of the
+        fixation ends within ``WITHIN_DEG`` and beyond ``BEYOND_DEG``, :func:`fractions`);
+        per-distance and per-texture breakdowns (``per_distance``, ``per_texture``); one row per
+        trial (``per_trial``, :func:`per_trial_rows`); ``trials``; and ``vergence_test`` when asked.
     """
     greedy = policy == "greedy"
     distances = _check_trial_arguments(distances_m, batch_size, policy)
@@ -277,8 +338,10 @@ def evaluate(
         names = {"pursuit": "pursuit_mae_deg", "vergence": "vergence_mae_deg", "depth": "depth_mae_m"}
 
         def maes(mask: Tensor) -> dict:
-            """The three MAEs of the trials in ``mask`` (both fixations of each)."""
-            return {names[key]: summarise(x[mask])["mae"] for key, x in errors.items()}
+            """The three MAEs of the trials in ``mask`` (both fixations of each), and the fractions
+            of their fixation ends on target and failed."""
+            return {**{names[key]: summarise(x[mask])["mae"] for key, x in errors.items()},
+                    "fractions": fractions(errors["pursuit"][mask], errors["vergence"][mask])}
 
         summaries = {key: summarise(x) for key, x in errors.items()}
         result = {
@@ -289,6 +352,10 @@ def evaluate(
             "distances_m": distances,
             "per_distance": [{"distance_m": d, **maes((distance - d).abs() < 1e-9)} for d in distances],
             "per_texture": [{"texture": name, **maes(index == i)} for i, name in enumerate(bank.names)],
+            "fractions": fractions(errors["pursuit"], errors["vergence"]),
+            "within_deg": WITHIN_DEG,
+            "beyond_deg": BEYOND_DEG,
+            "per_trial": per_trial_rows(paper, bank.names),
         }
 
         if vergence_test:
@@ -296,7 +363,7 @@ def evaluate(
             finals = []
             with torch.no_grad():
                 for start, stop in chunks:
-                    env = env_for(stop - start, steps)
+                    env = env_for(stop - start, steps, instant=True)
                     env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
                     left = env.optimal_left_pan_deg()
                     offsets = (torch.rand(stop - start, generator=generator, dtype=torch.float64) * 2 - 1) * offset_deg
@@ -321,7 +388,8 @@ def evaluate(
 
     # Sampled actions come from the learner's generator: the session seeds it from ``seed`` for
     # the evaluation and gives the learner its own state back afterwards.
-    with _trial_session(learner, bank, distances, renderer, shift_m, seed, bar) as env_for:
+    with _trial_session(learner, bank, distances, renderer, shift_m, seed, bar,
+                        shift_iterations, yoked_pursuit) as env_for:
         result = run(env_for)
     result["policy"] = policy
     return result
@@ -406,7 +474,8 @@ def _evaluate(argv: list[str]) -> int:
         textures = args["textures"]
     result = evaluate(learner, bank, distances_m=args["depths"], renderer=args["renderer"],
                       batch_size=args["batch_size"], fixation_iterations=cfg.env.fixation_iterations,
-                      shift_m=cfg.env.shift_m, seed=args["seed"], progress=args["progress"],
+                      shift_m=cfg.env.shift_m, shift_iterations=cfg.env.shift_iterations,
+                      yoked_pursuit=cfg.env.yoked_pursuit, seed=args["seed"], progress=args["progress"],
                       policy=args["policy"])
     result.update(checkpoint=args["checkpoint"], textures=textures, renderer=args["renderer"], iteration=iteration)
     with open(args["out"], "w") as f:
@@ -421,6 +490,9 @@ def _evaluate(argv: list[str]) -> int:
         d = row["distance_m"]
         rows.append(f"{d if isinstance(d, str) else f'{d:.2f}':>10} {row['pursuit_mae_deg']:>16.4f} "
                     f"{row['vergence_mae_deg']:>17.4f} {row['depth_mae_m']:>12.4f}")
+    both = result["fractions"]["both"]
+    rows.append(f"fixation ends with pursuit and vergence within {WITHIN_DEG} deg: {both['within']:.1%}; "
+                f"either beyond {BEYOND_DEG} deg: {both['beyond']:.1%}")
     if "vergence_test" in result:
         deg = result["vergence_test"]["degrees"]
         rows.append(f"vergence test: RMSE {deg['rmse']:.4f} deg, median {deg['median']:.4f} deg, n {deg['n']}")

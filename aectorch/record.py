@@ -76,7 +76,8 @@ def _record(argv: list[str]) -> int:
                                        progress=None if args["progress"] else False)
     env = ActiveDepthEnv(args["envs"], textures=bank, renderer=args["renderer"],
                          distances_m=cfg.env.distances_m, fixation_iterations=cfg.env.fixation_iterations,
-                         shift_m=cfg.env.shift_m, seed=args["seed"], device=cfg.env.device,
+                         shift_m=cfg.env.shift_m, shift_iterations=cfg.env.shift_iterations,
+                         yoked_pursuit=cfg.env.yoked_pursuit, seed=args["seed"], device=cfg.env.device,
                          dtype=cfg.env.torch_dtype)
     root = record_trials(learner, env, args["trials"], args["out"], repo_id=args["repo_id"],
                          progress=args["progress"])

@@ -7,7 +7,10 @@ metrics; with ``train.keep_best`` the iteration of ``best.pt``, the state every 
 of), ``evaluation.json`` (the held-out procedural textures evaluated at the end of training)
 and, when present, the file named by ``--eval`` (e.g. an evaluation on unseen
 photographs made with ``python -m aectorch.evaluate ... out=<run>/heldout.json``). It prints one
-markdown row per run and, for two runs or more, the mean and standard deviation.
+markdown row per run and, for two runs or more, the mean and standard deviation. Besides the
+MAEs: the fraction of fixation ends with pursuit and vergence both within 0.22 deg (1 px), the
+fraction with either beyond 2 deg, and the MAEs of the 1.0-1.5 m trials alone (from the
+evaluation's ``per_trial`` rows).
 """
 
 from __future__ import annotations
@@ -34,8 +37,27 @@ COLUMNS = [
     ("depth", "depth MAE (m)"),
     ("depth_median", "depth median abs (m)"),
     ("vtest_rmse", "vergence test RMSE (deg)"),
+    ("within", "both within 0.22 deg"),
+    ("beyond", "either beyond 2 deg"),
+    ("near_pursuit", "1.0-1.5 m pursuit MAE (deg)"),
+    ("near_vergence", "1.0-1.5 m vergence MAE (deg)"),
+    ("near_depth", "1.0-1.5 m depth MAE (m)"),
     ("trials", "trials"),
 ]
+#: The near trials reported apart: distances up to this many metres.
+NEAR_M = 1.5
+
+
+def _near(evaluation: dict) -> dict:
+    """MAEs of the trials at 1.0-1.5 m (both fixation ends of each), from ``per_trial``."""
+    rows = [r for r in evaluation.get("per_trial", []) if r["distance_m"] <= NEAR_M + 1e-9]
+    if not rows:
+        return {"near_pursuit": math.nan, "near_vergence": math.nan, "near_depth": math.nan}
+    pursuit = [abs(e) for r in rows for e in r["pursuit_errors_deg"]]
+    vergence = [abs(e) for r in rows for e in r["vergence_errors_deg"]]
+    depth = [abs(r["depth_error_m"]) for r in rows if r["depth_error_m"] is not None]
+    return {"near_pursuit": statistics.mean(pursuit), "near_vergence": statistics.mean(vergence),
+            "near_depth": statistics.mean(depth) if depth else math.nan}
 
 
 def _row(run: Path, eval_name: str | None) -> dict:
@@ -60,6 +82,9 @@ def _row(run: Path, eval_name: str | None) -> dict:
         "depth": evaluation["depth_mae_m"],
         "depth_median": evaluation["depth"]["median_abs"],
         "vtest_rmse": evaluation.get("vergence_test", {}).get("degrees", {}).get("rmse", math.nan),
+        "within": evaluation.get("fractions", {}).get("both", {}).get("within", math.nan),
+        "beyond": evaluation.get("fractions", {}).get("both", {}).get("beyond", math.nan),
+        **_near(evaluation),
         "trials": evaluation["trials"],
     }
 

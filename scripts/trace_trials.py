@@ -33,7 +33,8 @@ def main(argv: list[str] | None = None) -> int:
     bank = TextureBank.from_folder(args.folder) if args.folder else TextureBank.default("test")
     n = min(args.textures, len(bank))
     env = ActiveDepthEnv(n, textures=bank, fixation_iterations=cfg.env.fixation_iterations,
-                         shift_m=cfg.env.shift_m, seed=0)
+                         shift_m=cfg.env.shift_m, shift_iterations=cfg.env.shift_iterations,
+                         yoked_pursuit=cfg.env.yoked_pursuit, seed=0)
     env.set_trial(torch.arange(n), torch.full((n,), args.distance))
     learner.forget_transitions()
     with torch.no_grad():

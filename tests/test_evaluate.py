@@ -130,3 +130,47 @@ def test_run_trials_runs_the_given_conditions():
         run_trials(learner, bank, distances_m=[1.0, 2.0], conditions=(torch.tensor([3]), torch.tensor([1.0])))
     with pytest.raises(ValueError, match="conditions must be"):
         run_trials(learner, bank, distances_m=[1.0, 2.0], conditions=(torch.tensor([0, 1]), torch.tensor([1.0])))
+
+
+def test_evaluate_writes_one_row_per_trial_and_the_fractions_on_target():
+    bank = TextureBank(torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0)))
+    learner = JointLearner(LearnerConfig(num_atoms=32, depth_every_trials=12),
+                           generator=torch.Generator().manual_seed(0))
+    env = ActiveDepthEnv(4, textures=bank, fixation_iterations=1, seed=0)
+    for _ in range(6):
+        learner.iteration(env)
+    kwargs = dict(distances_m=[1.0, 2.0], batch_size=4, fixation_iterations=4)
+    result = evaluate(learner, bank, vergence_test=False, **kwargs)
+    out = run_trials(learner, bank, **kwargs)
+    rows = result["per_trial"]
+    assert len(rows) == result["trials"] == 6
+    assert [(r["texture"], r["distance_m"]) for r in rows] == [(n, d) for n in bank.names for d in (1.0, 2.0)]
+    for i, row in enumerate(rows):  # signed, the trial's final state: the second fixation's end
+        assert row["pursuit_error_deg"] == pytest.approx(out["pursuit_deg"][i, 1].item())
+        assert row["vergence_error_deg"] == pytest.approx(out["vergence_deg"][i, 1].item())
+        assert row["depth_error_m"] == pytest.approx(out["depth_error_m"][i].item())
+        assert row["pursuit_errors_deg"] == pytest.approx(out["pursuit_deg"][i].tolist())
+    assert np.mean([abs(e) for r in rows for e in r["pursuit_errors_deg"]]) == pytest.approx(result["pursuit_mae_deg"])
+    p, v = out["pursuit_deg"].abs(), out["vergence_deg"].abs()
+    fractions = result["fractions"]
+    assert fractions["pursuit"]["within"] == pytest.approx((p <= 0.22).double().mean().item())
+    assert fractions["vergence"]["beyond"] == pytest.approx((v > 2.0).double().mean().item())
+    assert fractions["both"]["within"] == pytest.approx(((p <= 0.22) & (v <= 0.22)).double().mean().item())
+    assert result["per_distance"][0]["fractions"]["both"]["within"] == pytest.approx(
+        ((p[::2] <= 0.22) & (v[::2] <= 0.22)).double().mean().item())
+    import json
+
+    json.dumps(result)  # JSON-ready
+
+
+def test_evaluate_follows_the_training_protocol():
+    """A learner is evaluated under the body movement and pursuit it trained with: a spread shift
+    with yoked pursuit ends fixations elsewhere than an instant one with the left eye alone."""
+    bank = TextureBank(torch.rand(2, 64, 64, generator=torch.Generator().manual_seed(0)))
+    learner = JointLearner(LearnerConfig(num_atoms=32), generator=torch.Generator().manual_seed(0))
+    kwargs = dict(distances_m=[1.0], batch_size=2, fixation_iterations=6)
+    instant = run_trials(learner, bank, **kwargs)
+    spread = run_trials(learner, bank, shift_iterations=6, yoked_pursuit=True, **kwargs)
+    assert not torch.allclose(instant["vergence_deg"], spread["vergence_deg"])
+    with pytest.raises(ValueError, match="shift_iterations"):
+        run_trials(learner, bank, shift_iterations=7, **kwargs)

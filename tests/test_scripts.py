@@ -149,3 +149,46 @@ def test_depth_readout_compares_read_outs_of_the_same_trials(tmp_path, capsys, s
     assert (tmp_path / "b.json").read_text() == (tmp_path / "a.json").read_text()
     with pytest.raises(SystemExit):
         readout.main([str(tmp_path / "run" / "best.pt"), "--calibration", "5"])
+
+
+def _evaluation(path: Path, trials: list[tuple[str, float, list[float], list[float]]]) -> Path:
+    rows = [{"texture": t, "distance_m": d, "pursuit_error_deg": p[-1], "vergence_error_deg": v[-1],
+             "depth_error_m": 0.01, "pursuit_errors_deg": p, "vergence_errors_deg": v} for t, d, p, v in trials]
+    path.write_text(json.dumps({"per_trial": rows}))
+    return path
+
+
+def test_compare_trials_counts_the_fixation_ends_that_agree(tmp_path, capsys, script):
+    compare = script("compare_trials")
+    a = _evaluation(tmp_path / "a.json", [("x", 1.0, [0.1, 0.0], [0.0, 0.0]), ("y", 2.0, [0.0, 0.0], [0.5, 0.0])])
+    b = _evaluation(tmp_path / "b.json", [("y", 2.0, [0.04, 0.0], [0.0, 0.0]), ("x", 1.0, [0.1, 0.0], [0.0, 0.2])])
+    assert compare.main([str(a), str(b), "--json", str(tmp_path / "c.json")]) == 0
+    result = json.loads((tmp_path / "c.json").read_text())
+    assert result["pursuit"]["agree"] == 1.0  # 0.04 deg apart is within 0.05
+    assert result["vergence"]["agree"] == 0.5 and result["vergence"]["max_difference_deg"] == 0.5
+    assert result["vergence"]["worst"][0]["texture"] == "y" and result["both_agree_trials"] == 0.0
+    assert "pursuit" in capsys.readouterr().out
+    c = _evaluation(tmp_path / "d.json", [("x", 1.0, [0.1, 0.0], [0.0, 0.0])])
+    assert compare.main([str(a), str(c)]) == 2
+    assert "different trials" in capsys.readouterr().err
+
+
+def test_results_table_reports_the_near_trials_and_the_fractions(tmp_path, capsys, script):
+    table = script("results_table")
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.yaml").write_text("seed: 3\n")
+    (run / "summary.json").write_text(json.dumps({
+        "iterations": 10, "train_seconds": 60.0, "best": None,
+        "final": {"pursuit_mae_deg": 0.1, "vergence_mae_deg": 0.2, "depth_mae_m": 0.3}}))
+    evaluation = json.loads(_evaluation(tmp_path / "e.json", [
+        ("x", 1.0, [0.1, -0.3], [0.0, 0.0]), ("x", 1.5, [0.2, 0.2], [0.1, 0.1]), ("x", 3.0, [5.0, 5.0], [0, 0])]).read_text())
+    evaluation.update(pursuit_mae_deg=1.0, vergence_mae_deg=0.0, depth_mae_m=0.01, trials=3,
+                      pursuit={"median_abs": 0.2}, vergence={"median_abs": 0.0}, depth={"median_abs": 0.01},
+                      fractions={"both": {"within": 0.5, "beyond": 0.25}})
+    (run / "evaluation.json").write_text(json.dumps(evaluation))
+    assert table.main([str(run)]) == 0
+    header, _, row = capsys.readouterr().out.splitlines()
+    cells = dict(zip(header.strip("| ").split(" | "), row.strip("| ").split(" | ")))
+    assert cells["1.0-1.5 m pursuit MAE (deg)"] == "0.200" and cells["1.0-1.5 m vergence MAE (deg)"] == "0.050"
+    assert cells["both within 0.22 deg"] == "0.500" and cells["evaluated (best.pt: iteration)"] == "last"
