@@ -138,6 +138,11 @@ class EnvConfig:
             in 0.1 m steps).
         fixation_iterations: h, iterations per fixation (paper: 30).
         shift_m: the body's lateral shift in each fixation, metres (paper: 0.1).
+        shift_iterations: the body movement's profile: the shift grows linearly over the first
+            this many iterations of each fixation and is then held (1 = the whole shift before
+            the first iteration; 1 <= n <= ``fixation_iterations``; `ActiveDepthEnv`).
+        yoked_pursuit: pursuit increments move both eyes (Hering's law), so vergence only adds
+            the convergence; ``false``: the dominant eye alone.
         pursuit_start_deg: left-eye pan at each fixation's start, degrees (paper: 0).
         vergence_start_deg: vergence at each fixation's start, degrees (paper: 0 = parallel).
         pursuit_start_spread_deg: while training, each fixation's start pan is drawn uniformly
@@ -155,6 +160,8 @@ class EnvConfig:
     distances_m: list[float] = field(default_factory=lambda: list(DEFAULT_DISTANCES_M))
     fixation_iterations: int = 30
     shift_m: float = 0.1
+    shift_iterations: int = 1
+    yoked_pursuit: bool = False
     pursuit_start_deg: float = 0.0
     vergence_start_deg: float = 0.0
     pursuit_start_spread_deg: float = 0.0
@@ -173,6 +180,11 @@ class EnvConfig:
         _require_int(owner, "fixation_iterations", self.fixation_iterations, 1)
         if not (_is_real(self.shift_m) and self.shift_m >= 0):
             raise ValueError(f"{owner}.shift_m must be a finite number >= 0 (metres), got {self.shift_m!r}")
+        _require_int(owner, "shift_iterations", self.shift_iterations, 1)
+        if self.shift_iterations > self.fixation_iterations:
+            raise ValueError(f"{owner}.shift_iterations must be <= {owner}.fixation_iterations = "
+                             f"{self.fixation_iterations}, got {self.shift_iterations!r}")
+        _require_bool(owner, "yoked_pursuit", self.yoked_pursuit)
         for name in ("pursuit_start_deg", "vergence_start_deg"):
             if not _is_real(getattr(self, name)):
                 raise ValueError(f"{owner}.{name} must be a finite number (degrees), got {getattr(self, name)!r}")

@@ -81,7 +81,8 @@ def trial_options(cfg: ExperimentConfig) -> dict:
     evaluation's batch size: what the end of `run_experiment` evaluates with.
     """
     return dict(renderer=cfg.env.renderer, batch_size=cfg.eval.batch_size,
-                fixation_iterations=cfg.env.fixation_iterations, shift_m=cfg.env.shift_m)
+                fixation_iterations=cfg.env.fixation_iterations, shift_m=cfg.env.shift_m,
+                shift_iterations=cfg.env.shift_iterations, yoked_pursuit=cfg.env.yoked_pursuit)
 
 
 def _start(value: float, spread: float) -> float | tuple[float, float]:
@@ -100,6 +101,8 @@ def build_env(cfg: ExperimentConfig, shard=None) -> ActiveDepthEnv:
         distances_m=e.distances_m,
         fixation_iterations=e.fixation_iterations,
         shift_m=e.shift_m,
+        shift_iterations=e.shift_iterations,
+        yoked_pursuit=e.yoked_pursuit,
         pursuit_start_deg=_start(e.pursuit_start_deg, e.pursuit_start_spread_deg),
         vergence_start_deg=_start(e.vergence_start_deg, e.vergence_start_spread_deg),
         seed=cfg.seed,
@@ -181,6 +184,9 @@ def checkpoint_config(payload: dict, path: str | os.PathLike) -> ExperimentConfi
     # Checkpoints from before `learner.symmetry` existed learned without the symmetries.
     if isinstance(stored.get("learner"), dict) and "symmetry" not in stored["learner"]:
         stored["learner"] = {**stored["learner"], "symmetry": []}
+    # Checkpoints from before the body movement's profile existed shifted at once, one eye pursuing.
+    if isinstance(stored.get("env"), dict) and "shift_iterations" not in stored["env"]:
+        stored["env"] = {**stored["env"], "shift_iterations": 1, "yoked_pursuit": False}
     try:
         return to_experiment_config(stored)
     except Exception as err:  # unknown keys, wrong types, impossible values
