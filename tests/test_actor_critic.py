@@ -516,3 +516,61 @@ def test_a_normalize_window_follows_drifting_features_and_none_remembers_everyth
     torch.testing.assert_close(windowed.feature_m2 / 199, torch.full((3,), 4.0, dtype=F64), atol=1.0, rtol=0)
     with pytest.raises(ValueError, match="normalize_window must be None or an int >= 2"):
         ActorCriticConfig(normalize_window=1)
+
+
+def _one_update(agent, seed=0, batch=1):
+    g = torch.Generator().manual_seed(seed)
+    f, f2 = torch.rand(2, batch, agent.num_features, generator=g, dtype=torch.float64).unbind(0)
+    actions = torch.randint(agent.num_actions, (batch,), generator=g)
+    before = {k: v.clone() for k, v in agent.state_dict().items()}
+    agent.update(f, actions, -torch.rand(batch, generator=g, dtype=torch.float64), f2)
+    return {k: agent.state_dict()[k] - before[k] for k in ("critic_weight", "advantage_weight", "actor_weight")}
+
+
+def test_batch_reference_scales_a_small_batch_to_per_transition_steps():
+    make = lambda **kw: NaturalActorCritic(6, dtype=torch.float64, generator=torch.Generator().manual_seed(0),
+                                           alpha_v=0.1, alpha_theta=0.5, **kw)
+    full, quarter = _one_update(make()), _one_update(make(batch_reference=4))
+    for key in ("critic_weight", "advantage_weight"):
+        torch.testing.assert_close(quarter[key], full[key] / 4)
+    # the actor takes a quarter step along the new w, itself a quarter step from w = 0
+    torch.testing.assert_close(quarter["actor_weight"], full["actor_weight"] / 16)
+    # a batch as large as the reference (or larger) takes the full step on its mean
+    torch.testing.assert_close(_one_update(make(batch_reference=4), batch=4)["critic_weight"],
+                               _one_update(make(), batch=4)["critic_weight"])
+    with pytest.raises(ValueError, match="batch_reference"):
+        ActorCriticConfig(batch_reference=0)
+
+
+@pytest.mark.parametrize("power", [1.0, 2.0])
+def test_actor_decay_slows_only_the_actor(power):
+    make = lambda **kw: NaturalActorCritic(6, dtype=torch.float64, generator=torch.Generator().manual_seed(0),
+                                           **{"alpha_v": 0.1, "alpha_theta": 0.5, **kw})
+    decayed = make(actor_decay=2.0, actor_decay_power=power)
+    for _ in range(3):
+        _one_update(decayed)
+    assert float(decayed.step_count) == 3.0
+    reference = make(alpha_theta=0.5 * (2.0 / 5.0) ** power)  # the 4th step: t = 3
+    reference.load_state_dict(decayed.state_dict())
+    a, b = _one_update(decayed, seed=7), _one_update(reference, seed=7)
+    torch.testing.assert_close(a["actor_weight"], b["actor_weight"])
+    torch.testing.assert_close(a["critic_weight"], b["critic_weight"])
+    # state saved before the step count existed loads as a count of 0
+    state = decayed.state_dict()
+    del state["step_count"]
+    fresh = make(actor_decay=2.0)
+    fresh.load_state_dict(state)
+    assert float(fresh.step_count) == 0.0
+
+
+def test_normalize_samples_freezes_the_statistics():
+    agent = NaturalActorCritic(6, dtype=torch.float64, normalize_features=True, normalize_samples=4)
+    for seed in range(2):
+        _one_update(agent, seed=seed, batch=3)
+    frozen = (agent.feature_count.clone(), agent.feature_mean.clone(), agent.feature_m2.clone())
+    assert int(frozen[0]) == 6
+    _one_update(agent, seed=5, batch=3)
+    for before, after in zip(frozen, (agent.feature_count, agent.feature_mean, agent.feature_m2)):
+        assert torch.equal(before, after)
+    with pytest.raises(ValueError, match="normalize_samples"):
+        ActorCriticConfig(normalize_samples=1)
