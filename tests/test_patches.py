@@ -131,6 +131,50 @@ def test_pyramid_matches_scipy(shape, levels):
         np.testing.assert_allclose(got[b].numpy(), want, rtol=0, atol=1e-12)
 
 
+def _scipy_centred_pyramid(image: np.ndarray, levels: int) -> np.ndarray:
+    """The centred reduce: the 6-tap binomial, output i over pixels 2i - 2 .. 2i + 3 (scipy centres an
+    even kernel of length 6 on tap 3, so output i is the full-resolution sample 2i + 1)."""
+    taps = np.array([1, 5, 10, 10, 5, 1], dtype=np.float64) / 32
+    for _ in range(levels):
+        image = ndimage.correlate1d(image, taps, axis=0, mode="mirror")
+        image = ndimage.correlate1d(image, taps, axis=1, mode="mirror")
+        image = image[1::2, 1::2]
+    return image
+
+
+@pytest.mark.parametrize("levels", [1, 2, 4])
+def test_centred_pyramid_matches_scipy_and_commutes_with_mirroring(levels):
+    images = _rand(2, 64, 48, seed=levels)
+    got = pyramid_down(images, levels, centred=True)
+    for b in range(2):
+        np.testing.assert_allclose(got[b].numpy(), _scipy_centred_pyramid(images[b].numpy(), levels), rtol=0, atol=1e-12)
+    torch.testing.assert_close(pyramid_down(images.flip(-1), levels, centred=True), got.flip(-1), rtol=0, atol=1e-12)
+    torch.testing.assert_close(pyramid_down(images.flip(-2), levels, centred=True), got.flip(-2), rtol=0, atol=1e-12)
+    # the classic reduce keeps even samples: it does not commute with mirroring
+    classic = pyramid_down(images, levels)
+    assert (pyramid_down(images.flip(-1), levels) - classic.flip(-1)).abs().max() > 1e-3
+    with pytest.raises(ValueError, match="even"):
+        pyramid_down(_rand(1, 10, 10), 2, centred=True)  # 10 -> 5: odd at level 1
+
+
+@pytest.mark.parametrize("name", ["wide", "coarse", "fine", "full"])
+def test_centred_scales_give_the_mirrored_patches_of_mirrored_images(name):
+    import dataclasses
+
+    from aectorch.coding.patches import as_scale, patch_permutation
+
+    scale = dataclasses.replace(as_scale(name), centred=True)
+    assert scale.grid == as_scale(name).grid  # the same patches, placed in the middle
+    assert scale.offset == (1 if name == "fine" else 0)
+    first, second = _rand(2, 3, 128, 128, seed=5).unbind(0)
+    x = extract_patches(first, second, scale)
+    g = scale.grid
+    y = extract_patches(first.flip(-1), second.flip(-1), scale).view(3, g, g, -1).flip(2).reshape(3, g * g, -1)
+    torch.testing.assert_close(y, x[..., patch_permutation(scale.patch_size)], rtol=0, atol=1e-6)
+    with pytest.raises(ValueError, match="centred"):
+        Scale("odd", crop=40, downsample=2, stride=3, centred=True)  # 20 px, patches cover 10 + 3 + 3 + 3
+
+
 def test_pyramid_levels_zero_and_constant():
     x = _rand(1, 9, 9)
     assert pyramid_down(x, 0) is x

@@ -35,6 +35,8 @@ __all__ = [
 # Burt & Adelson's 5-tap binomial kernel, the one OpenCV's pyrDown uses. The taps are dyadic
 # rationals, so they are exact in every float dtype.
 _BINOMIAL_5 = (1.0 / 16, 4.0 / 16, 6.0 / 16, 4.0 / 16, 1.0 / 16)
+#: The centred reduce's kernel: binomial of order 5, symmetric about a half-pixel position.
+_BINOMIAL_6 = (1.0 / 32, 5.0 / 32, 10.0 / 32, 10.0 / 32, 5.0 / 32, 1.0 / 32)
 
 # A flat half only becomes exactly flat after the pyramid and the mean up to rounding, which is a
 # few ulps of the pixel values, i.e. ~1e-7 in float32 -- far above an absolute eps of 1e-8. The
@@ -54,6 +56,12 @@ class Scale:
         patch_size: side of a square monocular patch in pixels of the reduced crop.
         stride: step between neighbouring patches in pixels of the reduced crop (keyword-only,
             no default).
+        centred: mirror-centred sampling (keyword-only, default ``False``): every pyramid level
+            keeps samples centred between two pixels (:func:`pyramid_down` with ``centred``) and
+            the patch grid sits in the middle of the reduced crop, so the patches of mirrored
+            images are exactly the mirrored patches. The classic reduce keeps even samples, which
+            moves the sampling 0.5 px (one level) to 7.5 px (four levels) off the crop's centre,
+            and the fine scale's grid of 8 patches at stride 4 covers columns 0-37 of 40.
 
     Example:
         >>> s = Scale("coarse", crop=128, downsample=8, stride=1)
@@ -66,6 +74,7 @@ class Scale:
     downsample: int
     patch_size: int = 10
     stride: int = field(kw_only=True)
+    centred: bool = field(default=False, kw_only=True)
 
     def __post_init__(self) -> None:
         for name in ("crop", "downsample", "patch_size", "stride"):
@@ -92,6 +101,13 @@ class Scale:
                 f"Scale.patch_size={self.patch_size} does not fit in the reduced crop "
                 f"{side}x{side} (crop {self.crop} / downsample {self.downsample})"
             )
+        if not isinstance(self.centred, bool):
+            raise ValueError(f"Scale.centred must be True or False, got {self.centred!r}")
+        if self.centred and (self.side - self.patch_size - (self.grid - 1) * self.stride) % 2:
+            raise ValueError(
+                f"Scale {self.name!r} cannot be centred: its grid leaves an odd number of the reduced "
+                f"crop's {self.side} px uncovered"
+            )
 
     @property
     def levels(self) -> int:
@@ -107,6 +123,13 @@ class Scale:
     def grid(self) -> int:
         """Patches per side of the grid."""
         return (self.side - self.patch_size) // self.stride + 1
+
+    @property
+    def offset(self) -> int:
+        """First row and column of the patch grid in the reduced crop (0 unless centred)."""
+        if not self.centred:
+            return 0
+        return (self.side - self.patch_size - (self.grid - 1) * self.stride) // 2
 
     @property
     def num_patches(self) -> int:
@@ -211,52 +234,59 @@ def _check_image(images: Tensor, name: str) -> None:
         )
 
 
-def _reduce_matrix_1d(n: int, levels: int) -> Tensor:
+def _reduce_matrix_1d(n: int, levels: int, centred: bool = False) -> Tensor:
     """The 1-D pyramid reduce as a matrix ``[ceil(n / 2**levels), n]`` (float64, CPU)."""
-    taps = torch.tensor(_BINOMIAL_5, dtype=torch.float64)
+    taps = torch.tensor(_BINOMIAL_6 if centred else _BINOMIAL_5, dtype=torch.float64)
     operator = torch.eye(n, dtype=torch.float64)
     for _ in range(levels):
-        # Rows of `operator` are signals; blur each with reflect-101 borders, keep even samples.
+        # Rows of `operator` are signals; blur each with reflect-101 borders, keep even samples
+        # (centred: the 6-tap kernel's output i is centred at 2i + 0.5, between two pixels).
         rows = F.pad(operator.T.unsqueeze(1), (2, 2), mode="reflect")  # [n, 1, m + 4]
-        operator = F.conv1d(rows, taps.view(1, 1, 5), stride=2).squeeze(1).T  # [ceil(m/2), n]
+        operator = F.conv1d(rows, taps.view(1, 1, -1), stride=2).squeeze(1).T  # [ceil(m/2), n]
     return operator
 
 
 _REDUCE_CACHE: dict[tuple, Tensor] = {}
 
 
-def _reduce_matrix(n: int, levels: int, dtype: torch.dtype, device: torch.device) -> Tensor:
+def _reduce_matrix(n: int, levels: int, dtype: torch.dtype, device: torch.device,
+                   centred: bool = False) -> Tensor:
     if torch.compiler.is_compiling():  # traced (and constant-folded) inside a compiled graph
-        return _reduce_matrix_1d(n, levels).to(dtype=dtype, device=device)
-    key = (n, levels, dtype, device)
+        return _reduce_matrix_1d(n, levels, centred).to(dtype=dtype, device=device)
+    key = (n, levels, dtype, device, centred)
     matrix = _REDUCE_CACHE.get(key)
     if matrix is None:
-        matrix = _REDUCE_CACHE[key] = _reduce_matrix_1d(n, levels).to(dtype=dtype, device=device)
+        matrix = _REDUCE_CACHE[key] = _reduce_matrix_1d(n, levels, centred).to(dtype=dtype, device=device)
     return matrix
 
 
-def _pyramid_down(x: Tensor, levels: int) -> Tensor:
+def _pyramid_down(x: Tensor, levels: int, centred: bool = False) -> Tensor:
     """Reduce a ``[N, 1, H, W]`` tensor ``levels`` times; no checks.
 
     The reduce is linear and separable, so all levels fold into one matrix per axis and the whole
     pyramid is two matrix products, ``R_h X R_w^T`` (several times faster than per-level
     single-channel convolutions on CPU).
     """
-    rows = _reduce_matrix(x.shape[-2], levels, x.dtype, x.device)
-    cols = rows if x.shape[-1] == x.shape[-2] else _reduce_matrix(x.shape[-1], levels, x.dtype, x.device)
+    rows = _reduce_matrix(x.shape[-2], levels, x.dtype, x.device, centred)
+    cols = rows if x.shape[-1] == x.shape[-2] else _reduce_matrix(x.shape[-1], levels, x.dtype, x.device, centred)
     return rows @ x @ cols.T
 
 
-def pyramid_down(images: Tensor, levels: int) -> Tensor:
+def pyramid_down(images: Tensor, levels: int, *, centred: bool = False) -> Tensor:
     """Gaussian-pyramid reduce ``images`` ``levels`` times (Burt & Adelson, like ``cv2.pyrDown``).
 
     Each level blurs with the separable binomial kernel [1, 4, 6, 4, 1] / 16 along both axes,
     with reflect-101 borders (``... c b | a b c ... | ... b c``, no edge pixel repeated), and keeps
-    the pixels with even row and column indices, so a side n becomes ceil(n / 2).
+    the pixels with even row and column indices, so a side n becomes ceil(n / 2). With
+    ``centred`` the kernel is [1, 5, 10, 10, 5, 1] / 32 over pixels 2i - 2 .. 2i + 3, so output i
+    is centred at 2i + 0.5, between two pixels: the reduce of a mirrored image is the mirrored
+    reduce (even sides only), which the classic one, whose samples sit 0.5 px left of centre at
+    every level, is not.
 
     Args:
         images: grey images, any floating dtype, any device.
         levels: number of reductions (0 returns ``images`` unchanged).
+        centred: the mirror-centred reduce (every intermediate side must be even).
 
     Returns:
         The reduced images, same dtype and device as ``images``.
@@ -282,10 +312,12 @@ def pyramid_down(images: Tensor, levels: int) -> Tensor:
                 f"images of shape {tuple(images.shape)} are too small for {levels} pyramid levels: "
                 f"level {level} would read a {h}x{w} image, reflect-101 borders need >= 3 px"
             )
+        if centred and (h % 2 or w % 2):
+            raise ValueError(f"centred=True needs even sides at every level; level {level} reads a {h}x{w} image")
         h, w = (h + 1) // 2, (w + 1) // 2
     if levels == 0:
         return images
-    return _pyramid_down(images.unsqueeze(1), levels).squeeze(1)
+    return _pyramid_down(images.unsqueeze(1), levels, centred).squeeze(1)
 
 
 def extract_patches(
@@ -360,7 +392,10 @@ def extract_patches(
     top, left = (h - crop) // 2, (w - crop) // 2
     # One pyramid call for both eyes: [B, 2, crop, crop] viewed as 2B single-channel images.
     pair = torch.stack((first, second), dim=1)[:, :, top : top + crop, left : left + crop]
-    reduced = _pyramid_down(pair.reshape(2 * b, 1, crop, crop), scale.levels)
+    reduced = _pyramid_down(pair.reshape(2 * b, 1, crop, crop), scale.levels, scale.centred)
+    if scale.offset:  # a centred grid
+        o = scale.offset
+        reduced = reduced[..., o:scale.side - o, o:scale.side - o]
 
     p, stride, g = scale.patch_size, scale.stride, scale.grid
     # [2B, 1, side, side] -> [2B, 1, g, g, p, p]: grid row, grid column, pixel row, pixel column.
