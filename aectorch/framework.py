@@ -28,15 +28,17 @@ per-environment updates (see the learners' docstrings).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
 import torch
 from torch import Tensor, nn
 
 from aectorch.coding import BinocularEncoder
-from aectorch.coding.patches import DEFAULT_SCALES, SCALE_NAMES
+
+from aectorch.coding.patches import DEFAULT_SCALES, SCALE_NAMES, as_scale
 from aectorch.control import ActorCriticConfig, NaturalActorCritic
 from aectorch.depth import DepthMLP, fit_levenberg_marquardt
 from aectorch.profiling import stage
@@ -63,7 +65,8 @@ def default_control() -> ActorCriticConfig:
     estimate the advantage, the actor follows them with step 10.
     """
     return ActorCriticConfig(alpha_v=0.001, alpha_theta=10.0, critic_discount=0.3,
-                             normalize_features=True, actor_init=0.01, critic_init=0.0)
+                             normalize_features=True, actor_init=0.01, critic_init=0.0,
+                             batch_reference=64, feature_norm=30.0, actor_decay=1000.0)
 
 
 #: The depth MLP is first fitted once this many trials are stored (fewer cannot hold out a
@@ -87,7 +90,20 @@ class LearnerConfig:
             :data:`DEFAULT_SCALES`, ``("wide", "coarse", "fine")``: the paper's ``("coarse",
             "fine")`` and ``"wide"`` (`aectorch.coding.patches.WIDE`, not in the paper: the
             coarse crop at 3.56 deg/px). ``"full"`` (the central 40 px unreduced) is optional.
+        centred_patches: mirror-centred sampling at every scale (`aectorch.coding.patches.Scale`'s
+            ``centred``): each pyramid level samples between pixel pairs and the fine scale's
+            patch grid sits in the middle of its crop, so the patches of mirrored images are the
+            mirrored patches and the parallax cue's symmetry holds exactly. ``False`` is the classic
+            reduce (``cv2.pyrDown``), whose samples drift 0.5-7.5 px left of the crop's centre:
+            measured on a trained learner, the features of a mirrored pair then differ from the
+            permuted features by 14-60 % (by scale), so the mirrored transitions the symmetry
+            learns from are not the real ones.
         dictionary_lr: dictionary learning rate per iteration (the lineage: 0.01-0.5; default 0.1).
+        dictionary_decay: ``None`` (default: a constant rate), or tau (> 0): the dictionaries'
+            rate decays as ``dictionary_lr * (tau / (tau + t)) ** dictionary_decay_power`` after t
+            dictionary steps, so the code settles once the eye movements have shaped it (the
+            lineage raised its rate over training; online dictionary learning decays it).
+        dictionary_decay_power: p of ``dictionary_decay`` (> 0).
         pooling: ``"mean"`` over patches (the lineage; keeps the features' norm near 1, which the
             critic's step size needs) or ``"sum"`` (eq. 3 literally).
         feature_scale: the features f the actor-critics see are ``feature_scale * f``. The
@@ -134,7 +150,10 @@ class LearnerConfig:
     sparsity: int = 10
     algorithm: str = "mp"
     scales: tuple[str, ...] = DEFAULT_SCALES
+    centred_patches: bool = True
     dictionary_lr: float = 0.1
+    dictionary_decay: Optional[float] = 500.0
+    dictionary_decay_power: float = 1.0
     pooling: str = "mean"
     feature_scale: float = 10.0
     actions_deg: tuple[float, ...] = DEFAULT_ACTIONS_DEG
@@ -187,6 +206,16 @@ class LearnerConfig:
             raise ValueError(f"LearnerConfig.feature_scale must be a number > 0, got {self.feature_scale!r}")
         if not (isinstance(self.dictionary_lr, (int, float)) and self.dictionary_lr >= 0):
             raise ValueError(f"LearnerConfig.dictionary_lr must be a number >= 0, got {self.dictionary_lr!r}")
+        if not isinstance(self.centred_patches, bool):
+            raise ValueError(f"LearnerConfig.centred_patches must be true or false, got {self.centred_patches!r}")
+        if self.dictionary_decay is not None and not (
+                isinstance(self.dictionary_decay, (int, float)) and not isinstance(self.dictionary_decay, bool)
+                and math.isfinite(self.dictionary_decay) and self.dictionary_decay > 0):
+            raise ValueError(f"LearnerConfig.dictionary_decay must be null or a number > 0, got {self.dictionary_decay!r}")
+        if not (isinstance(self.dictionary_decay_power, (int, float)) and not isinstance(self.dictionary_decay_power, bool)
+                and math.isfinite(self.dictionary_decay_power) and self.dictionary_decay_power > 0):
+            raise ValueError("LearnerConfig.dictionary_decay_power must be a number > 0, "
+                             f"got {self.dictionary_decay_power!r}")
         if isinstance(self.control, dict):
             self.control = ActorCriticConfig(**self.control)
 
@@ -253,8 +282,10 @@ class JointLearner(nn.Module):
         self.shard = shard
         self.config = config = config or LearnerConfig()
         self.generator = generator or torch.Generator().manual_seed(0)
+        scales = [dataclasses.replace(as_scale(s), centred=True) if config.centred_patches else s
+                  for s in config.scales]
         kwargs = dict(num_atoms=config.num_atoms, sparsity=config.sparsity, algorithm=config.algorithm,
-                      scales=config.scales, lr=config.dictionary_lr, pooling=config.pooling,
+                      scales=scales, lr=config.dictionary_lr, pooling=config.pooling,
                       generator=self.generator, dtype=dtype, device=device)
         self.parallax = BinocularEncoder(**kwargs, symmetry="mirror" if "parallax" in config.symmetry else None)
         self.stereo = BinocularEncoder(**kwargs, symmetry="swap" if "stereo" in config.symmetry else None)
@@ -290,6 +321,14 @@ class JointLearner(nn.Module):
         self.register_buffer("depth_trained", torch.zeros((), dtype=torch.bool, device=device))
         self.trials_seen = 0
         self._trials_at_last_fit = 0
+        self.dictionary_steps = {"m": 0, "s": 0}  # learning steps each cue's dictionaries took
+
+    def dictionary_rate(self, steps: int) -> float:
+        """The dictionaries' learning rate after ``steps`` steps (``dictionary_decay``)."""
+        c = self.config
+        if c.dictionary_decay is None:
+            return c.dictionary_lr
+        return c.dictionary_lr * (c.dictionary_decay / (c.dictionary_decay + steps)) ** c.dictionary_decay_power
 
     # -- one cue -------------------------------------------------------------------------------
     def _cue(self, key: str, encoder: BinocularEncoder, agent: NaturalActorCritic, pair: Tensor,
@@ -323,7 +362,8 @@ class JointLearner(nn.Module):
                 action = agent.act(features, uniform=shard.draw(u)[:, 0])
         if learn and self.config.dictionary_lr > 0:
             with stage("dictionary"):
-                encoder.learn_(out, reduce=reduce)
+                encoder.learn_(out, self.dictionary_rate(self.dictionary_steps[key]), reduce=reduce)
+                self.dictionary_steps[key] += 1
         # Without learning there is no transition to complete on the next step.
         self._previous[key] = (features, action.actions, reward) if learn else None
         with stage("metrics"):
@@ -457,6 +497,7 @@ class JointLearner(nn.Module):
             "trials_at_last_fit": self._trials_at_last_fit,
             "previous": self._previous,
             "generator": self.generator.get_state(),
+            "dictionary_steps": dict(self.dictionary_steps),
         }
 
     def set_extra_state(self, state: dict) -> None:
@@ -464,6 +505,8 @@ class JointLearner(nn.Module):
         self._trials_at_last_fit = int(state["trials_at_last_fit"])
         self._previous = state["previous"]
         self.generator.set_state(state["generator"])
+        # Checkpoints from before the count existed: their learners had a constant rate.
+        self.dictionary_steps = dict(state.get("dictionary_steps", {"m": 0, "s": 0}))
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
         # The depth buffers grow during training: take the checkpoint's size.

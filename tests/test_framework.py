@@ -218,3 +218,70 @@ def test_symmetry_config_is_validated():
     LearnerConfig(actions_deg=(-1.0, 0.0, 0.5), symmetry=())
     with pytest.raises(ValueError, match="num_atoms must be even"):
         LearnerConfig(num_atoms=33)
+
+
+@pytest.mark.parametrize("num_envs", [1, 4])
+def test_small_batches_train_with_the_default_steps(num_envs):
+    """B = 1 (the paper's sequential algorithm) and B = 4 with the default learner and world: the
+    TD errors stay far below the watchdog's limit and the policies keep exploring. With the
+    defaults until 2026-12-02 (z-scored features of any norm, every update's full step on the mean
+    of its B transitions) B = 1's first z-scores, from a handful of samples, are huge and its
+    critic diverges within a few dozen iterations."""
+    from aectorch.framework import default_control
+    from aectorch.watchdog import WatchdogConfig
+
+    limit = WatchdogConfig().td_error_max
+
+    def run(control):
+        env = ActiveDepthEnv(num_envs, seed=0, shift_iterations=20, yoked_pursuit=True)
+        learner = JointLearner(LearnerConfig(control=control), generator=torch.Generator().manual_seed(0))
+        worst, entropy = 0.0, []
+        for _ in range(60):
+            record = learner.iteration(env)
+            for cue in (record.parallax, record.stereo):
+                if cue.td_error is not None:
+                    worst = max(worst, float(cue.td_error.abs().max()))
+                entropy.append(float(cue.entropy.mean()))
+        return worst, min(entropy)
+
+    control = default_control()
+    assert control.batch_reference is not None
+    worst, entropy = run(control)
+    assert worst < limit / 10 and entropy > 1.0, (worst, entropy)
+    if num_envs == 1:
+        import dataclasses
+
+        worst, _ = run(dataclasses.replace(control, batch_reference=None, feature_norm=None))
+        assert worst > limit, worst
+
+
+def test_centred_patches_make_the_parallax_features_exactly_mirror_equivariant():
+    """The symmetry learns from mirrored transitions with the features permuted: with centred
+    sampling those are the features of the mirrored images; with the classic reduce they are not."""
+    gen = torch.Generator().manual_seed(1)
+    first, second = torch.nn.functional.avg_pool2d(torch.rand(2, 3, 132, 132, generator=gen), 5, 1).unbind(0)
+    gaps = {}
+    for centred in (False, True):
+        learner = JointLearner(LearnerConfig(centred_patches=centred), generator=torch.Generator().manual_seed(0))
+        encoder = learner.parallax
+        with torch.no_grad():
+            f = encoder(first, second).features
+            mirrored = encoder(first.flip(-1), second.flip(-1)).features
+        gaps[centred] = float(((mirrored - f[:, encoder.feature_permutation]).norm(dim=1) / f.norm(dim=1)).max())
+    assert gaps[True] < 1e-4 and gaps[False] > 0.1, gaps
+    with pytest.raises(ValueError, match="centred_patches"):
+        LearnerConfig(centred_patches="yes")
+
+
+def test_dictionary_rate_decays_and_resumes():
+    env, learner = make(dictionary_decay=2.0, dictionary_decay_power=2.0)
+    assert learner.dictionary_rate(0) == pytest.approx(0.1) and learner.dictionary_rate(2) == pytest.approx(0.025)
+    before = learner.parallax.dictionaries["fine"].atoms.clone()
+    learner.iteration(env)
+    assert learner.dictionary_steps == {"m": 1, "s": 1}
+    assert not torch.equal(before, learner.parallax.dictionaries["fine"].atoms)
+    twin = make(dictionary_decay=2.0, dictionary_decay_power=2.0)[1]
+    twin.load_state_dict(learner.state_dict())
+    assert twin.dictionary_steps == {"m": 1, "s": 1}
+    with pytest.raises(ValueError, match="dictionary_decay"):
+        LearnerConfig(dictionary_decay=0)

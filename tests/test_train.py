@@ -260,6 +260,8 @@ def test_preset_paper_and_perturbation_fractions():
         roll = to_experiment_config(compose(config_name="train", overrides=["+experiment=roll_perturbation"]))
     assert list(paper.learner.actions_deg) == PAPER_PRESET["learner.actions_deg"]
     assert paper.learner.num_atoms == 32 and paper.env.fixation_iterations == 30  # command line wins
+    assert paper.learner.symmetry == () and paper.learner.scales == ("coarse", "fine")
+    assert paper.train.iterations == 6000 and paper.env.shift_iterations == default.env.shift_iterations
     assert default.train.iterations == ExperimentConfig().train.iterations
     assert roll.perturbation.roll_deg == 3.0 and default.perturbation.roll_deg == 0
     assert [e[:2] for e in roll.perturbation.events(100)] == [(50, (0.0, 3.0)), (75, (3.0, 3.0))]
@@ -332,7 +334,7 @@ def test_keep_best_writes_the_best_training_window_and_evaluates_it(tmp_path, te
 
     _, learner = load_learner(tmp_path / "best.pt")
     again = evaluate(learner, TextureBank.from_folder(textures), distances_m=[1.0], batch_size=8,
-                     fixation_iterations=2, progress=False)
+                     fixation_iterations=2, shift_iterations=20, yoked_pursuit=True, progress=False)
     assert again["pursuit_mae_deg"] == pytest.approx(summary["evaluation"]["pursuit_mae_deg"])
     # Without keep_best nothing is chosen and the last state is evaluated.
     off = tmp_path / "off"
@@ -362,10 +364,11 @@ def test_depth_calibration_refits_the_evaluated_mlp_on_greedy_training_trials(tm
     _, learner = load_learner(tmp_path / "calibrated.pt")
     bank = TextureBank.from_folder(textures)
     trials = run_trials(learner, bank, distances_m=[1.0, 1.5, 2.0, 2.5, 3.0], batch_size=8,
-                        fixation_iterations=2, seed=0)
+                        fixation_iterations=2, shift_iterations=20, yoked_pursuit=True, seed=0)
     assert trials["depth_error_m"].abs().mean().item() == pytest.approx(done["depth_mae_m_after"], rel=1e-5)
     # The evaluation is of calibrated.pt: evaluating it again gives the same numbers.
-    again = evaluate(learner, bank, distances_m=[1.0], batch_size=8, fixation_iterations=2)
+    again = evaluate(learner, bank, distances_m=[1.0], batch_size=8, fixation_iterations=2,
+                     shift_iterations=20, yoked_pursuit=True)
     assert again["depth_mae_m"] == pytest.approx(summary["evaluation"]["depth_mae_m"])
     off = run_experiment(_cfg(textures, five, "train.metrics_window=10", "eval.enabled=true",
                               "train.depth_calibration_trials=5"), tmp_path / "off")

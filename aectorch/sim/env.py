@@ -118,7 +118,8 @@ class ActiveDepthEnv:
             fixation the body is at ``min(1, (i + 1) / n) * shift_m``, so the shift grows
             linearly over the first n iterations and is then held (the paper's "successive images
             during the self-induced lateral body movement"). 1 (default) puts the whole shift
-            before the first iteration. 1 <= n <= ``fixation_iterations``.
+            before the first iteration; n >= 1, and an n longer than the fixation is cut to
+            ``fixation_iterations`` (the shift is complete by every fixation's end).
         yoked_pursuit: the pursuit increment moves both eyes (Hering's law of equal innervation),
             so vergence only has to add the convergence; ``False`` (default): it moves the
             dominant (left) eye alone and the right eye must follow through vergence.
@@ -187,10 +188,8 @@ class ActiveDepthEnv:
             raise ValueError(f"fixation_iterations must be an int >= 1, got {fixation_iterations!r}")
         if not (isinstance(shift_m, (int, float)) and math.isfinite(shift_m) and shift_m >= 0):
             raise ValueError(f"shift_m must be a number >= 0 (metres), got {shift_m!r}")
-        if (isinstance(shift_iterations, bool) or not isinstance(shift_iterations, int)
-                or not 1 <= shift_iterations <= fixation_iterations):
-            raise ValueError(f"shift_iterations must be an int in [1, fixation_iterations={fixation_iterations}], "
-                             f"got {shift_iterations!r}")
+        if isinstance(shift_iterations, bool) or not isinstance(shift_iterations, int) or shift_iterations < 1:
+            raise ValueError(f"shift_iterations must be an int >= 1, got {shift_iterations!r}")
         if not isinstance(yoked_pursuit, bool):
             raise ValueError(f"yoked_pursuit must be True or False, got {yoked_pursuit!r}")
         if dtype not in (torch.float32, torch.float64):
@@ -206,7 +205,7 @@ class ActiveDepthEnv:
         self.dtype = dtype
         self.fixation_iterations = fixation_iterations
         self.shift_m = float(shift_m)
-        self.shift_iterations = shift_iterations
+        self.shift_iterations = min(shift_iterations, fixation_iterations)
         self.yoked_pursuit = yoked_pursuit
         self.pursuit_start_deg = _range_or_value(pursuit_start_deg, "pursuit_start_deg")
         self.vergence_start_deg = _range_or_value(vergence_start_deg, "vergence_start_deg")
