@@ -6,9 +6,11 @@ seen in two **fixations** of ``h`` iterations each: the body shifts ``shift_m`` 
 position"). One **iteration** of one fixation is:
 
 1. :meth:`ActiveDepthEnv.parallax_observation`: the dominant (left) eye's image at the starting
-   position (taken once per fixation, before any movement) and its image after the body shift
-   with the current pan (motion parallax, cue *m*);
-2. :meth:`ActiveDepthEnv.apply_pursuit`: the pursuit increment is added to the left eye's pan;
+   position (taken once per fixation, before any movement) and its image at the current body
+   shift with the current pan (motion parallax, cue *m*); the shift is all of ``shift_m`` from the
+   first iteration on, or grows over the first ``shift_iterations`` of them;
+2. :meth:`ActiveDepthEnv.apply_pursuit`: the pursuit increment is added to the left eye's pan
+   (and to the right eye's too with ``yoked_pursuit``);
 3. :meth:`ActiveDepthEnv.stereo_observation`: both eyes' images at the shifted position
    (stereo, cue *s*);
 4. :meth:`ActiveDepthEnv.apply_vergence`: the vergence increment is added to the right eye's
