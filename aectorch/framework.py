@@ -99,8 +99,8 @@ class LearnerConfig:
             permuted features by 14-60 % (by scale), so the mirrored transitions the symmetry
             learns from are not the real ones.
         dictionary_lr: dictionary learning rate per iteration (the lineage: 0.01-0.5; default 0.1).
-        dictionary_decay: ``None`` (default: a constant rate), or tau (> 0): the dictionaries'
-            rate decays as ``dictionary_lr * (tau / (tau + t)) ** dictionary_decay_power`` after t
+        dictionary_decay: tau (> 0; default 500), or ``None`` for a constant rate (the lineage):
+            the dictionaries' rate decays as ``dictionary_lr * (tau / (tau + t)) ** dictionary_decay_power`` after t
             dictionary steps, so the code settles once the eye movements have shaped it (the
             lineage raised its rate over training; online dictionary learning decays it).
         dictionary_decay_power: p of ``dictionary_decay`` (> 0).

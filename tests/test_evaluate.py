@@ -90,13 +90,19 @@ def test_sampled_policy_differs_from_greedy_and_leaves_the_learner_as_it_was():
         evaluate(learner, bank, policy="argmax")
 
 
-def test_run_trials_gives_the_trials_evaluate_summarises():
+def _trained_learner():
+    """A small learner after three trials of four environments (its depth MLP fitted), and its bank."""
     bank = TextureBank(torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0)))
     learner = JointLearner(LearnerConfig(num_atoms=32, depth_every_trials=12),
                            generator=torch.Generator().manual_seed(0))
     env = ActiveDepthEnv(4, textures=bank, fixation_iterations=1, seed=0)
     for _ in range(6):
         learner.iteration(env)
+    return bank, learner
+
+
+def test_run_trials_gives_the_trials_evaluate_summarises():
+    bank, learner = _trained_learner()
     before = copy.deepcopy(learner.state_dict())
     out = run_trials(learner, bank, distances_m=[1.0, 2.0], batch_size=4, fixation_iterations=2)
     result = evaluate(learner, bank, distances_m=[1.0, 2.0], batch_size=4, fixation_iterations=2,
@@ -133,12 +139,7 @@ def test_run_trials_runs_the_given_conditions():
 
 
 def test_evaluate_writes_one_row_per_trial_and_the_fractions_on_target():
-    bank = TextureBank(torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0)))
-    learner = JointLearner(LearnerConfig(num_atoms=32, depth_every_trials=12),
-                           generator=torch.Generator().manual_seed(0))
-    env = ActiveDepthEnv(4, textures=bank, fixation_iterations=1, seed=0)
-    for _ in range(6):
-        learner.iteration(env)
+    bank, learner = _trained_learner()
     kwargs = dict(distances_m=[1.0, 2.0], batch_size=4, fixation_iterations=4)
     result = evaluate(learner, bank, vergence_test=False, **kwargs)
     out = run_trials(learner, bank, **kwargs)
