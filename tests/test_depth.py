@@ -251,9 +251,12 @@ def test_one_epoch_is_one_damped_gauss_newton_step_with_mu_identity():
     result = fit_levenberg_marquardt(layer, x, t, max_epochs=1, validation_fraction=0.0)
     theta1 = torch.cat([layer.weight.detach().reshape(-1), layer.bias.detach()])
     torch.testing.assert_close(theta1, expected, rtol=1e-10, atol=1e-12)
-    assert result.mu == pytest.approx(1e-4)  # x0.1 after the successful step
+    assert result.mu == pytest.approx(1e-3 / 3)  # x mu_dec = 1/3 after the successful step
     assert result.epochs == 1 and result.stop_reason == "max_epochs"
     assert result.train_loss[0] == pytest.approx(float(e.square().mean()))
+    layer, x, t = linear_problem()  # trainlm's own factor, x0.1
+    result = fit_levenberg_marquardt(layer, x, t, max_epochs=1, validation_fraction=0.0, mu_dec=0.1)
+    assert result.mu == pytest.approx(1e-4)
 
 
 def test_min_grad_stop_at_the_least_squares_solution():
@@ -344,6 +347,25 @@ def test_final_training_mse_within_5_percent_of_minpack():
     assert ours.train_loss[-1] == pytest.approx(mse(model, q, d))
     assert ours.train_loss[-1] <= 1.05 * minpack_mse, (ours.train_loss[-1], minpack_mse)
     assert ours.train_loss[-1] < 0.01 * ours.train_loss[0]
+
+
+def test_1000_epochs_end_within_5_percent_of_minpack_issue_21():
+    # Issue 21's comparison: 1,000 samples, validation off, 1,000 epochs against MINPACK's
+    # 1,000 function evaluations (about 860 Jacobians), from the same start. With trainlm's
+    # factors (mu x0.1 / x10) mu is stuck on the grid 1e-3 * 10**k, each epoch steps with
+    # the over-damped decade and this seed ended 1.08x MINPACK's MSE (stop "max_epochs",
+    # not an early stop); with the default x1/3 / x2 it ends 0.99x. Smaller problems
+    # (200-700 samples) land in different local minima from seed to seed (0.9-1.35x with
+    # either schedule), so they would test luck rather than the damping schedule.
+    q, d = depth_data(1000, seed=0)
+    model = initial_model(q, d, seed=0)
+    reference = copy.deepcopy(model)
+    ours = fit_levenberg_marquardt(model, q, d, max_epochs=1000, validation_fraction=0.0)
+    theirs = minpack_fit(reference, q, d, max_nfev=1000)
+    minpack_mse = float(np.mean(theirs.fun**2))
+    assert ours.stop_reason in ("max_epochs", "min_grad")
+    assert ours.train_loss[-1] == pytest.approx(mse(model, q, d))
+    assert ours.train_loss[-1] <= 1.05 * minpack_mse, (ours.train_loss[-1] / minpack_mse, ours.stop_reason)
 
 
 def test_reaches_adams_error_in_at_least_10x_fewer_epochs():
