@@ -24,6 +24,10 @@ import os
 import sys
 from pathlib import Path
 
+# Idle OpenMP threads sleep instead of spinning: with a spinning thread, loops of small ops on 2
+# threads ran 15-45x slower while another process held a core (docs/performance.md).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 import hydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import HydraException

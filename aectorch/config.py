@@ -206,7 +206,13 @@ class TrainConfig:
             iterations (>= 1).
         checkpoint_every: write ``checkpoint.pt`` every this many iterations (>= 1), and always
             at the end or on an interruption.
-        threads: CPU threads for torch (``torch.set_num_threads``, >= 1).
+        threads: CPU threads: N >= 1 gives torch (``torch.set_num_threads``) and the fused
+            kernels (``aectorch.coding.native.set_threads``) N each; 0 (default) gives the fused
+            kernels (rendering, pursuit) every core this process may use
+            (``os.sched_getaffinity``, shared among a ``torchrun`` run's processes) and torch's
+            own operations one, which measured fastest (docs/performance.md). ``train.py`` sets
+            ``OMP_WAIT_POLICY=PASSIVE`` (unless set), so idle threads sleep instead of spinning on
+            a core another process needs.
         progress: show tqdm progress bars.
         figures: draw the figures into ``figures/`` at the end.
         tensorboard: write TensorBoard events into ``tb/``.
@@ -236,7 +242,7 @@ class TrainConfig:
     resume: Optional[str] = None
     log_every: int = 25
     checkpoint_every: int = 500
-    threads: int = 1
+    threads: int = 0
     progress: bool = True
     figures: bool = True
     tensorboard: bool = True
@@ -252,7 +258,7 @@ class TrainConfig:
         _require_int(owner, "log_every", self.log_every, 1)
         _require_int(owner, "metrics_window", self.metrics_window, 1)
         _require_int(owner, "checkpoint_every", self.checkpoint_every, 1)
-        _require_int(owner, "threads", self.threads, 1)
+        _require_int(owner, "threads", self.threads, 0)
         for name in ("compile", "progress", "figures", "tensorboard", "deterministic", "keep_best"):
             _require_bool(owner, name, getattr(self, name))
         if self.resume is not None and (not isinstance(self.resume, str) or not self.resume):

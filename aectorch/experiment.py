@@ -66,6 +66,26 @@ RESUME_KEYS = ("iterations", "progress", "resume")
 
 
 # -- building ------------------------------------------------------------------------------------
+def set_threads(threads: int, processes: int = 1) -> None:
+    """``train.threads``: N >= 1 gives torch and the fused kernels N threads each; 0 gives the fused
+    kernels (render, pursuit) every core of this process's share and torch's own operations one
+    (they are too small to pay for a second thread: docs/performance.md)."""
+    from aectorch.coding import native
+
+    torch.set_num_threads(threads or 1)
+    native.set_threads(threads or available_threads(processes))
+
+
+def available_threads(processes: int = 1) -> int:
+    """``train.threads=0``: the cores this process may use, shared among ``processes`` (>= 1)."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        cores = os.cpu_count() or 1
+    return max(1, cores // max(1, processes))
+
+
+
 def build_textures(folder: str | None, split: str, cfg: ExperimentConfig) -> TextureBank:
     """``TextureBank.from_folder(folder)``, or ``TextureBank.default(split)`` when ``folder`` is None."""
     kwargs = dict(dtype=cfg.env.torch_dtype)
@@ -187,6 +207,9 @@ def checkpoint_config(payload: dict, path: str | os.PathLike) -> ExperimentConfi
     # Checkpoints from before the body movement's profile existed shifted at once, one eye pursuing.
     if isinstance(stored.get("env"), dict) and "shift_iterations" not in stored["env"]:
         stored["env"] = {**stored["env"], "shift_iterations": 1, "yoked_pursuit": False}
+    # Checkpoints from before `learner.render_scales` existed reduced whole crops with the pyramid.
+    if isinstance(stored.get("learner"), dict) and "render_scales" not in stored["learner"]:
+        stored["learner"] = {**stored["learner"], "render_scales": False}
     try:
         return to_experiment_config(stored)
     except Exception as err:  # unknown keys, wrong types, impossible values
@@ -325,7 +348,7 @@ def _train(cfg: ExperimentConfig, run_dir, callback, shard, checkpoint: dict | N
     if checkpoint is not None:
         run_dir = Path(cfg.train.resume)
     batch = cfg.env.num_envs if shard is None else shard.total
-    torch.set_num_threads(cfg.train.threads)
+    set_threads(cfg.train.threads, 1 if shard is None else shard.world_size)
     run_dir = Path(run_dir)
     if main:
         run_dir.mkdir(parents=True, exist_ok=True)

@@ -67,6 +67,7 @@ def provenance(device: str | torch.device) -> dict:
         "threads": torch.get_num_threads(),
         "deterministic_algorithms": torch.are_deterministic_algorithms_enabled(),
         "native_pursuit_kernel": native.available(),
+        "native_kernel_threads": native.get_threads(),
         "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
     }
     if device.type == "cuda":

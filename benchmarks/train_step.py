@@ -85,6 +85,17 @@ def learner_config():
 TRIAL_ITERATIONS = 60      # 2 fixations x h = 30
 
 
+def env_protocol() -> dict:
+    """The body movement of the measured runs: train.py's defaults for ``--learner default``
+    (the shift over 20 iterations, yoked pursuit), the instant shift for the recorded tables."""
+    if _learner_name() != "default":
+        return {}
+    from aectorch.config import EnvConfig
+
+    e = EnvConfig()
+    return {"shift_iterations": e.shift_iterations, "yoked_pursuit": e.yoked_pursuit}
+
+
 def _rss_mb(field: str = "VmRSS") -> float:
     for line in Path("/proc/self/status").read_text().splitlines():
         if line.startswith(field + ":"):
@@ -176,6 +187,7 @@ def measure(renderer: str, batch: int, mode: str, iterations: int, warmup: int, 
     import torch
 
     from aectorch.coding import extract_patches
+    from aectorch.coding.patches import reduced_patches
     from aectorch.experiment import _compile
     from aectorch.framework import JointLearner
     from aectorch.profiling import StageTimer
@@ -186,10 +198,13 @@ def measure(renderer: str, batch: int, mode: str, iterations: int, warmup: int, 
         base_cuda = torch.cuda.memory_allocated()
     base = _rss_mb()
     _reset_peak()
-    env = ActiveDepthEnv(batch, renderer=renderer, seed=0, device=device)
+    env = ActiveDepthEnv(batch, renderer=renderer, seed=0, device=device, **env_protocol())
     learner = JointLearner(learner_config(), generator=torch.Generator().manual_seed(0), device=device)
     if mode == "compile":
         _compile(learner, env)
+    elif mode == "cudagraphs":  # compiled with CUDA graphs (mode="reduce-overhead"), GPU only
+        for cue in ("parallax", "stereo"):
+            getattr(learner, cue).compile(mode="reduce-overhead")
     compile_start = time.perf_counter()
     for _ in range(warmup):
         learner.iteration(env)
@@ -203,12 +218,16 @@ def measure(renderer: str, batch: int, mode: str, iterations: int, warmup: int, 
     stages = {name: per_iteration.get(name, 0.0) for name in ("render", "encode", "rl", "dictionary", "env", "metrics")}
     if mode == "eager":
         # Split "encode" into patches and sparse coding (+ pooling, errors) on the same images.
-        pair = env.stereo_observation()
+        scaled = learner._render_scales(env)
+        pair = env.stereo_observation() if scaled is None else env.stereo_observation(scales=scaled)
         patch_times = []
         for _ in range(max(3, min(iterations, 10))):
             start = time.perf_counter()
             for scale in learner.stereo.scales:
-                extract_patches(pair[:, 0], pair[:, 1], scale, check_finite=False)
+                if scaled is None:
+                    extract_patches(pair[:, 0], pair[:, 1], scale, check_finite=False)
+                else:
+                    reduced_patches(pair[scale.name][:, 0], pair[scale.name][:, 1], scale)
             if device == "cuda":
                 torch.cuda.synchronize()
             patch_times.append(time.perf_counter() - start)
@@ -279,10 +298,13 @@ def interleave(configs: list[str], rounds: int, block: int, warmup: int, device:
     setups = []
     for text in configs:
         renderer, batch, mode = text.split(":")
-        env = ActiveDepthEnv(int(batch), renderer=renderer, seed=0, device=device)
+        env = ActiveDepthEnv(int(batch), renderer=renderer, seed=0, device=device, **env_protocol())
         learner = JointLearner(learner_config(), generator=torch.Generator().manual_seed(0), device=device)
         if mode == "compile":
             _compile(learner, env)
+        elif mode == "cudagraphs":
+            for cue in ("parallax", "stereo"):
+                getattr(learner, cue).compile(mode="reduce-overhead")
         for _ in range(warmup):
             learner.iteration(env)
         setups.append((text, int(batch), env, learner, []))
@@ -367,7 +389,7 @@ def main() -> None:
                              "symmetries; the default); two-scale: the same with the symmetries (the "
                              "defaults until 2026-12-02); default: today's LearnerConfig() (3 scales, 11 actions)")
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
-    parser.add_argument("--modes", nargs="+", default=["eager", "compile"], choices=["eager", "compile"])
+    parser.add_argument("--modes", nargs="+", default=["eager", "compile"], choices=["eager", "compile", "cudagraphs"])
     parser.add_argument("--renderers", nargs="+", default=["torch", "pyrender"], choices=["torch", "pyrender"])
     parser.add_argument("--iterations", type=int, default=20, help="timed iterations per configuration")
     parser.add_argument("--warmup", type=int, default=3, help="untimed iterations first (compilation)")

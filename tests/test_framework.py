@@ -173,7 +173,8 @@ def test_unit_features_reach_the_actor_critics_normalised():
     control = ActorCriticConfig(normalize_features=True)
     env, learner = make(h=3, features="unit", feature_scale=2.0, control=control, symmetry=())
     with torch.no_grad():
-        pooled = learner.parallax(*env.parallax_observation().unbind(1)).features
+        pair = env.parallax_observation(scales=learner.parallax.scales)
+        pooled = learner.parallax({k: p[:, 0] for k, p in pair.items()}, {k: p[:, 1] for k, p in pair.items()}).features
     learner.iteration(env)
     learner.iteration(env)  # learns from the first transition: its features join the statistics
     expected = 2.0 * pooled / pooled.norm(dim=-1, keepdim=True)

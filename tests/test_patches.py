@@ -465,3 +465,37 @@ def test_patch_permutation_is_the_symmetry_of_the_two_images(flip, swap):
     torch.testing.assert_close(y, x[..., perm])
     with pytest.raises(ValueError, match="patch_size"):
         patch_permutation(0)
+
+
+@pytest.mark.parametrize("name", ["wide", "coarse", "fine"])
+def test_reduced_patches_cut_what_extract_patches_cuts_from_the_reduced_crops(name):
+    import dataclasses
+
+    from aectorch.coding.patches import as_scale, reduced_patches
+
+    scale = dataclasses.replace(as_scale(name), centred=True)
+    g = torch.Generator().manual_seed(0)
+    first, second = torch.rand(2, 3, 240, 320, generator=g, dtype=torch.float64)
+    top, left = (240 - scale.crop) // 2, (320 - scale.crop) // 2
+    crop = lambda x: x[:, top:top + scale.crop, left:left + scale.crop]  # noqa: E731
+    reduced = [pyramid_down(crop(x), scale.levels, centred=True) for x in (first, second)]
+    torch.testing.assert_close(reduced_patches(*reduced, scale), extract_patches(first, second, scale))
+    with pytest.raises(ValueError, match=rf"\[B, {scale.side}, {scale.side}\]"):
+        reduced_patches(first, second, scale)
+
+
+def test_encoder_reads_images_at_each_scales_resolution():
+    from aectorch.coding import BinocularEncoder
+
+    encoder = BinocularEncoder(generator=torch.Generator().manual_seed(0))
+    first, second = torch.rand(2, 2, 240, 320, generator=torch.Generator().manual_seed(1))
+    crops = {}
+    for which, images in (("first", first), ("second", second)):
+        crops[which] = {s.name: pyramid_down(images[:, 56:184, 96:224][:, (128 - s.crop) // 2:(128 + s.crop) // 2,
+                                                                        (128 - s.crop) // 2:(128 + s.crop) // 2], s.levels)
+                        for s in encoder.scales}
+    with torch.no_grad():
+        whole = encoder(first, second)
+        reduced = encoder(crops["first"], crops["second"])
+    torch.testing.assert_close(reduced.features, whole.features)
+    torch.testing.assert_close(reduced.reward, whole.reward)

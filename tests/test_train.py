@@ -423,3 +423,24 @@ def test_fork_continues_a_run_with_changed_settings(tmp_path, textures, capsys, 
         argv += [] if "--iterations" in args else ["--iterations", "12"]
         assert fork_run.main(argv) == 2
         assert message in capsys.readouterr().err and not target.exists()
+
+
+def test_a_checkpoint_from_before_scale_rendering_reduces_whole_crops():
+    from aectorch.config import to_container
+    from aectorch.experiment import checkpoint_config
+
+    stored = to_container(ExperimentConfig())
+    assert stored["learner"]["render_scales"] is True
+    del stored["learner"]["render_scales"]  # what versions before `learner.render_scales` wrote
+    assert checkpoint_config({"config": stored}, "old.pt").learner.render_scales is False
+
+
+def test_threads_zero_uses_every_core_shared_among_processes():
+    from aectorch.experiment import available_threads
+
+    cores = len(os.sched_getaffinity(0))
+    assert available_threads() == cores
+    assert available_threads(cores * 2) == 1
+    assert to_experiment_config(OmegaConf.create({"train": {"threads": 0}})).train.threads == 0
+    with pytest.raises(ValueError, match="threads"):
+        to_experiment_config(OmegaConf.create({"train": {"threads": -1}}))

@@ -7,7 +7,9 @@ from aectorch.coding.dictionary import (
     reconstruction_error,
 )
 from aectorch.coding.encoder import BinocularEncoder, EncoderOutput
-from aectorch.coding.patches import COARSE, FINE, FULL, WIDE, FovealPatches, Scale, extract_patches, patch_permutation, pyramid_down
+from aectorch.coding.patches import (
+    COARSE, FINE, FULL, WIDE, FovealPatches, Scale, extract_patches, patch_permutation, pyramid_down, reduced_patches,
+)
 from aectorch.coding.pursuit import gram_matrix, matching_pursuit, omp, use_backend
 from aectorch.coding.sparse_code import SparseCode
 
@@ -31,5 +33,6 @@ __all__ = [
     "pooled_activity",
     "pyramid_down",
     "reconstruction_error",
+    "reduced_patches",
     "use_backend",
 ]

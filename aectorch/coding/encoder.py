@@ -16,7 +16,7 @@ from torch import nn
 
 from aectorch.coding.dictionary import DictionaryOutput, SparseDictionary
 from aectorch._checks import check_finite
-from aectorch.coding.patches import COARSE, FINE, Scale, as_scale, extract_patches, patch_permutation
+from aectorch.coding.patches import COARSE, FINE, Scale, as_scale, extract_patches, patch_permutation, reduced_patches
 
 __all__ = ["BinocularEncoder", "EncoderOutput", "SYMMETRIES"]
 
@@ -145,16 +145,25 @@ class BinocularEncoder(nn.Module):
         """Length of the feature vector, ``n_scales * N``."""
         return sum(d.num_atoms for d in self.dictionaries.values())
 
-    def forward(self, first: torch.Tensor, second: torch.Tensor, *, check: bool = True) -> EncoderOutput:
-        """Encode an image pair; see the class docstring for shapes."""
+    def forward(self, first, second, *, check: bool = True) -> EncoderOutput:
+        """Encode an image pair; see the class docstring for shapes.
+
+        ``first`` and ``second`` may also be dicts ``{scale name: [B, side, side]}`` of images
+        already at each scale's resolution (``ActiveDepthEnv``'s observations with ``scales``),
+        cut with `reduced_patches` instead of cropped and reduced.
+        """
         if check:  # once here, not once per scale inside extract_patches
             for name, images in (("first", first), ("second", second)):
-                if isinstance(images, torch.Tensor):  # other types: extract_patches says why
-                    check_finite(images, name)
+                for part in (images.values() if isinstance(images, dict) else (images,)):
+                    if isinstance(part, torch.Tensor):  # other types: extract_patches says why
+                        check_finite(part, name)
         patches, codes, features, errors = [], [], [], []
         for scale in self.scales:
             dictionary = self.dictionaries[scale.name]
-            x = extract_patches(first, second, scale, check_finite=False)
+            if isinstance(first, dict):
+                x = reduced_patches(first[scale.name], second[scale.name], scale)
+            else:
+                x = extract_patches(first, second, scale, check_finite=False)
             out = dictionary(x, check=check)
             patches.append(x)
             codes.append(out)

@@ -1,11 +1,13 @@
-"""The fused CPU pursuit kernel (``pursuit_cpu.cpp``), built on first use.
+"""The fused CPU kernels (``pursuit_cpu.cpp``, and the renderer's ``sim/render_cpu.cpp``), built on first use.
 
 `omp` and `matching_pursuit` run on CPU through the operator ``torch.ops.aectorch.pursuit``
 when it is available: one C++ loop per signal instead of ~20-45 tensor ops per pursuit step
 (docs/performance.md measures both). It is compiled once per machine with
 `torch.utils.cpp_extension` (g++ and ninja, both of which `torch.compile` on CPU needs too)
 into a cache folder, keyed by the source, the torch version and the CPU, and loaded from there
-afterwards in well under a second. ``scripts/setup.sh`` builds it at install time.
+afterwards in well under a second. ``scripts/setup.sh`` builds it at install time. The same
+library holds ``torch.ops.aectorch.render_trilinear``, the torch renderer's mipmapped path fused
+into one loop per pixel (`aectorch.sim.render_torch.render_rays` uses it on CPU).
 
 If it cannot be built (no compiler, say), the pursuits fall back to the pure-torch code with one
 warning that says why; results agree within float rounding (tests/test_pursuit.py). Set
@@ -30,10 +32,12 @@ from pathlib import Path
 
 import torch
 
-__all__ = ["available", "load", "pursuit", "SOURCE"]
+__all__ = ["available", "get_threads", "load", "pursuit", "set_threads", "SOURCE", "SOURCES"]
 
-#: The C++ source of the kernel.
+#: The C++ source of the pursuit kernel.
 SOURCE = Path(__file__).with_name("pursuit_cpu.cpp")
+#: Every source built into the library: the pursuit and the renderer's trilinear kernel.
+SOURCES = (SOURCE, Path(__file__).parents[1] / "sim" / "render_cpu.cpp")
 
 _lock = threading.Lock()
 _state: dict[str, object] = {}
@@ -51,7 +55,7 @@ def _cpu_signature() -> str:
 
 def _build_dir() -> tuple[str, Path]:
     key = hashlib.sha256(
-        SOURCE.read_bytes() + torch.__version__.encode() + sys.version.encode() + _cpu_signature().encode()
+        b"".join(source.read_bytes() for source in SOURCES) + torch.__version__.encode() + sys.version.encode() + _cpu_signature().encode()
     ).hexdigest()[:16]
     root = Path(os.environ.get("AECTORCH_CACHE", Path.home() / ".cache" / "aectorch"))
     return f"aectorch_pursuit_{key}", root / "native" / key
@@ -79,12 +83,13 @@ def load(verbose: bool = False) -> bool:
                       "about a minute)...", file=sys.stderr, flush=True)
             # No fused multiply-add contraction: residual updates round like torch's addcmul, so an
             # exactly cancelled correlation is 0 here too (not the product's rounding error).
-            flags = ["-O3", "-ffp-contract=off"]
+            # OpenMP: the kernels' loops split over threads of their own (`set_threads`).
+            flags = ["-O3", "-ffp-contract=off", "-fopenmp"]
             if platform.machine() in ("x86_64", "AMD64"):
                 flags.append("-march=native")
             cpp_extension.load(
-                name=name, sources=[str(SOURCE)], build_directory=str(folder), extra_cflags=flags,
-                is_python_module=False, verbose=verbose,
+                name=name, sources=[str(source) for source in SOURCES], build_directory=str(folder), extra_cflags=flags,
+                extra_ldflags=["-fopenmp"], is_python_module=False, verbose=verbose,
             )
             _register_fake()
             _state["ok"] = True
@@ -97,6 +102,24 @@ def load(verbose: bool = False) -> bool:
         return bool(_state["ok"])
 
 
+def set_threads(threads: int) -> None:
+    """Threads of the fused kernels' loops (OpenMP, their own pool; default 1).
+
+    Independent of ``torch.set_num_threads``: ``train.threads=0`` gives the kernels every core
+    and keeps torch's own operations, which are too small to pay for a second thread, on one.
+    Does nothing when the kernels are not available.
+    """
+    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+        raise ValueError(f"threads must be an int >= 1, got {threads!r}")
+    if load():
+        torch.ops.aectorch.set_kernel_threads(threads)
+
+
+def get_threads() -> int:
+    """The fused kernels' threads (1 when they are not available)."""
+    return int(torch.ops.aectorch.kernel_threads()) if load() else 1
+
+
 def available() -> bool:
     """Whether the kernel is loaded (building it on the first call)."""
     return load()
@@ -107,6 +130,10 @@ def _register_fake() -> None:
     def _(signals, dictionary, gram, k, orthogonal, block):
         m = signals.shape[0]
         return signals.new_empty(m, k, dtype=torch.long), signals.new_empty(m, k)
+
+    @torch.library.register_fake("aectorch::render_trilinear")
+    def _(poses, plane_x, texture_index, atlas, xs, ys, steps, scene, tex_h, tex_w, levels, lod_bias, samples):
+        return poses.new_empty(poses.shape[0], poses.shape[1], xs.shape[0])
 
 
 def pursuit(signals: torch.Tensor, dictionary: torch.Tensor, gram: torch.Tensor, k: int,

@@ -28,6 +28,7 @@ __all__ = [
     "as_scale",
     "pyramid_down",
     "extract_patches",
+    "reduced_patches",
     "patch_permutation",
     "FovealPatches",
 ]
@@ -393,6 +394,38 @@ def extract_patches(
     # One pyramid call for both eyes: [B, 2, crop, crop] viewed as 2B single-channel images.
     pair = torch.stack((first, second), dim=1)[:, :, top : top + crop, left : left + crop]
     reduced = _pyramid_down(pair.reshape(2 * b, 1, crop, crop), scale.levels, scale.centred)
+    return _cut(reduced, scale, b, eps)
+
+
+def reduced_patches(first: Tensor, second: Tensor, scale: Scale | str, *, eps: float = 1e-8) -> Tensor:
+    """:func:`extract_patches` from images already at the scale's resolution (no crop, no pyramid).
+
+    For images rendered directly at each scale's resolution
+    (``ActiveDepthEnv.stereo_observation(scales=...)``): each is the scale's central ``crop``
+    seen on a grid of ``downsample x downsample`` blocks, ``[B, side, side]`` with
+    ``side = crop // downsample``. The patch grid, the normalisation and the layout are those of
+    :func:`extract_patches`.
+
+    Example:
+        >>> reduced_patches(torch.rand(3, 16, 16), torch.rand(3, 16, 16), "coarse").shape
+        torch.Size([3, 49, 200])
+    """
+    scale = as_scale(scale)
+    _check_image(first, "first")
+    _check_image(second, "second")
+    side = scale.side
+    for name, images in (("first", first), ("second", second)):
+        if tuple(images.shape[-2:]) != (side, side):
+            raise ValueError(f"{name} must be [B, {side}, {side}] (scale {scale.name!r}: crop {scale.crop} / "
+                             f"downsample {scale.downsample}), got {tuple(images.shape)}")
+    if first.shape != second.shape:
+        raise ValueError(f"first and second must have the same shape, got {tuple(first.shape)} and {tuple(second.shape)}")
+    b = first.shape[0]
+    return _cut(torch.stack((first, second), dim=1).reshape(2 * b, 1, side, side), scale, b, eps)
+
+
+def _cut(reduced: Tensor, scale: Scale, b: int, eps: float) -> Tensor:
+    """Patches ``[B, N, 2 P^2]`` of the reduced crops ``[2B, 1, side, side]`` (first images at even rows)."""
     if scale.offset:  # a centred grid
         o = scale.offset
         reduced = reduced[..., o:scale.side - o, o:scale.side - o]

@@ -18,11 +18,18 @@
 #include <torch/library.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <limits>
 #include <type_traits>
 #include <vector>
+
+// Threads of the fused kernels (set by aectorch.coding.native.set_threads; 1 by default): their
+// loops split rows over OpenMP threads of their own, so torch's intra-op threads (which do not
+// pay for the many small ops of a training iteration) can stay at 1 while these use every core.
+static std::atomic<int> g_kernel_threads{1};
+int aectorch_kernel_threads() { return g_kernel_threads.load(); }
 
 namespace {
 
@@ -156,19 +163,25 @@ std::tuple<at::Tensor, at::Tensor> pursuit(
   auto coefficients = at::zeros({m, k}, x.options());
   if (m == 0) return {indices, coefficients};
   block = std::max<int64_t>(1, std::min<int64_t>(block, m));
-  auto alpha = at::empty({block, n}, x.options());
+  const int64_t tiles = (m + block - 1) / block;
+  const int threads = static_cast<int>(std::max<int64_t>(1, std::min<int64_t>(aectorch_kernel_threads(), tiles)));
   AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "aectorch_pursuit", [&] {
     const scalar_t* g = G.const_data_ptr<scalar_t>();
     int64_t* idx = indices.data_ptr<int64_t>();
     scalar_t* coef = coefficients.data_ptr<scalar_t>();
-    for (int64_t start = 0; start < m; start += block) {
-      const int64_t rows = std::min(block, m - start);
-      auto tile = alpha.narrow(0, 0, rows);
-      at::mm_out(tile, x.narrow(0, start, rows), d);
-      scalar_t* a = tile.data_ptr<scalar_t>();
-      at::parallel_for(0, rows, 16, [&](int64_t begin, int64_t end) {
-        std::vector<scalar_t> work(orthogonal ? k * k + 3 * k : 0);
-        for (int64_t r = begin; r < end; ++r) {
+    // Threads take whole tiles (their own correlations X D, a BLAS product, and the pursuits).
+    _Pragma("omp parallel num_threads(threads)")  // (in a macro argument: _Pragma, not #pragma)
+    {
+      auto alpha = at::empty({block, n}, x.options());
+      std::vector<scalar_t> work(orthogonal ? k * k + 3 * k : 0);
+      _Pragma("omp for schedule(static)")
+      for (int64_t t = 0; t < tiles; ++t) {
+        const int64_t start = t * block;
+        const int64_t rows = std::min(block, m - start);
+        auto tile = alpha.narrow(0, 0, rows);
+        at::mm_out(tile, x.narrow(0, start, rows), d);
+        scalar_t* a = tile.data_ptr<scalar_t>();
+        for (int64_t r = 0; r < rows; ++r) {
           const int64_t row = start + r;
           if (orthogonal) {
             omp_row(a + r * n, g, n, k, idx + row * k, coef + row * k, work.data());
@@ -176,7 +189,7 @@ std::tuple<at::Tensor, at::Tensor> pursuit(
             mp_row(a + r * n, g, n, k, idx + row * k, coef + row * k);
           }
         }
-      });
+      }
     }
   });
   return {indices, coefficients};
@@ -184,9 +197,18 @@ std::tuple<at::Tensor, at::Tensor> pursuit(
 
 }  // namespace
 
+void set_kernel_threads(int64_t threads) {
+  TORCH_CHECK(threads >= 1, "aectorch::set_kernel_threads: threads must be >= 1");
+  g_kernel_threads.store(static_cast<int>(threads));
+}
+
+int64_t kernel_threads() { return aectorch_kernel_threads(); }
+
 TORCH_LIBRARY(aectorch, m) {
   m.def("pursuit(Tensor signals, Tensor dictionary, Tensor gram, int k, bool orthogonal, int block)"
         " -> (Tensor, Tensor)");
+  m.def("set_kernel_threads(int threads) -> ()", &set_kernel_threads);
+  m.def("kernel_threads() -> int", &kernel_threads);
 }
 
 TORCH_LIBRARY_IMPL(aectorch, CPU, m) { m.impl("pursuit", &pursuit); }

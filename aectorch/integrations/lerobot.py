@@ -91,14 +91,16 @@ class _Tap:
     def __getattr__(self, name):
         return getattr(self._env, name)
 
-    def stereo_observation(self):
+    def stereo_observation(self, scales=None):
+        # The dataset keeps the whole crops; a learner that reads the scales at their own
+        # resolution gets those too (one more render of the same state).
         pair = self._env.stereo_observation()
         env = self._env
         self.images = pair.detach()
         self.state = torch.cat((env.body_shift_m[:, None], env.pan_deg, env.roll_deg), dim=1).detach().clone()
         self.distance_m = env.distance_m.detach().clone()
         self.fixation, self.iteration = env.fixation, env.iteration
-        return pair
+        return pair if scales is None else self._env.stereo_observation(scales=scales)
 
 
 def _uint8_rgb(image: torch.Tensor) -> np.ndarray:

@@ -7,7 +7,9 @@ pyrender (and with it PyOpenGL) is imported only when a :class:`PyrenderRenderer
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.env import DEFAULT_DISTANCES_M, RENDERERS, ActiveDepthEnv, IterationInfo, make_renderer
 from aectorch.sim.hoap3 import HOAP3Head
-from aectorch.sim.render_torch import TorchPlaneRenderer, render_planes, sample_bilinear
+from aectorch.sim.render_torch import (
+    MipmapAtlas, TorchPlaneRenderer, mipmap_atlas, pixel_rays, render_planes, render_rays, sample_bilinear,
+)
 from aectorch.sim.scene import PlaneScene
 from aectorch.sim.textures import TextureBank, pink_noise_images
 
@@ -36,5 +38,9 @@ __all__ = [
     "make_renderer",
     "pink_noise_images",
     "render_planes",
+    "render_rays",
+    "pixel_rays",
+    "mipmap_atlas",
+    "MipmapAtlas",
     "sample_bilinear",
 ]

@@ -41,7 +41,7 @@ from aectorch.sim.hoap3 import HOAP3Head
 from aectorch.sim.scene import PlaneScene
 from aectorch.sim.textures import TextureBank, pink_noise_images
 
-__all__ = ["ActiveDepthEnv", "IterationInfo", "RENDERERS", "DEFAULT_DISTANCES_M"]
+__all__ = ["ActiveDepthEnv", "IterationInfo", "RENDERERS", "DEFAULT_DISTANCES_M", "SCALE_FILTER", "pyramid_blur"]
 
 #: The paper's object distances: 1.0 to 3.0 m in 0.1 m steps.
 DEFAULT_DISTANCES_M = tuple(round(1.0 + 0.1 * i, 1) for i in range(21))
@@ -90,12 +90,57 @@ def _range_or_value(value, name: str) -> tuple[float, float]:
     return lo, hi
 
 
+#: How :meth:`ActiveDepthEnv.parallax_observation` and ``stereo_observation`` render the foveal
+#: scales they are asked for: mipmapped textures (``GL_LINEAR_MIPMAP_LINEAR``), 2 x 2 lookups per
+#: pixel at a level of detail biased by -0.5: within 0.5 % of the exact area average
+#: (docs/simulation.md, tests/test_sim.py).
+SCALE_FILTER = dict(filter="trilinear", lod_bias=-0.5, samples=2)
+
+
+def _finer(downsample: int) -> int:
+    """Scales reduced 16x or more (a few pixels, each many texels wide) render 2x finer and average:
+    4 x 4 lookups per pixel, which the widest scale needs on photographs to stay within 0.5 %."""
+    return 2 if downsample >= 16 else 1
+
+
+def pyramid_blur(images: Tensor, levels: int) -> Tensor:
+    """The rest of a Gaussian pyramid's blur for an area-filtered image: ``[..., h + 2, w + 2] -> [..., h, w]``.
+
+    An image rendered at a scale's resolution is (within 0.5 %) the area average over each pixel:
+    a box of variance 1/12 pixel^2 per axis. ``levels`` reductions of the centred pyramid
+    (:func:`aectorch.coding.patches.pyramid_down`, each level a binomial of variance 5/4 of its
+    input pixels) blur with variance ``5/4 (4^L - 1) / 3`` full pixels^2, i.e.
+    ``5/12 (1 - 4^-L)`` reduced pixels^2. This adds the difference with the 3-tap kernel
+    ``[a, 1 - 2a, a]`` per axis (variance ``2a``), over the valid region only (the caller renders
+    one extra pixel on every side), so the coder's input has the pyramid's smoothness: without
+    it the vergence learned on box-filtered images was twice as coarse (docs/simulation.md).
+    """
+    if levels == 0:
+        return images[..., 1:-1, 1:-1]
+    a = (5.0 / 12.0 * (1.0 - 4.0 ** -levels) - 1.0 / 12.0) / 2.0
+    # (sums of shifted slices: on these few-pixel images conv2d's set-up costs more than the work)
+    x = images[..., 1:-1] * (1.0 - 2.0 * a) + (images[..., :-2] + images[..., 2:]) * a
+    return x[..., 1:-1, :] * (1.0 - 2.0 * a) + (x[..., :-2, :] + x[..., 2:, :]) * a
+
+
+def _block_mean(images: Tensor, k: int) -> Tensor:
+    if k == 1:
+        return images
+    pooled = torch.nn.functional.avg_pool2d(images.flatten(0, -3).unsqueeze(1), k)
+    return pooled.reshape(images.shape[:-2] + pooled.shape[-2:])
+
+
 def make_renderer(name: str, scene: PlaneScene, camera: PinholeCamera, *, device=None, **kwargs):
-    """Build a renderer by name: ``"torch"`` (:class:`TorchPlaneRenderer`) or ``"pyrender"``."""
+    """Build a renderer by name: ``"torch"`` (:class:`TorchPlaneRenderer`) or ``"pyrender"``.
+
+    ``filter``, ``lod_bias`` and ``samples`` go to either renderer; other keyword arguments to
+    pyrender's.
+    """
     if name == "torch":
         from aectorch.sim.render_torch import TorchPlaneRenderer
 
-        return TorchPlaneRenderer(scene, camera).to(device)
+        filtering = {k: kwargs.pop(k) for k in ("filter", "lod_bias", "samples") if k in kwargs}
+        return TorchPlaneRenderer(scene, camera, **filtering).to(device)
     if name == "pyrender":
         from aectorch.sim.render_pyrender import PyrenderRenderer
 
@@ -238,11 +283,17 @@ class ActiveDepthEnv:
             )
         self.distances_m = torch.tensor(distances, dtype=dtype, device=self.device)
         self.renderer_name = renderer
+        self._renderer_options = dict(renderer_options or {})
         self.renderer = make_renderer(
-            renderer, self.scene, self.camera, device=self.device, **(renderer_options or {})
+            renderer, self.scene, self.camera, device=self.device, **self._renderer_options
         )
+        self._scale_renderer = None  # built on the first request for foveal scales
+        self._last_left = None  # (view version, scales, left image) of the last stereo frame
         self.seed = seed
         self.reset(seed)
+
+    #: :meth:`parallax_observation` and :meth:`stereo_observation` accept ``scales``.
+    renders_scales = True
 
     # -- state -------------------------------------------------------------------------------
     def reset(self, seed: int | None = None) -> None:
@@ -303,8 +354,13 @@ class ActiveDepthEnv:
         )
         self.target_m = self._fixation_target(self.pan_deg[:, 0], self.plane_x_m)
         self._start_pans = self.pan_deg
-        self._first_image: Tensor | None = None
+        self._first_image: dict = {}
         self._first_roll: Tensor | None = None
+        self._moved()
+
+    def _moved(self) -> None:
+        """The left eye's view changed (pan, roll or body): a stereo frame can no longer be reused."""
+        self._left_view = getattr(self, "_left_view", 0) + 1
 
     def body_shift_fraction(self, iteration: int) -> float:
         """The fraction of ``shift_m`` the body has moved during ``iteration`` of a fixation."""
@@ -331,6 +387,7 @@ class ActiveDepthEnv:
         if pan.shape != (self.num_envs, 2):
             raise ValueError(f"pan_deg must have shape [B, 2] = [{self.num_envs}, 2], got {tuple(pan.shape)}")
         self.pan_deg = self.head.clamp_pan_deg(pan)
+        self._moved()
 
     def set_roll(self, roll_deg) -> None:
         """Set each eye's roll about its optical axis (the perturbation), ``[2]`` or ``[B, 2]``, degrees."""
@@ -340,6 +397,7 @@ class ActiveDepthEnv:
                 f"roll_deg must have shape [2] or [B, 2] = [{self.num_envs}, 2], got {tuple(roll.shape)}"
             )
         self.roll_deg = roll.expand(self.num_envs, 2).clone()
+        self._moved()
 
     @property
     def left_pan_deg(self) -> Tensor:
@@ -392,32 +450,70 @@ class ActiveDepthEnv:
         return torch.stack(columns, dim=-1)
 
     # -- observations ----------------------------------------------------------------------
-    def _render(self, shift_m: Tensor, pans: Tensor, eyes: slice, roll_deg: Tensor | None = None) -> Tensor:
+    def _render(self, shift_m: Tensor, pans: Tensor, eyes: slice, roll_deg: Tensor | None = None,
+                scales=None):
         roll = self.roll_deg if roll_deg is None else roll_deg
-        poses = self.head.camera_poses(shift_m, pans, roll, convention="opengl")
+        poses = self.head.camera_poses(shift_m, pans, roll, convention="opengl")[:, eyes]
         # The indices were checked by set_trial: no host sync per frame.
-        return self.renderer(
-            poses[:, eyes], self.plane_x_m, self.texture_index, self.window, check=False
-        ).to(self.dtype)
+        if scales is None:
+            return self.renderer(poses, self.plane_x_m, self.texture_index, self.window, check=False).to(self.dtype)
+        if self._scale_renderer is None:
+            self._scale_renderer = make_renderer(self.renderer_name, self.scene, self.camera, device=self.device,
+                                                 **{**self._renderer_options, **SCALE_FILTER})
+        # Each scale's crop with one more of its pixels on every side, for the blur.
+        finer = [_finer(s.downsample) for s in scales]
+        windows = [(self.camera.central_window(s.crop + 2 * s.downsample), s.downsample // k)
+                   for s, k in zip(scales, finer)]
+        images = self._scale_renderer.render_windows(poses, self.plane_x_m, self.texture_index, windows, check=False)
+        return {s.name: pyramid_blur(_block_mean(image, k), s.levels).to(self.dtype)
+                for s, image, k in zip(scales, images, finer)}
 
-    def parallax_observation(self) -> Tensor:
+    @staticmethod
+    def _key(scales):
+        return None if scales is None else tuple(scales)
+
+    def parallax_observation(self, scales=None):
         """The motion-parallax pair ``[B, 2, h, w]``: left eye before the shift, then after it.
 
         The first image is the left eye at the starting position with the fixation's start pan,
         rendered once per fixation; the second is the left eye after the body shift with the
-        current pan.
+        current pan (the previous stereo frame's left image when nothing has moved since).
+
+        Args:
+            scales: ``None`` (the crops of ``window``), or foveal scales
+                (:class:`aectorch.coding.Scale`): then a dict ``{scale.name: [B, 2, side, side]}``
+                of each scale's central ``crop`` rendered directly at its resolution
+                (``crop // downsample``, mipmapped: :data:`SCALE_FILTER`) and given the rest of
+                the pyramid's blur (:func:`pyramid_blur`), what
+                :class:`aectorch.coding.BinocularEncoder` reads in place of the pyramid's output.
         """
-        if self._first_image is None:
+        key = self._key(scales)
+        first = self._first_image.get(key)
+        if first is None:
             zero = torch.zeros_like(self.body_shift_m)
             if self._first_roll is None:  # the roll when the fixation's first image was taken
                 self._first_roll = self.roll_deg.clone()
-            self._first_image = self._render(zero, self._start_pans, slice(0, 1), self._first_roll)[:, 0]
-        second = self._render(self.body_shift_m, self.pan_deg, slice(0, 1))[:, 0]
-        return torch.stack((self._first_image, second), dim=1)
+            first = self._render(zero, self._start_pans, slice(0, 1), self._first_roll, scales)
+            self._first_image[key] = first
+        cached = self._last_left
+        if cached is not None and cached[0] == self._left_view and cached[1] == key:
+            second = cached[2]  # the left eye has not moved since the last stereo frame
+        else:
+            second = self._render(self.body_shift_m, self.pan_deg, slice(0, 1), scales=scales)
+        if scales is None:
+            return torch.cat((first, second), dim=1)
+        return {name: torch.cat((first[name], second[name]), dim=1) for name in first}
 
-    def stereo_observation(self) -> Tensor:
-        """The stereo pair ``[B, 2, h, w]``: left then right eye at the shifted position."""
-        return self._render(self.body_shift_m, self.pan_deg, slice(0, 2))
+    def stereo_observation(self, scales=None):
+        """The stereo pair ``[B, 2, h, w]``: left then right eye at the shifted position.
+
+        Args:
+            scales: as for :meth:`parallax_observation` (a dict of per-scale pairs).
+        """
+        pair = self._render(self.body_shift_m, self.pan_deg, slice(0, 2), scales=scales)
+        left = pair[:, :1] if scales is None else {name: p[:, :1] for name, p in pair.items()}
+        self._last_left = (self._left_view, self._key(scales), left)
+        return pair
 
     # -- actions -----------------------------------------------------------------------------
     def _check_increment(self, delta_deg, name: str) -> Tensor:
@@ -438,6 +534,7 @@ class ActiveDepthEnv:
         delta = self._check_increment(delta_deg, "delta_deg")
         step = torch.stack((delta, delta if self.yoked_pursuit else torch.zeros_like(delta)), dim=-1)
         self.pan_deg = self.head.clamp_pan_deg(self.pan_deg + step)
+        self._moved()
 
     def apply_vergence(self, delta_deg: Tensor) -> IterationInfo:
         """Add the vergence increments ``[B]`` to the right eye's pan and end the iteration."""
@@ -462,8 +559,9 @@ class ActiveDepthEnv:
             self._start_fixation(1)
         else:
             self.iteration += 1
-            if self.shift_iterations > 1:  # the body moves on
+            if self.shift_iterations > self.iteration:  # the body moves on
                 self.body_shift_m = self._body_shift(self.iteration)
+                self._moved()
         return IterationInfo(
             left_pan_deg=info_left,
             right_pan_deg=info_right,
@@ -515,7 +613,8 @@ class ActiveDepthEnv:
         self.fixation = int(state["fixation"])
         self.iteration = int(state["iteration"])
         self._generator.set_state(state["generator"])
-        self._first_image = None
+        self._first_image = {}
+        self._moved()
         first_roll = state.get("first_roll")
         self._first_roll = None if first_roll is None else first_roll.to(self.roll_deg)
 

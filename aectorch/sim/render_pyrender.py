@@ -11,8 +11,10 @@ Conventions that make the two renderers agree (see ``docs/simulation.md``):
   default material would dim the texture to 40 %), so a pixel equals the sampled texture;
 - textures are uploaded as 8-bit RGB (three equal channels); pyrender flips the rows for
   OpenGL, so texture coordinate ``t = 1`` is the image's top row;
-- filtering ``GL_LINEAR`` for both magnification and minification (no mipmaps), wrap
-  ``GL_CLAMP_TO_EDGE``; unpack and pack alignment 1, so any texture or window width works;
+- filtering ``GL_LINEAR`` for both magnification and minification (no mipmaps), or with
+  ``filter="trilinear"`` ``GL_LINEAR_MIPMAP_LINEAR`` minification over the mipmaps OpenGL builds
+  (``glGenerateMipmap``) with ``GL_TEXTURE_LOD_BIAS`` ``lod_bias``; wrap ``GL_CLAMP_TO_EDGE``;
+  unpack and pack alignment 1, so any texture or window width works;
 - the camera is pyrender's ``IntrinsicsCamera`` with the principal point of
   :class:`~aectorch.sim.camera.PinholeCamera` shifted by the window's offset, so a window renders
   exactly those pixels of the full image.
@@ -74,7 +76,8 @@ def import_pyrender(platform: str = "osmesa"):
     return pyrender
 
 
-def _quad(pyrender, texture: np.ndarray, size_m: tuple[float, float]):
+def _quad(pyrender, texture: np.ndarray, size_m: tuple[float, float], filter: str = "linear",
+          lod_bias: float = 0.0):
     """A flat-shaded quad in the plane x = 0 that faces -x, texture column 0 at +y, row 0 at +z."""
     width, height = size_m
     w2, h2 = width / 2.0, height / 2.0
@@ -85,14 +88,16 @@ def _quad(pyrender, texture: np.ndarray, size_m: tuple[float, float]):
     uv = np.array([[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]], dtype=np.float32)
     normals = np.tile(np.array([[-1.0, 0.0, 0.0]], dtype=np.float32), (4, 1))
     indices = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.uint32)
-    from OpenGL.GL import GL_CLAMP_TO_EDGE, GL_LINEAR
+    from OpenGL.GL import GL_CLAMP_TO_EDGE, GL_LINEAR, GL_LINEAR_MIPMAP_LINEAR
 
     sampler = pyrender.Sampler(
-        magFilter=GL_LINEAR, minFilter=GL_LINEAR, wrapS=GL_CLAMP_TO_EDGE, wrapT=GL_CLAMP_TO_EDGE
+        magFilter=GL_LINEAR, minFilter=GL_LINEAR_MIPMAP_LINEAR if filter == "trilinear" else GL_LINEAR,
+        wrapS=GL_CLAMP_TO_EDGE, wrapT=GL_CLAMP_TO_EDGE
     )
     rgb = np.ascontiguousarray(np.repeat(texture[:, :, None], 3, axis=2))
     material = pyrender.MetallicRoughnessMaterial(
-        baseColorTexture=pyrender.Texture(source=rgb, source_channels="RGB", sampler=sampler),
+        baseColorTexture=_texture_class(pyrender)(source=rgb, source_channels="RGB", sampler=sampler,
+                                                  lod_bias=lod_bias),
         baseColorFactor=[1.0, 1.0, 1.0, 1.0],
         metallicFactor=0.0,
         roughnessFactor=1.0,
@@ -102,6 +107,30 @@ def _quad(pyrender, texture: np.ndarray, size_m: tuple[float, float]):
         positions=positions, normals=normals, texcoord_0=uv, indices=indices, material=material
     )
     return pyrender.Mesh([primitive])
+
+
+_TEXTURE_CLASS: dict = {}
+
+
+def _texture_class(pyrender):
+    """pyrender's ``Texture`` that also sets ``GL_TEXTURE_LOD_BIAS`` when it is uploaded."""
+    if "class" not in _TEXTURE_CLASS:
+        class BiasedTexture(pyrender.Texture):
+            def __init__(self, *args, lod_bias: float = 0.0, **kwargs):
+                super().__init__(*args, **kwargs)
+                self.lod_bias = float(lod_bias)
+
+            def _add_to_context(self):
+                super()._add_to_context()
+                if self.lod_bias:
+                    from OpenGL.GL import GL_TEXTURE_LOD_BIAS, glBindTexture, glTexParameterf
+
+                    glBindTexture(self.tex_type, self._texid)
+                    glTexParameterf(self.tex_type, GL_TEXTURE_LOD_BIAS, self.lod_bias)
+                    glBindTexture(self.tex_type, 0)
+
+        _TEXTURE_CLASS["class"] = BiasedTexture
+    return _TEXTURE_CLASS["class"]
 
 
 def _stable_program_cache(pyrender, renderer) -> None:
@@ -153,6 +182,9 @@ class PyrenderRenderer:
         camera: intrinsics.
         platform: "osmesa" (default; CPU) or "egl" (GPU machines).
         znear, zfar: clipping planes in metres (the background must lie inside).
+        filter, lod_bias, samples: as for :class:`~aectorch.sim.render_torch.TorchPlaneRenderer`
+            (``"trilinear"`` is OpenGL's own mipmapping; ``samples`` renders each window
+            ``samples`` times finer and averages ``samples x samples`` blocks).
 
     Renders one camera at a time (OpenGL has no batch); images come back as float32 in [0, 1]
     (multiples of 1/255) on the device of the poses.
@@ -179,7 +211,15 @@ class PyrenderRenderer:
         platform: str = "osmesa",
         znear: float = 0.05,
         zfar: float = 100.0,
+        filter: str = "linear",
+        lod_bias: float = 0.0,
+        samples: int = 1,
     ) -> None:
+        if filter not in ("linear", "trilinear"):
+            raise ValueError(f"filter must be one of ('linear', 'trilinear'), got {filter!r}")
+        if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
+            raise ValueError(f"samples must be an int >= 1, got {samples!r}")
+        self.filter, self.lod_bias, self.samples = filter, float(lod_bias), samples
         if not (0 < znear < zfar):
             raise ValueError(f"need 0 < znear < zfar, got znear={znear!r}, zfar={zfar!r}")
         if scene.background_x_m >= zfar:
@@ -196,7 +236,7 @@ class PyrenderRenderer:
         background = _to_uint8(scene.background)
         pose = np.eye(4)
         pose[:3, 3] = [scene.background_x_m, *scene.background_center_yz_m]
-        self._gl_scene.add(_quad(pyrender, background, scene.background_size_m), pose=pose)
+        self._gl_scene.add(_quad(pyrender, background, scene.background_size_m, filter, self.lod_bias), pose=pose)
         self._texture_nodes: dict[int, object] = {}
         self._visible: int | None = None
         self._camera_node = None
@@ -244,7 +284,7 @@ class PyrenderRenderer:
         node = self._texture_nodes.get(index)
         if node is None:
             texture = _to_uint8(self.scene.textures[index])
-            mesh = _quad(self._pyrender, texture, self.scene.object_size_m)
+            mesh = _quad(self._pyrender, texture, self.scene.object_size_m, self.filter, self.lod_bias)
             node = self._gl_scene.add(mesh, pose=np.eye(4))
             self._texture_nodes[index] = node
         if self._visible is not None:
@@ -252,8 +292,8 @@ class PyrenderRenderer:
         node.mesh.is_visible = True
         self._visible = index
 
-    def _set_camera(self, window: PixelWindow) -> None:
-        fx, fy, cx, cy = self.camera.window_intrinsics(window)
+    def _set_camera(self, intrinsics: tuple[float, float, float, float]) -> None:
+        fx, fy, cx, cy = intrinsics
         camera = self._pyrender.IntrinsicsCamera(fx, fy, cx, cy, znear=self.znear, zfar=self.zfar)
         if self._camera_node is not None:
             self._gl_scene.remove_node(self._camera_node)
@@ -286,27 +326,48 @@ class PyrenderRenderer:
         ``check`` is accepted for symmetry with the torch renderer; the indices are always
         checked, since they go to the host anyway.
         """
-        batch = self.scene.check_render_inputs(poses, plane_x_m, texture_index)
         window = self.camera.check_window(window)
-        index = texture_index.cpu().tolist()
-        renderer = self._renderer(window)
-        self._set_camera(window)
-        flat_poses = poses.detach().reshape(batch, -1, 4, 4).to("cpu", torch.float64).numpy()
-        planes = plane_x_m.detach().to("cpu", torch.float64).numpy()
-        out = np.empty((batch, flat_poses.shape[1], window.height, window.width), dtype=np.uint8)
-        y, z = self.scene.object_center_yz_m
-        for b in range(batch):
-            self._show_texture(index[b])
-            node = self._texture_nodes[index[b]]
-            pose = np.eye(4)
-            pose[:3, 3] = [planes[b], y, z]
-            self._gl_scene.set_pose(node, pose)
-            for c in range(flat_poses.shape[1]):
-                self._gl_scene.set_pose(self._camera_node, flat_poses[b, c])
-                colour, _ = renderer.render(self._gl_scene, flags=self._flags)
-                out[b, c] = colour[:, :, 0]
-        images = torch.from_numpy(out).to(torch.float32).div_(255.0)
-        images = images.reshape(poses.shape[:-2] + (window.height, window.width))
-        return images.to(poses.device)
+        return self.render_windows(poses, plane_x_m, texture_index, [(window, 1)])[0]
 
     render = __call__
+
+    def render_windows(self, poses: Tensor, plane_x_m: Tensor, texture_index: Tensor, windows, *,
+                       check: bool = True) -> list[Tensor]:
+        """Render several windows, each on its own pixel grid; see ``TorchPlaneRenderer.render_windows``.
+
+        A window at ``downsample`` d is drawn by a camera whose pixels are ``d / samples`` of this
+        one's (``samples x samples`` of them then averaged per pixel).
+        """
+        batch = self.scene.check_render_inputs(poses, plane_x_m, texture_index)
+        index = texture_index.cpu().tolist()
+        flat_poses = poses.detach().reshape(batch, -1, 4, 4).to("cpu", torch.float64).numpy()
+        planes = plane_x_m.detach().to("cpu", torch.float64).numpy()
+        f = self.camera.focal_px
+        pcx, pcy = self.camera.principal_point
+        results = []
+        for window, downsample in windows:
+            top, left, h, w = self.camera.check_window(window)
+            if h % downsample or w % downsample:
+                raise ValueError(f"the window's sides {h} x {w} must be multiples of downsample={downsample}")
+            factor = self.samples / downsample
+            height, width = round(h * factor), round(w * factor)
+            renderer = self._renderer(PixelWindow(0, 0, height, width))
+            self._set_camera((f * factor, f * factor, (pcx - left) * factor, (pcy - top) * factor))
+            out = np.empty((batch, flat_poses.shape[1], height, width), dtype=np.uint8)
+            y, z = self.scene.object_center_yz_m
+            for b in range(batch):
+                self._show_texture(index[b])
+                node = self._texture_nodes[index[b]]
+                pose = np.eye(4)
+                pose[:3, 3] = [planes[b], y, z]
+                self._gl_scene.set_pose(node, pose)
+                for c in range(flat_poses.shape[1]):
+                    self._gl_scene.set_pose(self._camera_node, flat_poses[b, c])
+                    colour, _ = renderer.render(self._gl_scene, flags=self._flags)
+                    out[b, c] = colour[:, :, 0]
+            images = torch.from_numpy(out).to(torch.float32).div_(255.0)
+            if self.samples > 1:
+                images = torch.nn.functional.avg_pool2d(images, self.samples)
+            images = images.reshape(poses.shape[:-2] + images.shape[-2:])
+            results.append(images.to(poses.device))
+        return results

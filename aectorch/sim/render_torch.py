@@ -3,10 +3,14 @@
 Every pixel's ray (through its centre, see :mod:`aectorch.sim.camera`) is intersected with the
 object plane ``x = plane_x_m`` and with the background plane; the hit point's texture coordinate
 is sampled bilinearly with clamp-to-edge, exactly as OpenGL samples a ``GL_LINEAR`` texture with
-``GL_CLAMP_TO_EDGE`` wrap (texel ``i`` centred at ``i + 0.5``, no mipmaps). For a plane the map
-from pixel to texture coordinate is a homography; computing it through the ray keeps the code
-batched over any camera pose and lets a window of the image (the coder's central crops) be
-rendered without the rest.
+``GL_CLAMP_TO_EDGE`` wrap (texel ``i`` centred at ``i + 0.5``, no mipmaps), or, with
+``filter="trilinear"``, from an area-filtered texture pyramid (mipmaps, OpenGL's
+``GL_LINEAR_MIPMAP_LINEAR``: the level of detail from the pixel's footprint in texels, two
+bilinear lookups in the two nearest levels, blended). For a plane the map from pixel to texture
+coordinate is a homography; computing it through the ray keeps the code batched over any camera
+pose and lets a window of the image (the coder's central crops) be rendered without the rest,
+also on a coarser pixel grid (``downsample``: each pixel covers ``downsample x downsample``
+pixels of the camera, which is how each foveal scale is rendered at the resolution it reads).
 
 Textures are sampled by index arithmetic from one flat tensor of all textures, so each
 environment can look at its own texture without copying textures per environment, and the
@@ -15,13 +19,21 @@ result is differentiable in the poses, the plane distances and the texture value
 
 from __future__ import annotations
 
+import math
+from typing import NamedTuple
+
 import torch
 from torch import Tensor, nn
 
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.scene import PlaneScene
 
-__all__ = ["TorchPlaneRenderer", "render_planes", "sample_bilinear", "texture_atlas"]
+__all__ = ["FILTERS", "MipmapAtlas", "TorchPlaneRenderer", "mipmap_atlas", "mipmap_levels", "pixel_rays",
+           "render_planes", "render_rays", "sample_bilinear", "texture_atlas"]
+
+#: Texture filters: ``"linear"`` (``GL_LINEAR``, no mipmaps) or ``"trilinear"``
+#: (``GL_LINEAR_MIPMAP_LINEAR`` minification, ``GL_LINEAR`` magnification).
+FILTERS = ("linear", "trilinear")
 
 
 def sample_bilinear(
@@ -85,14 +97,138 @@ def texture_atlas(textures: Tensor, background: Tensor) -> Tensor:
     return torch.cat((textures, background.to(textures).unsqueeze(0)))
 
 
+class MipmapAtlas(NamedTuple):
+    """All textures' mipmap chains packed side by side, one packed image per texture (see :func:`mipmap_atlas`).
+
+    Attributes:
+        packed: ``[N, Hp, Wp]``: level 0 in columns ``0 .. W - 1``, the smaller levels stacked
+            top to bottom in the columns to its right.
+        origins: ``[L, 2]`` (int64): the row and column of each level's first texel.
+        sizes: ``[L, 2]`` (int64): each level's height and width.
+    """
+
+    packed: Tensor
+    origins: Tensor
+    sizes: Tensor
+
+    @property
+    def levels(self) -> int:
+        """Number of levels L (level 0 is the texture itself)."""
+        return self.sizes.shape[0]
+
+
+def mipmap_levels(images: Tensor) -> list[Tensor]:
+    """The mipmap chain of ``[N, H, W]`` images, as OpenGL's ``glGenerateMipmap`` builds it.
+
+    Each level halves both sides (rounding down, never below 1) and is the area average of the
+    level above: the mean of each 2 x 2 block when the sides are even (every level of a power-of-two
+    texture), an area resampling otherwise (OpenGL leaves odd sizes' filter to the implementation).
+
+    Example:
+        >>> levels = mipmap_levels(torch.rand(1, 4, 8))
+        >>> len(levels), tuple(levels[1].shape), tuple(levels[-1].shape)
+        (4, (1, 2, 4), (1, 1, 1))
+    """
+    levels = [images]
+    x = images
+    while x.shape[-2] > 1 or x.shape[-1] > 1:
+        h, w = x.shape[-2:]
+        size = (max(h // 2, 1), max(w // 2, 1))
+        x = torch.nn.functional.adaptive_avg_pool2d(x.unsqueeze(1), size).squeeze(1)
+        levels.append(x)
+    return levels
+
+
+def mipmap_atlas(textures: Tensor, background: Tensor) -> MipmapAtlas:
+    """The :func:`texture_atlas` of ``textures`` and ``background`` with every layer's mipmaps, packed.
+
+    Memory: about 1.5x the plain atlas (level 0 plus the levels beside it).
+    """
+    atlas = texture_atlas(textures, background)
+    levels = mipmap_levels(atlas)
+    n, h, w = atlas.shape
+    right = levels[1].shape[-1] if len(levels) > 1 else 0
+    height = max(h, sum(level.shape[-2] for level in levels[1:]))
+    packed = atlas.new_zeros(n, height, w + right)
+    origins, sizes, row = [], [], 0
+    for index, level in enumerate(levels):
+        lh, lw = level.shape[-2:]
+        top, left = (0, 0) if index == 0 else (row, w)
+        packed[:, top:top + lh, left:left + lw] = level
+        origins.append((top, left))
+        sizes.append((lh, lw))
+        if index:
+            row += lh
+    as_long = lambda rows: torch.tensor(rows, dtype=torch.int64, device=atlas.device)  # noqa: E731
+    return MipmapAtlas(packed, as_long(origins), as_long(sizes))
+
+
 def _plane_coords(o, ry, rz, plane_x, center_yz, size_m):
     """Normalised plane coordinates (0..1 from the left / top edge) of rays ``(1, ry, rz)``."""
-    reach = plane_x - o[..., 0]  # along x from the eye to the plane, [B, C, 1, 1]
+    reach = plane_x - o[..., 0]  # along x from the eye to the plane, [B, C, 1]
     width, height = size_m
     u = (center_yz[0] + 0.5 * width - o[..., 1]) / width - (reach / width) * ry
     v = (center_yz[1] + 0.5 * height - o[..., 2]) / height - (reach / height) * rz
     hit = (reach > 0) & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
-    return u, v, hit
+    return u, v, hit, reach
+
+
+def _sample_atlas(atlas: Tensor, layer: Tensor, u: Tensor, v: Tensor, dtype) -> Tensor:
+    """Bilinear lookups at texel coordinates ``(u, v)`` of atlas ``layer`` ``[N, H, W]``, one ``grid_sample``.
+
+    The coordinates must already be clamped to edge texel centres. Above ``_ATLAS_ROWS_FLOAT32``
+    rows in float32 the lookups use index arithmetic (:func:`sample_bilinear`) instead.
+    """
+    layers, tex_h, tex_w = atlas.shape
+    if not (dtype == torch.float64 or layers * tex_h <= _ATLAS_ROWS_FLOAT32):
+        return sample_bilinear(atlas, layer.long(), u, v)
+    layer = layer.to(dtype)
+    w = u.shape[-1]
+    if torch.compiler.is_compiling() or (torch.is_grad_enabled() and (u.requires_grad or v.requires_grad)):
+        # (compiled: inductor fuses the stack; the in-place writes below do not trace)
+        gx = u * (2.0 / tex_w) - 1.0
+        gy = (layer * tex_h + v) * (2.0 / (layers * tex_h)) - 1.0
+        grid = torch.stack((gx, gy), dim=-1)
+    else:  # the same, written in place into the grid (saves a copy of every coordinate)
+        grid = torch.empty(u.shape + (2,), dtype=dtype, device=u.device)
+        torch.mul(u, 2.0 / tex_w, out=grid[..., 0]).sub_(1.0)
+        torch.add(v, layer, alpha=tex_h, out=grid[..., 1])
+        grid[..., 1].mul_(2.0 / (layers * tex_h)).sub_(1.0)
+    return torch.nn.functional.grid_sample(
+        atlas.reshape(1, 1, layers * tex_h, tex_w), grid.reshape(1, -1, w, 2), mode="bilinear",
+        padding_mode="border", align_corners=False,
+    ).reshape(u.shape)
+
+
+def pixel_rays(camera: PinholeCamera, windows, *, dtype=torch.float32, device=None) -> tuple[Tensor, Tensor, Tensor]:
+    """The ray slopes through the pixel centres of several windows, flattened, and each pixel's size.
+
+    Args:
+        camera: intrinsics.
+        windows: ``(PixelWindow, downsample)`` pairs: each window on a grid of ``downsample x
+            downsample`` blocks of the camera's pixels (its sides multiples of ``downsample``).
+
+    Returns:
+        ``(xs, ys, step)``, each ``[P]`` with ``P`` the windows' pixels, row-major, window after
+        window: the ray ``(xs, ys, 1)`` in the ROS optical frame through each pixel's centre, and
+        the pixel's side in the same units (``downsample / focal_px``).
+    """
+    cx, cy = camera.principal_point
+    f = camera.focal_px
+    xs, ys, steps = [], [], []
+    for window, downsample in windows:
+        top, left, h, w = camera.check_window(window)
+        if isinstance(downsample, bool) or not isinstance(downsample, int) or downsample < 1:
+            raise ValueError(f"downsample must be an int >= 1, got {downsample!r}")
+        if h % downsample or w % downsample:
+            raise ValueError(f"the window's sides {h} x {w} must be multiples of downsample={downsample}")
+        h, w = h // downsample, w // downsample
+        x = (left + (torch.arange(w, dtype=dtype, device=device) + 0.5) * downsample - cx) / f
+        y = (top + (torch.arange(h, dtype=dtype, device=device) + 0.5) * downsample - cy) / f
+        xs.append(x.repeat(h))
+        ys.append(y.repeat_interleave(w))
+        steps.append(torch.full((h * w,), downsample / f, dtype=dtype, device=device))
+    return torch.cat(xs), torch.cat(ys), torch.cat(steps)
 
 
 def render_planes(
@@ -105,8 +241,12 @@ def render_planes(
     *,
     textures: Tensor | None = None,
     background: Tensor | None = None,
-    atlas: Tensor | None = None,
+    atlas: Tensor | MipmapAtlas | None = None,
     check: bool = True,
+    downsample: int = 1,
+    filter: str = "linear",
+    lod_bias: float = 0.0,
+    samples: int = 1,
 ) -> Tensor:
     """Render grey images of the plane scene for a batch of cameras.
 
@@ -116,6 +256,14 @@ def render_planes(
     ``dy / dx`` and ``dz / dx``; each pixel then reads the object plane where it hits it, else
     the background, with one bilinear ``grid_sample`` over an atlas of all textures (clamped to
     each texture's edge texel centres, which is ``GL_CLAMP_TO_EDGE``).
+
+    With ``filter="trilinear"`` each pixel reads the textures' mipmaps as OpenGL's
+    ``GL_LINEAR_MIPMAP_LINEAR`` does: the level of detail ``lambda = log2(rho) + lod_bias``, with
+    ``rho`` the longer of the pixel's two sides measured in texels (from the homography's exact
+    derivatives), selects the two nearest levels, each sampled bilinearly, blended by
+    ``lambda``'s fraction; ``lambda <= 0`` (magnification) reads level 0 alone. A texel of level
+    ``l`` is the mean of ``2**l x 2**l`` texels, so a pixel covering many texels reads about their
+    mean (an area filter) at a cost that does not depend on how many texels it covers.
 
     Args:
         poses: camera-to-world transforms in the OpenGL camera convention (x right, y up, looking
@@ -128,47 +276,101 @@ def render_planes(
         textures: override ``scene.textures`` (same shape), e.g. to differentiate with respect to
             them.
         background: override ``scene.background``.
-        atlas: a prebuilt :func:`texture_atlas` (what :class:`TorchPlaneRenderer` passes).
+        atlas: a prebuilt :func:`texture_atlas` (``filter="linear"``) or :func:`mipmap_atlas`
+            (``"trilinear"``), what :class:`TorchPlaneRenderer` passes.
         check: check that every texture index is in range (one host sync). An index out of
             range would otherwise read a neighbouring texture of the atlas without an error.
+        downsample: render the window on a grid of ``downsample x downsample`` blocks of the
+            camera's pixels, one sample at each block's centre (the window's sides must be
+            multiples of it); with ``"trilinear"`` each sample filters over its block.
+        filter: ``"linear"`` or ``"trilinear"`` (:data:`FILTERS`).
+        lod_bias: added to the level of detail (``GL_TEXTURE_LOD_BIAS``; ``"trilinear"`` only).
+        samples: ``"trilinear"`` only: average ``samples x samples`` lookups spread over each pixel
+            (at the centres of its sub-pixels, placed along the pixel's footprint on the plane),
+            each at the level of detail of a sub-pixel. Two (with ``lod_bias=-0.5``) is within
+            0.5 % of the exact area average of the texture (docs/simulation.md); one sample is
+            OpenGL's.
 
     Returns:
         Intensities in [0, 1]; the object plane occludes the background; pixels whose ray hits
         neither plane are 0. Dtype and device of ``poses``.
 
     Shape:
-        output: ``[B, ..., window.height, window.width]``.
+        output: ``[B, ..., window.height // downsample, window.width // downsample]``.
+    """
+    window = camera.check_window(window)
+    rays = pixel_rays(camera, [(window, downsample)], dtype=poses.dtype, device=poses.device)
+    image = render_rays(poses, plane_x_m, texture_index, scene, rays, textures=textures, background=background,
+                        atlas=atlas, check=check, filter=filter, lod_bias=lod_bias, samples=samples)
+    return image.reshape(image.shape[:-1] + (window.height // downsample, window.width // downsample))
+
+
+def render_rays(
+    poses: Tensor,
+    plane_x_m: Tensor,
+    texture_index: Tensor,
+    scene: PlaneScene,
+    rays: tuple[Tensor, Tensor, Tensor],
+    *,
+    textures: Tensor | None = None,
+    background: Tensor | None = None,
+    atlas: Tensor | MipmapAtlas | None = None,
+    check: bool = True,
+    filter: str = "linear",
+    lod_bias: float = 0.0,
+    samples: int = 1,
+) -> Tensor:
+    """:func:`render_planes` for the flattened pixels of :func:`pixel_rays`: ``[B, ..., P]``.
+
+    Several windows (for example every foveal scale, each on its own pixel grid) then render in
+    one pass: the same elementwise operations and one texture lookup for all of them.
     """
     batch = scene.check_render_inputs(poses, plane_x_m, texture_index, check_range=check)
-    window = camera.check_window(window)
+    if filter not in FILTERS:
+        raise ValueError(f"filter must be one of {FILTERS}, got {filter!r}")
+    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
+        raise ValueError(f"samples must be an int >= 1, got {samples!r}")
     dtype, device = poses.dtype, poses.device
+    trilinear = filter == "trilinear"
     if atlas is None:
-        atlas = texture_atlas(
+        build = mipmap_atlas if trilinear else texture_atlas
+        atlas = build(
             scene.textures if textures is None else textures,
             scene.background if background is None else background,
         )
-    atlas = atlas.to(dtype=dtype, device=device)
-    layers, tex_h, tex_w = atlas.shape
+    if trilinear != isinstance(atlas, MipmapAtlas):
+        raise TypeError(f"filter={filter!r} needs atlas to be a "
+                        f"{'MipmapAtlas (mipmap_atlas)' if trilinear else 'tensor (texture_atlas)'}, "
+                        f"got {type(atlas).__name__}")
+    mip = atlas if trilinear else None
+    if trilinear and _native_trilinear(poses, mip, textures, background, scene):
+        from aectorch.coding import native  # noqa: F401 - registers the operator
+
+        (object_w, object_h), (background_w, background_h) = scene.object_size_m, scene.background_size_m
+        numbers = [*scene.object_center_yz_m, object_w, object_h, scene.background_x_m,
+                   *scene.background_center_yz_m, background_w, background_h]
+        flat = torch.ops.aectorch.render_trilinear(
+            poses.reshape(batch, -1, 4, 4), plane_x_m, texture_index, mip.packed, *rays, numbers,
+            int(scene.textures.shape[-2]), int(scene.textures.shape[-1]), mip.levels, float(lod_bias), samples)
+        return flat.reshape(poses.shape[:-2] + (flat.shape[-1],))
+    atlas = (mip.packed if trilinear else atlas).to(dtype=dtype, device=device)
+    layers = atlas.shape[0]
+    tex_h, tex_w = (int(n) for n in scene.textures.shape[-2:])
+    xs, ys, step = (r.to(dtype=dtype, device=device) for r in rays)
 
     middle = poses.shape[1:-2]
     flat = poses.reshape(batch, -1, 4, 4)
-    o = flat[:, :, :3, 3][:, :, None, None, :]  # [B, C, 1, 1, 3]
-    rot = flat[:, :, :3, :3, None, None]  # [B, C, 3, 3, 1, 1]
-    cx, cy = camera.principal_point
-    f = camera.focal_px
-    top, left, h, w = window
-    xs = (torch.arange(left, left + w, dtype=dtype, device=device) + 0.5 - cx) / f  # [w]
-    ys = (torch.arange(top, top + h, dtype=dtype, device=device) + 0.5 - cy) / f  # [h]
-    ys = ys[:, None]
+    o = flat[:, :, None, :3, 3]  # [B, C, 1, 3]
+    rot = flat[:, :, :3, :3, None]  # [B, C, 3, 3, 1]
     # The ray (xs, ys, 1) in the ROS optical frame is (xs, -ys, -1) in the OpenGL camera frame.
     d = [rot[:, :, i, 0] * xs - (rot[:, :, i, 1] * ys + rot[:, :, i, 2]) for i in range(3)]
     ahead = d[0] > 1e-12
     inv = 1.0 / torch.where(ahead, d[0], torch.ones_like(d[0]))
-    ry, rz = d[1] * inv, d[2] * inv  # [B, C, h, w]
+    ry, rz = d[1] * inv, d[2] * inv  # [B, C, P]
 
-    plane_x = plane_x_m.to(dtype)[:, None, None, None]
-    u, v, on_object = _plane_coords(o, ry, rz, plane_x, scene.object_center_yz_m, scene.object_size_m)
-    ub, vb, on_background = _plane_coords(
+    plane_x = plane_x_m.to(dtype)[:, None, None]
+    u, v, on_object, reach = _plane_coords(o, ry, rz, plane_x, scene.object_center_yz_m, scene.object_size_m)
+    ub, vb, on_background, reach_b = _plane_coords(
         o, ry, rz, torch.full_like(plane_x, scene.background_x_m),
         scene.background_center_yz_m, scene.background_size_m,
     )
@@ -176,32 +378,87 @@ def render_planes(
     seen = on_object | (on_background & ahead)
     u = torch.where(on_object, u, ub)
     v = torch.where(on_object, v, vb)
-    # Continuous texel coordinates clamped to the edge texels' centres (GL_CLAMP_TO_EDGE).
-    u = (u * tex_w).clamp_(0.5, tex_w - 0.5)
-    v = (v * tex_h).clamp_(0.5, tex_h - 0.5)
-    index = texture_index.reshape(-1, 1, 1, 1)
-    if dtype == torch.float64 or layers * tex_h <= _ATLAS_ROWS_FLOAT32:
-        # The atlas row of each sample: object texture or background (the last layer).
-        layer = torch.where(on_object, index.to(dtype), float(layers - 1))
-        if torch.compiler.is_compiling() or (torch.is_grad_enabled() and (u.requires_grad or v.requires_grad)):
-            # (compiled: inductor fuses the stack; the in-place writes below do not trace)
-            gx = u * (2.0 / tex_w) - 1.0
-            gy = (layer * tex_h + v) * (2.0 / (layers * tex_h)) - 1.0
-            grid = torch.stack((gx, gy), dim=-1)
-        else:  # the same, written in place into the grid (saves a copy of every coordinate)
-            grid = torch.empty(u.shape + (2,), dtype=dtype, device=device)
-            torch.mul(u, 2.0 / tex_w, out=grid[..., 0]).sub_(1.0)
-            torch.add(v, layer, alpha=tex_h, out=grid[..., 1])
-            grid[..., 1].mul_(2.0 / (layers * tex_h)).sub_(1.0)
-        image = torch.nn.functional.grid_sample(
-            atlas.reshape(1, 1, layers * tex_h, tex_w), grid.reshape(1, -1, w, 2), mode="bilinear",
-            padding_mode="border", align_corners=False,
-        ).reshape(u.shape)
+    # The atlas layer of each sample: object texture or background (the last layer).
+    layer = torch.where(on_object, texture_index.reshape(-1, 1, 1), layers - 1)
+    if not trilinear:
+        # Continuous texel coordinates clamped to the edge texels' centres (GL_CLAMP_TO_EDGE).
+        u = (u * tex_w).clamp_(0.5, tex_w - 0.5)
+        v = (v * tex_h).clamp_(0.5, tex_h - 0.5)
+        image = _sample_atlas(atlas, layer, u, v, dtype)
     else:
-        layer = torch.where(on_object, index, layers - 1)
-        image = sample_bilinear(atlas, layer, u, v)
+        # Texels per unit of ry (u) and of rz (v) on the plane each pixel reads, times its size.
+        (object_w, object_h), (background_w, background_h) = scene.object_size_m, scene.background_size_m
+        ku = torch.where(on_object, reach * (tex_w / object_w), reach_b * (tex_w / background_w)) * step
+        kv = torch.where(on_object, reach * (tex_h / object_h), reach_b * (tex_h / background_h)) * step
+        # The pixel's sides in texels: the derivatives of (ry, rz) along a column and a row step
+        # (up to a common sign, which the symmetric sub-sample pattern does not see).
+        r0, r1, r2 = rot[:, :, 0], rot[:, :, 1], rot[:, :, 2]  # rows, each [B, C, 3, 1]
+        du_c = ku * (r1[:, :, 0] - ry * r0[:, :, 0]) * inv
+        dv_c = kv * (r2[:, :, 0] - rz * r0[:, :, 0]) * inv
+        du_r = ku * (ry * r0[:, :, 1] - r1[:, :, 1]) * inv
+        dv_r = kv * (rz * r0[:, :, 1] - r2[:, :, 1]) * inv
+        rho2 = torch.maximum(du_c.square() + dv_c.square(), du_r.square() + dv_r.square())
+        lod = 0.5 * torch.log2(rho2.clamp_min(1e-30)) + (lod_bias - math.log2(samples))
+        u, v = u * tex_w, v * tex_h
+        if samples > 1:  # a samples x samples grid inside each pixel, along its two sides
+            offsets = (torch.arange(samples, dtype=dtype, device=device) + 0.5) / samples - 0.5
+            oc, orow = offsets.repeat(samples), offsets.repeat_interleave(samples)
+            u = (u[..., None] + du_c[..., None] * oc + du_r[..., None] * orow).flatten(-2)
+            v = (v[..., None] + dv_c[..., None] * oc + dv_r[..., None] * orow).flatten(-2)
+            lod = lod.repeat_interleave(samples * samples, dim=-1)
+            layer = layer.repeat_interleave(samples * samples, dim=-1)
+        image = _trilinear(mip, atlas, layer, u, v, lod, (tex_h, tex_w), dtype)
+        if samples > 1:
+            image = image.unflatten(-1, (-1, samples * samples)).mean(-1)
     image = torch.where(seen, image, torch.zeros_like(image))
-    return image.reshape((batch, *middle, h, w))
+    return image.reshape((batch, *middle, image.shape[-1]))
+
+
+def _native_trilinear(poses, mip, textures, background, scene) -> bool:
+    """Whether the fused CPU kernel (``render_cpu.cpp``) can render this call."""
+    h, w = scene.textures.shape[-2:]
+    if poses.device.type != "cpu" or poses.dtype not in (torch.float32, torch.float64) \
+            or mip.packed.device.type != "cpu" or h & (h - 1) or w & (w - 1):
+        return False
+    if torch.is_grad_enabled() and any(t is not None and t.requires_grad for t in (poses, textures, background)):
+        return False  # the kernel has no backward: the torch code is differentiable
+    if torch.compiler.is_compiling():
+        from aectorch.coding import native
+
+        return native._state.get("ok", False) is True
+    from aectorch.coding import native
+
+    return native.available()
+
+
+def _trilinear(mip: MipmapAtlas, atlas: Tensor, layer: Tensor, u: Tensor, v: Tensor, lod: Tensor,
+               tex: tuple[int, int], dtype) -> Tensor:
+    """``GL_LINEAR_MIPMAP_LINEAR`` lookups at level-0 texel coordinates ``(u, v)`` and levels of detail ``lod``."""
+    tex_h, tex_w = tex
+    top_level = mip.levels - 1
+    lod = lod.clamp(0.0, float(top_level))
+    low = lod.detach().floor()
+    fraction = lod - low
+    high = (low + 1).clamp_(max=top_level)
+    power_of_two = tex_h & (tex_h - 1) == 0 and tex_w & (tex_w - 1) == 0
+    xs, ys = [], []
+    for level in (low, high):
+        if power_of_two:  # sizes and origins in closed form (no gathers): level l is (H, W) / 2**l
+            scale = torch.exp2(-level)
+            lh, lw = (tex_h * scale).clamp_(min=1.0), (tex_w * scale).clamp_(min=1.0)
+            row = (tex_h - 2 * tex_h * scale).clamp_(min=0.0)  # levels >= 1 stacked from row 0
+            col = level.clamp(max=1.0) * tex_w
+            x, y = u * scale, v * scale
+        else:
+            index = level.long()
+            sizes, origins = mip.sizes.to(index.device, dtype), mip.origins.to(index.device, dtype)
+            lh, lw, row, col = sizes[index, 0], sizes[index, 1], origins[index, 0], origins[index, 1]
+            x, y = u * (lw / tex_w), v * (lh / tex_h)
+        xs.append(torch.minimum(torch.maximum(x, torch.full_like(x, 0.5)), lw - 0.5) + col)
+        ys.append(torch.minimum(torch.maximum(y, torch.full_like(y, 0.5)), lh - 0.5) + row)
+    both = _sample_atlas(atlas, torch.cat((layer, layer), dim=-1), torch.cat(xs, dim=-1), torch.cat(ys, dim=-1), dtype)
+    first, second = both.chunk(2, dim=-1)
+    return first + fraction * (second - first)
 
 
 class TorchPlaneRenderer(nn.Module):
@@ -213,6 +470,10 @@ class TorchPlaneRenderer(nn.Module):
     Args:
         scene: geometry and textures.
         camera: intrinsics (default: the 320 x 240, 50 degree eye camera).
+        filter: ``"linear"`` (default; ``GL_LINEAR``, no mipmaps) or ``"trilinear"`` (mipmaps,
+            ``GL_LINEAR_MIPMAP_LINEAR``; what rendering at a coarser ``downsample`` needs).
+        lod_bias: added to the level of detail of ``"trilinear"`` (``GL_TEXTURE_LOD_BIAS``).
+        samples: lookups per pixel side with ``"trilinear"`` (see :func:`render_planes`).
 
     Example:
         >>> from aectorch.sim.scene import PlaneScene
@@ -228,12 +489,30 @@ class TorchPlaneRenderer(nn.Module):
 
     name = "torch"
 
-    def __init__(self, scene: PlaneScene, camera: PinholeCamera = PinholeCamera()) -> None:
+    def __init__(self, scene: PlaneScene, camera: PinholeCamera = PinholeCamera(), *,
+                 filter: str = "linear", lod_bias: float = 0.0, samples: int = 1) -> None:
         super().__init__()
+        if filter not in FILTERS:
+            raise ValueError(f"filter must be one of {FILTERS}, got {filter!r}")
         self.scene = scene
         self.camera = camera
+        self.filter = filter
+        self.lod_bias = float(lod_bias)
+        if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
+            raise ValueError(f"samples must be an int >= 1, got {samples!r}")
+        self.samples = samples
+        self._rays: dict = {}
         # One copy of all textures plus the background, built once (see render_planes).
-        self.register_buffer("atlas", texture_atlas(scene.textures, scene.background), persistent=False)
+        if filter == "linear":
+            self.register_buffer("atlas", texture_atlas(scene.textures, scene.background), persistent=False)
+        else:
+            mip = mipmap_atlas(scene.textures, scene.background)
+            self.register_buffer("atlas", mip.packed, persistent=False)
+            self.register_buffer("mip_origins", mip.origins, persistent=False)
+            self.register_buffer("mip_sizes", mip.sizes, persistent=False)
+
+    def _atlas(self):
+        return self.atlas if self.filter == "linear" else MipmapAtlas(self.atlas, self.mip_origins, self.mip_sizes)
 
     def forward(
         self,
@@ -243,11 +522,35 @@ class TorchPlaneRenderer(nn.Module):
         window: PixelWindow | None = None,
         *,
         check: bool = True,
+        downsample: int = 1,
     ) -> Tensor:
         """Render ``[B, ..., h, w]`` images; see :func:`render_planes` for the arguments."""
         return render_planes(
-            poses, plane_x_m, texture_index, self.scene, self.camera, window, atlas=self.atlas,
-            check=check,
+            poses, plane_x_m, texture_index, self.scene, self.camera, window, atlas=self._atlas(),
+            check=check, downsample=downsample, filter=self.filter, lod_bias=self.lod_bias, samples=self.samples,
         )
 
     render = forward
+
+    def render_windows(self, poses: Tensor, plane_x_m: Tensor, texture_index: Tensor, windows, *,
+                       check: bool = True) -> list[Tensor]:
+        """Render several windows, each at its own ``downsample``, in one pass.
+
+        Args:
+            windows: ``(PixelWindow, downsample)`` pairs (see :func:`pixel_rays`).
+
+        Returns:
+            One ``[B, ..., h // downsample, w // downsample]`` image per window.
+        """
+        windows = tuple((PixelWindow(*w), int(d)) for w, d in windows)
+        key = (windows, poses.dtype, poses.device)
+        rays = None if torch.compiler.is_compiling() else self._rays.get(key)
+        if rays is None:
+            rays = pixel_rays(self.camera, windows, dtype=poses.dtype, device=poses.device)
+            if not torch.compiler.is_compiling():
+                self._rays[key] = rays
+        flat = render_rays(poses, plane_x_m, texture_index, self.scene, rays, atlas=self._atlas(), check=check,
+                           filter=self.filter, lod_bias=self.lod_bias, samples=self.samples)
+        shapes = [(w.height // d, w.width // d) for w, d in windows]
+        parts = flat.split([h * w for h, w in shapes], dim=-1)
+        return [part.reshape(part.shape[:-1] + shape) for part, shape in zip(parts, shapes)]
