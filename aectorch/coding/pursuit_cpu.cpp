@@ -15,6 +15,7 @@
 
 #include <ATen/ATen.h>
 #include <ATen/Parallel.h>
+#include <ATen/ThreadLocalState.h>
 #include <torch/library.h>
 
 #include <algorithm>
@@ -152,9 +153,11 @@ std::tuple<at::Tensor, at::Tensor> pursuit(
   TORCH_CHECK(signals.scalar_type() == dictionary.scalar_type() &&
                   signals.scalar_type() == gram.scalar_type(),
               "aectorch::pursuit: signals, dictionary and gram must share one dtype");
-  const auto x = signals.contiguous();
-  const auto d = dictionary.contiguous();
-  const auto G = gram.contiguous();
+  // Detached: the codes are not differentiable (the torch code's support is a constant too), and a
+  // worker thread must not see an input that requires grad in an out= product.
+  const auto x = signals.detach().contiguous();
+  const auto d = dictionary.detach().contiguous();
+  const auto G = gram.detach().contiguous();
   const int64_t m = x.size(0), n = d.size(1);
   TORCH_CHECK(x.size(1) == d.size(0) && G.size(0) == n && G.size(1) == n,
               "aectorch::pursuit: shapes do not match");
@@ -165,6 +168,7 @@ std::tuple<at::Tensor, at::Tensor> pursuit(
   block = std::max<int64_t>(1, std::min<int64_t>(block, m));
   const int64_t tiles = (m + block - 1) / block;
   const int threads = static_cast<int>(std::max<int64_t>(1, std::min<int64_t>(aectorch_kernel_threads(), tiles)));
+  const at::ThreadLocalState caller_state;
   AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "aectorch_pursuit", [&] {
     const scalar_t* g = G.const_data_ptr<scalar_t>();
     int64_t* idx = indices.data_ptr<int64_t>();
@@ -172,6 +176,8 @@ std::tuple<at::Tensor, at::Tensor> pursuit(
     // Threads take whole tiles (their own correlations X D, a BLAS product, and the pursuits).
     _Pragma("omp parallel num_threads(threads)")  // (in a macro argument: _Pragma, not #pragma)
     {
+      // The caller's grad / inference mode and dispatch state, as at::parallel_for passes them on.
+      at::ThreadLocalStateGuard state_guard(caller_state);
       auto alpha = at::empty({block, n}, x.options());
       std::vector<scalar_t> work(orthogonal ? k * k + 3 * k : 0);
       _Pragma("omp for schedule(static)")
