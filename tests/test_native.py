@@ -64,3 +64,24 @@ def test_without_the_kernel_the_pursuits_fall_back_to_torch(tmp_path, how):
         assert "fused CPU pursuit kernel is not available" in out and "pure-torch" in out
 
 
+
+
+@pytest.mark.parametrize("orthogonal", [False, True])
+def test_kernel_threads_split_the_work_and_change_nothing(orthogonal):
+    """Two kernel threads (their own OpenMP pool) give the one-thread result bit for bit, also for a
+    dictionary that requires grad outside no_grad (each worker takes the caller's grad mode)."""
+    coder = omp if orthogonal else matching_pursuit
+    d = torch.nn.functional.normalize(torch.randn(40, 90), dim=0).requires_grad_(True)
+    x = torch.randn(1100, 40)
+    with pytest.raises(ValueError, match="threads"):
+        native.set_threads(0)
+    before = native.get_threads()
+    try:
+        native.set_threads(1)
+        one = coder(x, d.detach(), 5, backend="native", block_size=256)
+        native.set_threads(2)
+        assert native.get_threads() == 2
+        two = coder(x, d, 5, backend="native", block_size=256)
+    finally:
+        native.set_threads(before)
+    assert torch.equal(one.indices, two.indices) and torch.equal(one.coefficients, two.coefficients)
