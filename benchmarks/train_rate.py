@@ -55,13 +55,15 @@ QUIET = ["eval.enabled=false", "train.figures=false", "train.progress=false", "t
 
 
 def parse(text: str, short: int, long: int) -> dict:
-    label, _, rest = text.partition("=")
-    where, _, overrides = rest.partition(":")
-    if "@" in label:
-        label, _, counts = label.partition("@")
-        short, long = (int(n) for n in counts.split("/"))
-    if where not in ("new", "old"):
-        raise SystemExit(f"configuration {text!r}: WHERE must be 'new' or 'old', got {where!r}")
+    import re
+
+    match = re.fullmatch(r"(.+?)(?:@(\d+)/(\d+))?=(new|old)(?::(.*))?", text)
+    if match is None:
+        raise SystemExit(f"configuration {text!r}: expected LABEL[@SHORT/LONG]=new|old[:key=value,...]")
+    label, short_text, long_text, where, overrides = match.groups()
+    overrides = overrides or ""
+    if short_text:
+        short, long = int(short_text), int(long_text)
     return {"label": label, "where": where, "overrides": [o for o in overrides.split(",") if o],
             "short": short, "long": long}
 
@@ -81,7 +83,9 @@ def worktree(commit: str, folder: Path) -> Path:
 
 
 def run(config: dict, iterations: int, cwd: Path, scratch: Path) -> float:
-    out = scratch / f"{config['label'].replace(' ', '_').replace(',', '')}_{iterations}"
+    import re
+
+    out = scratch / f"{re.sub(r'[^A-Za-z0-9]+', '_', config['label'])}_{iterations}"
     command = [sys.executable, "train.py", f"hydra.run.dir={out}", f"train.iterations={iterations}",
                *QUIET, *config["overrides"]]
     env = dict(os.environ, PYOPENGL_PLATFORM=os.environ.get("PYOPENGL_PLATFORM", "osmesa"),

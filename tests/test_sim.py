@@ -244,13 +244,16 @@ def test_pyrender_compiles_each_shader_once_across_renders_and_window_sizes(scen
             again = renderer(poses, plane_x, index, CROPS)
         assert programs() == count
         torch.testing.assert_close(again, first, atol=0, rtol=0)
-        # Another window size makes a new OSMesa context; rendering there and back still
-        # reuses programs and gives the same pixels.
+        # A larger window makes a larger OSMesa context (smaller ones are then drawn into its
+        # corner); rendering there and back still reuses programs and gives the same pixels,
+        # but for llvmpipe's rasterisation in the larger buffer: at most one grey level on a
+        # few pixels (31 of 98,304 measured).
         renderer(poses[:1], plane_x[:1], index[:1])
         back = renderer(poses, plane_x, index, CROPS)
         renderer(poses, plane_x, index, CROPS)
         assert programs() == count
-        torch.testing.assert_close(back, first, atol=0, rtol=0)
+        difference = (back - first).abs()
+        assert difference.max() <= 1.5 / 255 and (difference > 0).float().mean() < 1e-3
     finally:
         renderer.close()
 
@@ -704,6 +707,16 @@ def test_pyrender_and_torch_agree_at_every_scale(scene, head):
     renderer = PyrenderRenderer(scene, **SCALE_FILTER)
     try:
         theirs = renderer.render_windows(poses, plane_x, index, windows)
+        # Windows of three sizes, drawn again: no new OpenGL context (each would upload every
+        # texture again; regression: 0.8 iterations/s at B = 1).
+        gl = renderer._gl_renderer
+        created = []
+        original = gl._create
+        gl._create = lambda: (created.append(1), original())[1]
+        again = renderer.render_windows(poses, plane_x, index, windows)
+        assert not created
+        for a, b in zip(theirs, again):
+            torch.testing.assert_close(a, b, rtol=0, atol=0)
     finally:
         renderer.close()
     for a, b in zip(ours, theirs):

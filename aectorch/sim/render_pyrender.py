@@ -247,8 +247,10 @@ class PyrenderRenderer:
     def _renderer(self, window: PixelWindow):
         # One OpenGL context for everything: pyrender keeps uploaded meshes and textures per
         # context, so a second OffscreenRenderer would not see them. Windows of another size
-        # resize its framebuffer (EGL) or, on OSMesa, which has no framebuffer objects, make
-        # a new context, as pyrender itself would do at the next draw.
+        # resize its framebuffer (EGL); OSMesa has no framebuffer objects, so its context is
+        # made as large as the largest window so far and smaller windows are drawn into its
+        # corner (`_draw`): a new context would upload every texture again (issue 21: rendering
+        # the scales' three window sizes through pyrender's own resizing ran at 0.8 iterations/s).
         renderer = self._gl_renderer
         if renderer is None:
             try:
@@ -259,13 +261,16 @@ class PyrenderRenderer:
                     f"{error!r}. {_OSMESA_HINT if self.platform == 'osmesa' else ''}"
                 ) from error
             self._gl_renderer = renderer
-        renderer.viewport_width = window.width
-        renderer.viewport_height = window.height
         platform = renderer._platform
-        if (platform.viewport_width, platform.viewport_height) != (window.width, window.height) \
-                and not platform.supports_framebuffers():
-            renderer.delete()
-            renderer._create()
+        if platform.supports_framebuffers():
+            renderer.viewport_width = window.width
+            renderer.viewport_height = window.height
+        else:
+            size = (max(platform.viewport_width, window.width), max(platform.viewport_height, window.height))
+            if size != (platform.viewport_width, platform.viewport_height):
+                renderer.viewport_width, renderer.viewport_height = size
+                renderer.delete()
+                renderer._create()
         if not getattr(renderer._renderer, "_aectorch_ready", False):
             from OpenGL.GL import GL_PACK_ALIGNMENT, GL_UNPACK_ALIGNMENT, glPixelStorei
 
@@ -277,6 +282,21 @@ class PyrenderRenderer:
             _stable_program_cache(self._pyrender, renderer)
             renderer._renderer._aectorch_ready = True
         return renderer
+
+    def _draw(self, renderer, height: int, width: int) -> np.ndarray:
+        """One frame of ``height x width`` pixels (RGB, rows from the top)."""
+        platform = renderer._platform
+        if platform.supports_framebuffers():
+            colour, _ = renderer.render(self._gl_scene, flags=self._flags)
+            return colour
+        # OSMesa: what OffscreenRenderer.render does, without re-creating a context of this size.
+        platform.make_current()
+        inner = renderer._renderer
+        inner.viewport_width, inner.viewport_height = width, height
+        inner.render(self._gl_scene, self._flags)
+        colour = inner.read_color_buf()
+        platform.make_uncurrent()
+        return colour
 
     def _show_texture(self, index: int) -> None:
         if self._visible == index:
@@ -363,8 +383,7 @@ class PyrenderRenderer:
                 self._gl_scene.set_pose(node, pose)
                 for c in range(flat_poses.shape[1]):
                     self._gl_scene.set_pose(self._camera_node, flat_poses[b, c])
-                    colour, _ = renderer.render(self._gl_scene, flags=self._flags)
-                    out[b, c] = colour[:, :, 0]
+                    out[b, c] = self._draw(renderer, height, width)[:, :, 0]
             images = torch.from_numpy(out).to(torch.float32).div_(255.0)
             if self.samples > 1:
                 images = torch.nn.functional.avg_pool2d(images, self.samples)

@@ -1,0 +1,172 @@
+"""Where an iteration of the default run goes, stage by stage, beside each stage's floor; memory per environment.
+
+For each B (``--batches``) and kernel-thread count (``--kernel-threads``; torch's own operations
+on one thread, as ``train.threads=0`` runs them), in a fresh process: ``train.py``'s default
+environments and learner (``ExperimentConfig()``), ``--warmup`` iterations, then ``--iterations``
+timed with :class:`aectorch.profiling.StageTimer`. Per stage:
+
+  * milliseconds per env-iteration (stage time / B);
+  * its matrix-product FLOPs per env-iteration (``FlopCounterMode`` over one iteration, stage by
+    stage, with the pure-torch pursuit so that the products inside the fused kernel are
+    counted) and the **floor** they imply at this machine's sustained float32 matmul rate
+    (measured in the same process on the loop's largest product, on as many threads as the
+    kernels use); rendering has no matrix products: its row gives the rendered pixels and bilinear
+    lookups per env-iteration instead;
+  * the process's peak resident memory rise over the imports (``VmHWM``), whose slope against B
+    is the memory per environment.
+
+Usage:
+    python benchmarks/stages.py [--batches 32 256] [--kernel-threads 1 2] [--json benchmarks/results/stages.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+STAGES = ("render", "encode", "dictionary", "rl", "env", "metrics", "depth")
+
+
+def _rss_mb(field: str) -> float:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def worker(batch: int, kernel_threads: int, iterations: int, warmup: int) -> dict:
+    sys.path.insert(0, str(ROOT))
+    import torch
+    from torch.utils.flop_counter import FlopCounterMode
+
+    from aectorch import profiling
+    from aectorch.coding import native, use_backend
+    from aectorch.config import ExperimentConfig
+    from aectorch.experiment import build_env, build_learner
+    from aectorch.sim.env import _finer
+
+    torch.set_num_threads(1)
+    native.set_threads(kernel_threads)
+    base = _rss_mb("VmRSS")
+    Path("/proc/self/clear_refs").write_text("5")
+    cfg = ExperimentConfig()
+    cfg.env.num_envs = batch
+    env, learner = build_env(cfg), build_learner(cfg)
+    for _ in range(warmup):
+        learner.iteration(env)
+    with profiling.StageTimer() as timer:
+        start = time.perf_counter()
+        for _ in range(iterations):
+            learner.iteration(env)
+        wall = time.perf_counter() - start
+    peak = _rss_mb("VmHWM") - base
+
+    class FlopStages(profiling.StageTimer):  # one FlopCounterMode per stage
+        def __init__(self):
+            super().__init__()
+            self.flops = {}
+            self._counters = []
+
+        def _push(self, name):
+            counter = FlopCounterMode(display=False)
+            counter.__enter__()
+            self._counters.append(counter)
+            super()._push(name)
+
+        def _pop(self, name):
+            super()._pop(name)
+            counter = self._counters.pop()
+            counter.__exit__(None, None, None)
+            self.flops[name] = self.flops.get(name, 0) + counter.get_total_flops()
+
+    with use_backend("torch"), FlopStages() as flops:
+        learner.iteration(env)
+    threads = kernel_threads
+    torch.set_num_threads(threads)  # the matmul rate on the kernels' thread count
+    a, b = torch.randn(batch * 122, 200), torch.randn(200, 288)
+    out = torch.empty(batch * 122, 288)
+    times = []
+    for _ in range(12):
+        t = time.perf_counter()
+        for _ in range(5):
+            torch.mm(a, b, out=out)
+        times.append((time.perf_counter() - t) / 5)
+    rate = 2 * a.shape[0] * 200 * 288 / statistics.median(times[2:])
+    scales = learner.parallax.scales
+    pixels = sum(((s.crop + 2 * s.downsample) * _finer(s.downsample) // s.downsample) ** 2 for s in scales)
+    return {
+        "B": batch, "kernel_threads": kernel_threads, "iterations": iterations,
+        "env_iterations_per_s": batch * iterations / wall,
+        "ms_per_env_iteration": {k: 1e3 * timer.seconds.get(k, 0.0) / iterations / batch for k in STAGES},
+        "flops_per_env_iteration": {k: flops.flops.get(k, 0) / batch for k in STAGES},
+        "matmul_flops_per_s": rate,
+        # eye images per iteration: 3 (parallax second, stereo pair), less the reused ones
+        "rendered_pixels_per_eye_image": pixels,
+        "peak_rss_rise_mb": peak,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--batches", type=int, nargs="+", default=[32, 256])
+    parser.add_argument("--kernel-threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--iterations", type=int, default=40)
+    parser.add_argument("--warmup", type=int, default=5)
+    parser.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "stages.json")
+    parser.add_argument("--worker", nargs=2, type=int, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.worker:
+        print(json.dumps(worker(*args.worker, args.iterations, args.warmup)))
+        return
+    rows = []
+    for batch in args.batches:
+        for threads in args.kernel_threads:
+            env = dict(os.environ, OMP_WAIT_POLICY="PASSIVE", PYOPENGL_PLATFORM="osmesa")
+            iterations = max(8, args.iterations * 32 // batch)
+            result = subprocess.run([sys.executable, __file__, "--worker", str(batch), str(threads),
+                                     "--iterations", str(iterations), "--warmup", str(args.warmup)],
+                                    env=env, stdout=subprocess.PIPE, text=True, check=True)
+            rows.append(json.loads(result.stdout.strip().splitlines()[-1]))
+            print(f"B={batch}, kernel threads {threads}: {rows[-1]['env_iterations_per_s']:,.0f} env-iterations/s",
+                  file=sys.stderr, flush=True)
+    print("| B | kernel threads | stage | ms / env-iteration | matmul MFLOP / env-iteration | floor (ms) | x floor |")
+    print("|---:|---:|---|---:|---:|---:|---:|")
+    for row in rows:
+        for name in STAGES:
+            ms = row["ms_per_env_iteration"][name]
+            flops = row["flops_per_env_iteration"][name]
+            if ms < 0.0005 and not flops:
+                continue
+            floor = 1e3 * flops / row["matmul_flops_per_s"] if flops else None
+            note = (f"{floor:.3f} | {ms / floor:.1f}x" if floor else
+                    f"{row['rendered_pixels_per_eye_image']} px per eye image, 8 lookups each | " if name == "render"
+                    else " | ")
+            print(f"| {row['B']} | {row['kernel_threads']} | {name} | {ms:.3f} | {flops / 1e6:.2f} | {note} |")
+        total = sum(row["ms_per_env_iteration"].values())
+        print(f"| {row['B']} | {row['kernel_threads']} | **all** ({row['env_iterations_per_s']:,.0f} env-it/s) | "
+              f"{total:.3f} | {sum(row['flops_per_env_iteration'].values()) / 1e6:.2f} | | |")
+    if len(args.batches) > 1:
+        by_b = {}
+        for row in rows:
+            by_b.setdefault(row["B"], []).append(row["peak_rss_rise_mb"])
+        (b0, m0), (b1, m1) = [(b, min(m)) for b, m in sorted(by_b.items())][:2]
+        per_env = (m1 - m0) / (b1 - b0)
+        print(f"\npeak memory rise: " + ", ".join(f"B={b}: {min(m):.0f} MB" for b, m in sorted(by_b.items()))
+              + f"; {per_env:.2f} MB per environment (slope), the rest is the textures, mipmaps and learner")
+    sys.path.insert(0, str(ROOT))
+    from benchmarks.machine import machine_info
+
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps({"benchmark": "stages", "machine": machine_info(), "rows": rows}, indent=2) + "\n")
+    print(f"wrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()
