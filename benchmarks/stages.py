@@ -120,13 +120,17 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=40)
     parser.add_argument("--warmup", type=int, default=5)
     parser.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "stages.json")
+    parser.add_argument("--from-json", type=Path, default=None, help="only print the table of an earlier run")
     parser.add_argument("--worker", nargs=2, type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
         print(json.dumps(worker(*args.worker, args.iterations, args.warmup)))
         return
     rows = []
-    for batch in args.batches:
+    if args.from_json is not None:
+        rows = json.loads(args.from_json.read_text())["rows"]
+        args.batches = sorted({row["B"] for row in rows})
+    for batch in ([] if args.from_json is not None else args.batches):
         for threads in args.kernel_threads:
             env = dict(os.environ, OMP_WAIT_POLICY="PASSIVE", PYOPENGL_PLATFORM="osmesa")
             iterations = max(8, args.iterations * 32 // batch)
@@ -144,10 +148,11 @@ def main() -> None:
             flops = row["flops_per_env_iteration"][name]
             if ms < 0.0005 and not flops:
                 continue
-            floor = 1e3 * flops / row["matmul_flops_per_s"] if flops else None
-            note = (f"{floor:.3f} | {ms / floor:.1f}x" if floor else
-                    f"{row['rendered_pixels_per_eye_image']} px per eye image, 8 lookups each | " if name == "render"
-                    else " | ")
+            floor = 1e3 * flops / row["matmul_flops_per_s"] if flops > 1e5 and name != "render" else None
+            if name == "render":  # gathers, not products: no FLOP floor
+                note = f"no matmul floor: {row['rendered_pixels_per_eye_image']:,} px per eye image, 8 lookups each | "
+            else:
+                note = f"{floor:.3f} | {ms / floor:.1f}x" if floor else " | "
             print(f"| {row['B']} | {row['kernel_threads']} | {name} | {ms:.3f} | {flops / 1e6:.2f} | {note} |")
         total = sum(row["ms_per_env_iteration"].values())
         print(f"| {row['B']} | {row['kernel_threads']} | **all** ({row['env_iterations_per_s']:,.0f} env-it/s) | "
@@ -160,6 +165,8 @@ def main() -> None:
         per_env = (m1 - m0) / (b1 - b0)
         print(f"\npeak memory rise: " + ", ".join(f"B={b}: {min(m):.0f} MB" for b, m in sorted(by_b.items()))
               + f"; {per_env:.2f} MB per environment (slope), the rest is the textures, mipmaps and learner")
+    if args.from_json is not None:
+        return
     sys.path.insert(0, str(ROOT))
     from benchmarks.machine import machine_info
 
