@@ -5,7 +5,11 @@ control, a Levenberg-Marquardt depth MLP and a simulated HOAP-3 head, composed b
 :class:`JointLearner` into the joint learning framework of Wong et al. (2017).
 """
 
-from aectorch.framework import JointLearner, LearnerConfig
+from aectorch import _opengl
+
+_opengl.choose_default()  # before anything imports OpenGL (pyrender does): see aectorch/_opengl.py
+
+from aectorch.framework import JointLearner, LearnerConfig  # noqa: E402
 
 __all__ = ["JointLearner", "LearnerConfig"]
 __version__ = "0.1.0"

@@ -464,7 +464,9 @@ def validate_resources(cfg: ExperimentConfig) -> None:
                          "device; use env.device=cpu")
     if cfg.env.renderer == "pyrender":
         try:
-            import pyrender  # noqa: F401
+            from aectorch.sim.render_pyrender import import_pyrender
+
+            import_pyrender()  # PYOPENGL_PLATFORM first (the user's, else osmesa), then pyrender
         except Exception as err:  # ImportError, or OpenGL failing to find a platform
             raise ValueError(f"env.renderer='pyrender' cannot be used: {type(err).__name__}: {err}") from err
     if cfg.record.lerobot is not None:

@@ -9,6 +9,14 @@ afterwards in well under a second. ``scripts/setup.sh`` builds it at install tim
 library holds ``torch.ops.aectorch.render_trilinear``, the torch renderer's mipmapped path fused
 into one loop per pixel (`aectorch.sim.render_torch.render_rays` uses it on CPU).
 
+A library already built is loaded directly (no lock, no compiler). A build holds an exclusive
+``flock`` on ``build.lock`` in its folder, which the kernel releases when the holder dies, so a
+build killed half-way (``kill -9``, a closed terminal, a scheduler's pre-emption) cannot wedge the
+next process: it takes over, saying so in one line, and a process that waits for a live build
+says so every 10 s. The folder is keyed by the sources' content, the flags, torch, Python and the
+CPU, and the sources are copied into it, so a second checkout (a worktree, a copy in a job's
+scratch space) reuses the same build.
+
 If it cannot be built (no compiler, say), the pursuits fall back to the pure-torch code with one
 warning that says why; results agree within float rounding (tests/test_pursuit.py). Set
 ``AECTORCH_NATIVE=0`` to never use it, and ``AECTORCH_CACHE`` to move the cache
@@ -53,18 +61,137 @@ def _cpu_signature() -> str:
     return platform.machine() + flags
 
 
+def _flags() -> list[str]:
+    # No fused multiply-add contraction: residual updates round like torch's addcmul, so an exactly
+    # cancelled correlation is 0 here too (not the product's rounding error). OpenMP: the kernels'
+    # loops split over threads of their own (`set_threads`).
+    flags = ["-O3", "-ffp-contract=off", "-fopenmp"]
+    if platform.machine() in ("x86_64", "AMD64"):
+        flags.append("-march=native")
+    return flags
+
+
 def _build_dir() -> tuple[str, Path]:
+    """The library's name and folder: keyed by the sources' content, the flags, torch, Python and
+    the CPU, never by where the checkout lies (a worktree or a copy reuses the same build)."""
     key = hashlib.sha256(
-        b"".join(source.read_bytes() for source in SOURCES) + torch.__version__.encode() + sys.version.encode() + _cpu_signature().encode()
+        b"".join(source.read_bytes() for source in SOURCES) + " ".join(_flags()).encode()
+        + torch.__version__.encode() + sys.version.encode() + _cpu_signature().encode()
     ).hexdigest()[:16]
     root = Path(os.environ.get("AECTORCH_CACHE", Path.home() / ".cache" / "aectorch"))
     return f"aectorch_pursuit_{key}", root / "native" / key
 
 
-def load(verbose: bool = False) -> bool:
-    """Build (once per machine) and load the kernel; True if ``torch.ops.aectorch.pursuit`` works.
+#: Written into the build folder after a build succeeded: only then is the library loaded
+#: without a lock (a build killed while linking can leave a partial file).
+_DONE = "built"
+#: How often a process waiting for another's build says so.
+_WAIT_NOTE_S = 10.0
 
-    Never raises: a failure is reported once as a `RuntimeWarning` and the pursuits use torch.
+
+class _BuildLock:
+    """An exclusive ``flock`` on ``<folder>/build.lock`` while building.
+
+    The kernel releases it when its holder dies (``kill -9``, an OOM kill, a closed terminal), so
+    a dead holder cannot keep it; the file records the holder's pid and start time for the
+    messages. A process that waits says so every ``_WAIT_NOTE_S`` seconds, with the holder's pid
+    and how long it has waited.
+    """
+
+    def __init__(self, folder: Path) -> None:
+        self.path = folder / "build.lock"
+        self.file = None
+        self.previous: dict | None = None  # the last holder's record, if it did not finish
+
+    def __enter__(self) -> "_BuildLock":
+        import fcntl
+        import json
+        import time
+
+        self.file = open(self.path, "a+")
+        start = time.monotonic()
+        noted = start
+        while True:
+            try:
+                fcntl.flock(self.file.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                now = time.monotonic()
+                if now - noted >= _WAIT_NOTE_S:
+                    noted = now
+                    print(f"aectorch: waiting for {self._holder()} to finish building the fused CPU kernels "
+                          f"({now - start:.0f} s so far)", file=sys.stderr, flush=True)
+                time.sleep(0.2)
+        self.file.seek(0)
+        text = self.file.read().strip()
+        try:
+            self.previous = json.loads(text) if text else None
+        except ValueError:
+            self.previous = {"pid": None}
+        self.file.seek(0)
+        self.file.truncate()
+        self.file.write(json.dumps({"pid": os.getpid(), "started": time.time()}))
+        self.file.flush()
+        return self
+
+    def _holder(self) -> str:
+        import json
+
+        try:
+            pid = json.loads(Path(self.path).read_text() or "{}").get("pid")
+        except (OSError, ValueError):
+            pid = None
+        return f"process {pid}" if pid else "another process"
+
+    def __exit__(self, *exc) -> bool:
+        import fcntl
+
+        self.file.seek(0)
+        self.file.truncate()  # a finished holder leaves no record
+        self.file.flush()
+        fcntl.flock(self.file.fileno(), fcntl.LOCK_UN)
+        self.file.close()
+        return False
+
+
+def _build(name: str, folder: Path, verbose: bool) -> None:
+    """Build the library in ``folder`` (holding `_BuildLock`) and load it."""
+    import shutil
+
+    from torch.utils import cpp_extension
+
+    with _BuildLock(folder) as lock:
+        library = folder / f"{name}.so"
+        if (folder / _DONE).exists() and library.exists():  # another process built it while we waited
+            torch.ops.load_library(str(library))
+            return
+        if lock.previous:
+            print(f"aectorch: the kernel build of process {lock.previous.get('pid')} did not finish (it is no "
+                  "longer running); building again", file=sys.stderr, flush=True)
+        print("aectorch: compiling the fused CPU kernels (once per machine, about a minute)...",
+              file=sys.stderr, flush=True)
+        # torch's own file baton, left behind by a build that was killed: nobody else builds here now.
+        (folder / "lock").unlink(missing_ok=True)
+        # The sources are copied in, so build.ninja names this folder, not the checkout's path.
+        sources = folder / "src"
+        sources.mkdir(exist_ok=True)
+        copies = []
+        for source in SOURCES:
+            shutil.copyfile(source, sources / source.name)
+            copies.append(str(sources / source.name))
+        cpp_extension.load(
+            name=name, sources=copies, build_directory=str(folder), extra_cflags=_flags(),
+            extra_ldflags=["-fopenmp"], is_python_module=False, verbose=verbose,
+        )
+        (folder / _DONE).write_text(name + "\n")
+
+
+def load(verbose: bool = False) -> bool:
+    """Build (once per machine) and load the kernels; True if ``torch.ops.aectorch.pursuit`` works.
+
+    A library already built (for these sources, flags, torch and CPU) is loaded directly, without
+    a lock or a compiler; a build holds `_BuildLock`. Never raises: a failure is reported once as a
+    `RuntimeWarning` and the pursuits and the renderer use torch.
     """
     with _lock:
         if "ok" in _state:
@@ -73,32 +200,21 @@ def load(verbose: bool = False) -> bool:
         if os.environ.get("AECTORCH_NATIVE", "1").strip().lower() in ("0", "false", "no", "off"):
             return False
         try:
-            from torch.utils import cpp_extension
-
             name, folder = _build_dir()
             folder.mkdir(parents=True, exist_ok=True)
             library = folder / f"{name}.so"
-            if not library.exists():
-                print("aectorch: compiling the fused CPU pursuit kernel (once per machine, "
-                      "about a minute)...", file=sys.stderr, flush=True)
-            # No fused multiply-add contraction: residual updates round like torch's addcmul, so an
-            # exactly cancelled correlation is 0 here too (not the product's rounding error).
-            # OpenMP: the kernels' loops split over threads of their own (`set_threads`).
-            flags = ["-O3", "-ffp-contract=off", "-fopenmp"]
-            if platform.machine() in ("x86_64", "AMD64"):
-                flags.append("-march=native")
-            cpp_extension.load(
-                name=name, sources=[str(source) for source in SOURCES], build_directory=str(folder), extra_cflags=flags,
-                extra_ldflags=["-fopenmp"], is_python_module=False, verbose=verbose,
-            )
+            if (folder / _DONE).exists() and library.exists():
+                torch.ops.load_library(str(library))
+            else:
+                _build(name, folder, verbose)
             _register_fake()
             _state["ok"] = True
         except Exception as exc:  # noqa: BLE001 - any build or load failure means: use torch
             warnings.warn(
-                f"aectorch: the fused CPU pursuit kernel is not available ({type(exc).__name__}: "
-                f"{str(exc).strip().splitlines()[-1] if str(exc).strip() else exc!r}); omp and "
-                "matching_pursuit use the slower pure-torch code. Set AECTORCH_NATIVE=0 to silence "
-                "this.", RuntimeWarning, stacklevel=3)
+                f"aectorch: the fused CPU kernels are not available ({type(exc).__name__}: "
+                f"{str(exc).strip().splitlines()[-1] if str(exc).strip() else exc!r}); omp, "
+                "matching_pursuit and the renderer use the slower pure-torch code. Set AECTORCH_NATIVE=0 "
+                "to silence this.", RuntimeWarning, stacklevel=3)
         return bool(_state["ok"])
 
 

@@ -41,30 +41,38 @@ _OSMESA_HINT = (
 )
 
 
-def import_pyrender(platform: str = "osmesa"):
+def import_pyrender(platform: str | None = None):
     """Import pyrender for off-screen rendering on ``platform`` ("osmesa" or "egl").
 
-    ``PYOPENGL_PLATFORM`` must be set before PyOpenGL is first imported; this sets it when it is
-    unset and refuses a conflicting value with a message that says what to do.
+    ``PYOPENGL_PLATFORM`` must be set before PyOpenGL is first imported. ``import aectorch`` sets
+    it to ``osmesa`` unless the user did (`aectorch._opengl`); this switches aectorch's default to
+    the ``platform`` asked for while OpenGL is not imported yet, and refuses a conflict with the
+    user's own value with a message that says what to do. ``None``: the user's value if set, else
+    ``osmesa``.
     """
+    import sys
+
+    from aectorch import _opengl
+
+    current = os.environ.get("PYOPENGL_PLATFORM")
+    ours = _opengl.chosen_by_aectorch()
+    if platform is None:
+        platform = current if current is not None and not ours else _opengl.DEFAULT_PLATFORM
     if platform not in _PLATFORMS:
         raise ValueError(f"platform must be one of {_PLATFORMS}, got {platform!r}")
-    current = os.environ.get("PYOPENGL_PLATFORM")
-    if current is None:
-        import sys
-
+    if current != platform:
+        if current is not None and not ours:
+            raise RuntimeError(
+                f"PYOPENGL_PLATFORM is {current!r} but the pyrender renderer was asked for "
+                f"{platform!r}; set PYOPENGL_PLATFORM={platform} before starting Python, or ask for "
+                f"platform={current!r}"
+            )
         if "OpenGL" in sys.modules:
             raise RuntimeError(
-                "PyOpenGL was imported before PYOPENGL_PLATFORM was set; set "
+                f"PyOpenGL was imported before PYOPENGL_PLATFORM could be set to {platform!r}; set "
                 f"PYOPENGL_PLATFORM={platform} in the environment before starting Python"
             )
-        os.environ["PYOPENGL_PLATFORM"] = platform
-    elif current != platform:
-        raise RuntimeError(
-            f"PYOPENGL_PLATFORM is {current!r} but the pyrender renderer was asked for "
-            f"{platform!r}; set PYOPENGL_PLATFORM={platform} before starting Python, or ask for "
-            f"platform={current!r}"
-        )
+        _opengl.set_platform(platform)
     try:
         import pyrender  # noqa: F401
         from OpenGL import GL  # noqa: F401
@@ -180,7 +188,8 @@ class PyrenderRenderer:
     Args:
         scene: geometry and textures (textures are quantised to 8 bits on upload).
         camera: intrinsics.
-        platform: "osmesa" (default; CPU) or "egl" (GPU machines).
+        platform: "osmesa" (CPU) or "egl" (GPU machines); ``None`` (default): the user's
+            ``PYOPENGL_PLATFORM`` if set, else "osmesa".
         znear, zfar: clipping planes in metres (the background must lie inside).
         filter, lod_bias, samples: as for :class:`~aectorch.sim.render_torch.TorchPlaneRenderer`
             (``"trilinear"`` is OpenGL's own mipmapping; ``samples`` renders each window
@@ -208,7 +217,7 @@ class PyrenderRenderer:
         scene: PlaneScene,
         camera: PinholeCamera = PinholeCamera(),
         *,
-        platform: str = "osmesa",
+        platform: str | None = None,
         znear: float = 0.05,
         zfar: float = 100.0,
         filter: str = "linear",
@@ -229,7 +238,7 @@ class PyrenderRenderer:
         self._pyrender = import_pyrender(platform)
         self.scene = scene
         self.camera = camera
-        self.platform = platform
+        self.platform = os.environ["PYOPENGL_PLATFORM"]
         self.znear, self.zfar = float(znear), float(zfar)
         pyrender = self._pyrender
         self._gl_scene = pyrender.Scene(bg_color=[0.0, 0.0, 0.0, 1.0], ambient_light=[1.0, 1.0, 1.0])
