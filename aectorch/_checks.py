@@ -15,3 +15,10 @@ def check_finite(tensor: torch.Tensor, name: str) -> None:
         return
     if not bool(torch.isfinite(tensor).all()):
         raise ValueError(f"{name} contains non-finite values (NaN or inf)")
+
+
+def check_int(value, name: str, minimum: int = 1) -> int:
+    """Return ``value`` if it is an int (not a bool) >= ``minimum``, else raise ``ValueError`` naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f"{name} must be an int >= {minimum}, got {value!r}")
+    return value

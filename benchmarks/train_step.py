@@ -170,6 +170,25 @@ def depth_refit_seconds(device: str) -> float:
     return time.perf_counter() - start
 
 
+def build(renderer: str, batch: int, mode: str, device: str):
+    """The measured environments and learner; ``mode`` ``compile`` (``train.compile=true``) or
+    ``cudagraphs`` (the encoders compiled with CUDA graphs, ``mode="reduce-overhead"``; GPU only)."""
+    import torch
+
+    from aectorch.experiment import _compile
+    from aectorch.framework import JointLearner
+    from aectorch.sim import ActiveDepthEnv
+
+    env = ActiveDepthEnv(batch, renderer=renderer, seed=0, device=device, **env_protocol())
+    learner = JointLearner(learner_config(), generator=torch.Generator().manual_seed(0), device=device)
+    if mode == "compile":
+        _compile(learner, env)
+    elif mode == "cudagraphs":
+        for cue in ("parallax", "stereo"):
+            getattr(learner, cue).compile(mode="reduce-overhead")
+    return env, learner
+
+
 def _timed_iteration(learner, env, device: str) -> float:
     """Seconds of one learner iteration (the GPU synchronised before and after)."""
     import torch
@@ -188,23 +207,14 @@ def measure(renderer: str, batch: int, mode: str, iterations: int, warmup: int, 
 
     from aectorch.coding import extract_patches
     from aectorch.coding.patches import reduced_patches
-    from aectorch.experiment import _compile
-    from aectorch.framework import JointLearner
     from aectorch.profiling import StageTimer
-    from aectorch.sim import ActiveDepthEnv
 
     if device == "cuda":
         torch.cuda.reset_peak_memory_stats()
         base_cuda = torch.cuda.memory_allocated()
     base = _rss_mb()
     _reset_peak()
-    env = ActiveDepthEnv(batch, renderer=renderer, seed=0, device=device, **env_protocol())
-    learner = JointLearner(learner_config(), generator=torch.Generator().manual_seed(0), device=device)
-    if mode == "compile":
-        _compile(learner, env)
-    elif mode == "cudagraphs":  # compiled with CUDA graphs (mode="reduce-overhead"), GPU only
-        for cue in ("parallax", "stereo"):
-            getattr(learner, cue).compile(mode="reduce-overhead")
+    env, learner = build(renderer, batch, mode, device)
     compile_start = time.perf_counter()
     for _ in range(warmup):
         learner.iteration(env)
@@ -291,20 +301,10 @@ def interleave(configs: list[str], rounds: int, block: int, warmup: int, device:
     """
     import torch
 
-    from aectorch.experiment import _compile
-    from aectorch.framework import JointLearner
-    from aectorch.sim import ActiveDepthEnv
-
     setups = []
     for text in configs:
         renderer, batch, mode = text.split(":")
-        env = ActiveDepthEnv(int(batch), renderer=renderer, seed=0, device=device, **env_protocol())
-        learner = JointLearner(learner_config(), generator=torch.Generator().manual_seed(0), device=device)
-        if mode == "compile":
-            _compile(learner, env)
-        elif mode == "cudagraphs":
-            for cue in ("parallax", "stereo"):
-                getattr(learner, cue).compile(mode="reduce-overhead")
+        env, learner = build(renderer, int(batch), mode, device)
         for _ in range(warmup):
             learner.iteration(env)
         setups.append((text, int(batch), env, learner, []))

@@ -31,14 +31,18 @@ Example:
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import platform
 import sys
 import threading
+import time
 import warnings
 from pathlib import Path
 
 import torch
+
+from aectorch._checks import check_int
 
 __all__ = ["available", "get_threads", "load", "pursuit", "set_threads", "SOURCE", "SOURCES"]
 
@@ -104,9 +108,7 @@ class _BuildLock:
         self.previous: dict | None = None  # the last holder's record, if it did not finish
 
     def __enter__(self) -> "_BuildLock":
-        import fcntl
-        import json
-        import time
+        import fcntl  # (POSIX; imported here so that the module itself imports anywhere)
 
         self.file = open(self.path, "a+")
         start = time.monotonic()
@@ -135,8 +137,6 @@ class _BuildLock:
         return self
 
     def _holder(self) -> str:
-        import json
-
         try:
             pid = json.loads(Path(self.path).read_text() or "{}").get("pid")
         except (OSError, ValueError):
@@ -225,8 +225,7 @@ def set_threads(threads: int) -> None:
     and keeps torch's own operations, which are too small to pay for a second thread, on one.
     Does nothing when the kernels are not available.
     """
-    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
-        raise ValueError(f"threads must be an int >= 1, got {threads!r}")
+    check_int(threads, "threads")
     if load():
         torch.ops.aectorch.set_kernel_threads(threads)
 

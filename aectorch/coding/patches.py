@@ -235,6 +235,22 @@ def _check_image(images: Tensor, name: str) -> None:
         )
 
 
+def _check_pair(first: Tensor, second: Tensor) -> None:
+    """Two ``[B, H, W]`` float images of one shape, dtype and device."""
+    _check_image(first, "first")
+    _check_image(second, "second")
+    if first.shape != second.shape:
+        raise ValueError(
+            f"first and second must have the same shape, got {tuple(first.shape)} "
+            f"and {tuple(second.shape)}"
+        )
+    if first.dtype != second.dtype or first.device != second.device:
+        raise TypeError(
+            f"first and second must share dtype and device, got {first.dtype} on {first.device} "
+            f"and {second.dtype} on {second.device}"
+        )
+
+
 def _reduce_matrix_1d(n: int, levels: int, centred: bool = False) -> Tensor:
     """The 1-D pyramid reduce as a matrix ``[ceil(n / 2**levels), n]`` (float64, CPU)."""
     taps = torch.tensor(_BINOMIAL_6 if centred else _BINOMIAL_5, dtype=torch.float64)
@@ -367,18 +383,7 @@ def extract_patches(
         True
     """
     scale = as_scale(scale)
-    _check_image(first, "first")
-    _check_image(second, "second")
-    if first.shape != second.shape:
-        raise ValueError(
-            f"first and second must have the same shape, got {tuple(first.shape)} "
-            f"and {tuple(second.shape)}"
-        )
-    if first.dtype != second.dtype or first.device != second.device:
-        raise TypeError(
-            f"first and second must share dtype and device, got {first.dtype} on {first.device} "
-            f"and {second.dtype} on {second.device}"
-        )
+    _check_pair(first, second)
     b, h, w = first.shape
     crop = scale.crop
     if h < crop or w < crop:
@@ -411,15 +416,11 @@ def reduced_patches(first: Tensor, second: Tensor, scale: Scale | str, *, eps: f
         torch.Size([3, 49, 200])
     """
     scale = as_scale(scale)
-    _check_image(first, "first")
-    _check_image(second, "second")
+    _check_pair(first, second)
     side = scale.side
-    for name, images in (("first", first), ("second", second)):
-        if tuple(images.shape[-2:]) != (side, side):
-            raise ValueError(f"{name} must be [B, {side}, {side}] (scale {scale.name!r}: crop {scale.crop} / "
-                             f"downsample {scale.downsample}), got {tuple(images.shape)}")
-    if first.shape != second.shape:
-        raise ValueError(f"first and second must have the same shape, got {tuple(first.shape)} and {tuple(second.shape)}")
+    if tuple(first.shape[-2:]) != (side, side):
+        raise ValueError(f"first and second must be [B, {side}, {side}] (scale {scale.name!r}: crop {scale.crop} / "
+                         f"downsample {scale.downsample}), got {tuple(first.shape)}")
     b = first.shape[0]
     return _cut(torch.stack((first, second), dim=1).reshape(2 * b, 1, side, side), scale, b, eps)
 

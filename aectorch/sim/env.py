@@ -130,17 +130,18 @@ def _block_mean(images: Tensor, k: int) -> Tensor:
     return pooled.reshape(images.shape[:-2] + pooled.shape[-2:])
 
 
-def make_renderer(name: str, scene: PlaneScene, camera: PinholeCamera, *, device=None, **kwargs):
+def make_renderer(name: str, scene: PlaneScene, camera: PinholeCamera, *, device=None, dtype=None, **kwargs):
     """Build a renderer by name: ``"torch"`` (:class:`TorchPlaneRenderer`) or ``"pyrender"``.
 
     ``filter``, ``lod_bias`` and ``samples`` go to either renderer; other keyword arguments to
-    pyrender's.
+    pyrender's. The torch renderer's textures are moved to ``device`` and ``dtype`` once (it
+    renders in the poses' dtype, and would otherwise convert them at every call).
     """
     if name == "torch":
         from aectorch.sim.render_torch import TorchPlaneRenderer
 
         filtering = {k: kwargs.pop(k) for k in ("filter", "lod_bias", "samples") if k in kwargs}
-        return TorchPlaneRenderer(scene, camera, **filtering).to(device)
+        return TorchPlaneRenderer(scene, camera, **filtering).to(device=device, dtype=dtype)
     if name == "pyrender":
         from aectorch.sim.render_pyrender import PyrenderRenderer
 
@@ -285,7 +286,7 @@ class ActiveDepthEnv:
         self.renderer_name = renderer
         self._renderer_options = dict(renderer_options or {})
         self.renderer = make_renderer(
-            renderer, self.scene, self.camera, device=self.device, **self._renderer_options
+            renderer, self.scene, self.camera, device=self.device, dtype=dtype, **self._renderer_options
         )
         self._scale_renderer = None  # built on the first request for foveal scales
         self._last_left = None  # (view version, scales, left image) of the last stereo frame
@@ -459,7 +460,7 @@ class ActiveDepthEnv:
             return self.renderer(poses, self.plane_x_m, self.texture_index, self.window, check=False).to(self.dtype)
         if self._scale_renderer is None:
             self._scale_renderer = make_renderer(self.renderer_name, self.scene, self.camera, device=self.device,
-                                                 **{**self._renderer_options, **SCALE_FILTER})
+                                                 dtype=self.dtype, **{**self._renderer_options, **SCALE_FILTER})
         # Each scale's crop with one more of its pixels on every side, for the blur.
         finer = [_finer(s.downsample) for s in scales]
         windows = [(self.camera.central_window(s.crop + 2 * s.downsample), s.downsample // k)

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from aectorch._checks import check_int
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.scene import PlaneScene
 
@@ -226,9 +227,7 @@ class PyrenderRenderer:
     ) -> None:
         if filter not in ("linear", "trilinear"):
             raise ValueError(f"filter must be one of ('linear', 'trilinear'), got {filter!r}")
-        if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
-            raise ValueError(f"samples must be an int >= 1, got {samples!r}")
-        self.filter, self.lod_bias, self.samples = filter, float(lod_bias), samples
+        self.filter, self.lod_bias, self.samples = filter, float(lod_bias), check_int(samples, "samples")
         if not (0 < znear < zfar):
             raise ValueError(f"need 0 < znear < zfar, got znear={znear!r}, zfar={zfar!r}")
         if scene.background_x_m >= zfar:

@@ -25,6 +25,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor, nn
 
+from aectorch._checks import check_int
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.scene import PlaneScene
 
@@ -218,8 +219,7 @@ def pixel_rays(camera: PinholeCamera, windows, *, dtype=torch.float32, device=No
     xs, ys, steps = [], [], []
     for window, downsample in windows:
         top, left, h, w = camera.check_window(window)
-        if isinstance(downsample, bool) or not isinstance(downsample, int) or downsample < 1:
-            raise ValueError(f"downsample must be an int >= 1, got {downsample!r}")
+        check_int(downsample, "downsample")
         if h % downsample or w % downsample:
             raise ValueError(f"the window's sides {h} x {w} must be multiples of downsample={downsample}")
         h, w = h // downsample, w // downsample
@@ -328,8 +328,7 @@ def render_rays(
     batch = scene.check_render_inputs(poses, plane_x_m, texture_index, check_range=check)
     if filter not in FILTERS:
         raise ValueError(f"filter must be one of {FILTERS}, got {filter!r}")
-    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
-        raise ValueError(f"samples must be an int >= 1, got {samples!r}")
+    check_int(samples, "samples")
     dtype, device = poses.dtype, poses.device
     trilinear = filter == "trilinear"
     if atlas is None:
@@ -422,13 +421,10 @@ def _native_trilinear(poses, mip, textures, background, scene) -> bool:
         return False
     if torch.is_grad_enabled() and any(t is not None and t.requires_grad for t in (poses, textures, background)):
         return False  # the kernel has no backward: the torch code is differentiable
-    if torch.compiler.is_compiling():
-        from aectorch.coding import native
-
-        return native._state.get("ok", False) is True
     from aectorch.coding import native
 
-    return native.available()
+    # (while tracing: only a kernel loaded already; a build does not belong in a graph)
+    return native._state.get("ok") is True if torch.compiler.is_compiling() else native.available()
 
 
 def _trilinear(mip: MipmapAtlas, atlas: Tensor, layer: Tensor, u: Tensor, v: Tensor, lod: Tensor,
@@ -498,9 +494,7 @@ class TorchPlaneRenderer(nn.Module):
         self.camera = camera
         self.filter = filter
         self.lod_bias = float(lod_bias)
-        if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
-            raise ValueError(f"samples must be an int >= 1, got {samples!r}")
-        self.samples = samples
+        self.samples = check_int(samples, "samples")
         self._rays: dict = {}
         # One copy of all textures plus the background, built once (see render_planes).
         if filter == "linear":
