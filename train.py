@@ -1,11 +1,11 @@
-"""aectorch training entry point (Hydra): the paper's experiment, `aectorch.experiment.run_experiment`.
+"""aectorch training entry point (Hydra): the paper's experiment, `aectorch.runtime.run_experiment`.
 
 B simulated HOAP-3 heads learn, jointly, sparse codes of what their eyes see, pursuit and
 vergence eye movements (natural actor-critic) and the object's distance (an MLP); the run folder
 (Hydra's, ``outputs/<date>/<time>`` by default) receives config.yaml, metrics.jsonl, tb/,
 checkpoint.pt, figures/, evaluation.json and summary.json. See docs/training.md.
 
-    python train.py                                   # defaults (aectorch.config.ExperimentConfig)
+    python train.py                                   # defaults (aectorch.runtime.config.ExperimentConfig)
     python train.py env.num_envs=64 train.iterations=500 seed=3 hydra.run.dir=/tmp/x
     python train.py preset=paper +experiment=roll_perturbation
     python train.py train.resume=/tmp/x train.iterations=1000   # continue a run in place
@@ -13,13 +13,14 @@ checkpoint.pt, figures/, evaluation.json and summary.json. See docs/training.md.
     torchrun --standalone --nproc_per_node=2 train.py env.num_envs=16   # 2 processes x 16 envs
 
 Invalid values and bad files exit with status 2 and one ``error: ...`` line, a run stopped by
-the watchdog (`aectorch.watchdog`) with status 3, and one interrupted by Ctrl-C or SIGTERM, after
+the watchdog (`aectorch.runtime.watchdog`) with status 3, and one interrupted by Ctrl-C or SIGTERM, after
 writing its checkpoint and printing how to resume, with status 130; set ``AECTORCH_DEBUG=1`` for
 the full traceback.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
 from pathlib import Path
@@ -34,7 +35,11 @@ from hydra.errors import HydraException
 from omegaconf import DictConfig
 from omegaconf.errors import OmegaConfBaseException
 
-from aectorch.config import ExperimentConfig, register_configs, to_experiment_config, validate_resources
+from tqdm.contrib.logging import logging_redirect_tqdm
+
+from aectorch.runtime import format_summary, prepare_run, run_experiment
+from aectorch.runtime.config import register_configs, to_experiment_config
+from aectorch.runtime.watchdog import WatchdogError
 
 register_configs()
 
@@ -56,60 +61,35 @@ def _command_line_keys() -> set[str]:
     return keys
 
 
-def _prepare(raw: DictConfig) -> ExperimentConfig:
-    """Validate everything before any work; on resume, take the run's own iterations/progress
-    unless the command line gives them."""
-    from aectorch.experiment import checkpoint_config, load_checkpoint
-
-    cfg = to_experiment_config(raw)
-    validate_resources(cfg)
-    if cfg.train.resume is not None:
-        path = Path(cfg.train.resume) / "checkpoint.pt"
-        stored = checkpoint_config(load_checkpoint(path), path)
-        given = _command_line_keys()
-        for key in ("iterations", "progress"):
-            if f"train.{key}" not in given:
-                setattr(cfg.train, key, getattr(stored.train, key))
-        _check_resume_overrides(cfg, stored, given)
-        validate_resources(stored)
-    return cfg
-
-
-def _check_resume_overrides(cfg: ExperimentConfig, stored: ExperimentConfig, given: set[str]) -> None:
-    """A resumed run is the stored run: a command-line value that contradicts it is an error, not
-    silently ignored (only train.iterations/progress/resume and watchdog.* may change)."""
-    from omegaconf import OmegaConf
-
-    from aectorch.config import to_container
-    from aectorch.experiment import RESUME_KEYS
-
-    mine, theirs = OmegaConf.create(to_container(cfg)), OmegaConf.create(to_container(stored))
-    for key in sorted(given):
-        if key.startswith(("hydra.", "watchdog", "record")) or key in {f"train.{k}" for k in RESUME_KEYS} \
-                or key in ("preset", "experiment"):
-            continue
-        ours, run = OmegaConf.select(mine, key), OmegaConf.select(theirs, key)
-        if ours != run:
-            raise ValueError(
-                f"{key}={ours!r} contradicts the resumed run's {key}={run!r}: train.resume continues "
-                f"{cfg.train.resume} with its own config (only train.iterations, train.progress, "
-                "watchdog.* and record.* may be given); start a new run to change it")
+def _log_to_stderr() -> None:
+    """The library's messages (the ``aectorch`` logger: resuming, interruptions, the watchdog, the
+    depth calibration) go to stderr as plain lines, around the progress bars."""
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    logger = logging.getLogger("aectorch")
+    logger.handlers[:] = [handler]
+    logger.setLevel(logging.INFO)
+    logger.propagate = False  # not also into Hydra's own log handlers
 
 
 @hydra.main(version_base=None, config_name="train")
 def main(raw: DictConfig) -> dict:
+    _log_to_stderr()
     try:
-        cfg = _prepare(raw)
+        # Validate everything before any work; on resume, the run's own config and checkpoint.
+        cfg, checkpoint = prepare_run(to_experiment_config(raw), _command_line_keys())
     except (ValueError, OmegaConfBaseException) as err:  # a value rejected by the configs' checks
         if _debug():
             raise
         # Exit here, inside the job: Hydra would add its own "Error executing job" line.
         _fail(str(err).strip().splitlines()[0])
-    from aectorch.experiment import run_experiment
-    from aectorch.watchdog import WatchdogError
-
+    run_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
-        return run_experiment(cfg, Path(HydraConfig.get().runtime.output_dir))
+        with logging_redirect_tqdm(loggers=[logging.getLogger("aectorch")]):
+            summary = run_experiment(cfg, run_dir, checkpoint=checkpoint)
+        if summary:
+            print(format_summary(summary, Path(cfg.train.resume) if checkpoint is not None else run_dir))
+        return summary
     except WatchdogError:
         if _debug():
             raise
@@ -134,7 +114,7 @@ def _one_line(err: BaseException) -> str:
 
 
 def _other_ranks_write_elsewhere() -> None:
-    """Under torchrun only rank 0 writes the run folder (aectorch.distributed): Hydra's own folder
+    """Under torchrun only rank 0 writes the run folder (aectorch.runtime.distributed): Hydra's own folder
     and files of the other ranks go to a temporary folder, so a run makes one folder."""
     import tempfile
 

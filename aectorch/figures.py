@@ -30,6 +30,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from aectorch._checks import check_int, is_int
+
 __all__ = [
     "principal_components",
     "plot_dictionaries",
@@ -238,7 +240,7 @@ def principal_components(atoms: Tensor, k: int = 2) -> tuple[Tensor, Tensor]:
     """
     atoms = _as_matrix(atoms, "atoms")
     p, n = atoms.shape
-    if isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= min(n, p):
+    if not (is_int(k) and 1 <= k <= min(n, p)):
         raise ValueError(f"k must be an int in [1, min(N, P)] = [1, {min(n, p)}] for atoms of shape {(p, n)}, got {k!r}")
     if n < 2:
         raise ValueError(f"atoms must hold at least 2 atoms (columns), got shape {(p, n)}")
@@ -457,7 +459,7 @@ def plot_perturbation(records: Sequence[Mapping], path: str | os.PathLike, *,
         span = last - first if last > first else 0.2 * (float(x.max()) - float(x.min()))
         margin_value = max(span, 1.0)
     else:
-        if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not margin >= 0:
+        if not (is_int(margin) or isinstance(margin, float)) or not margin >= 0:  # inf keeps all
             raise ValueError(f"margin must be a non-negative number of iterations or None, got {margin!r}")
         margin_value = float(margin)
     low, high = first - margin_value, last + margin_value
@@ -513,9 +515,8 @@ def recovery(records: Sequence[Mapping], key: str, event_iteration: int, *,
     event = _as_float(event_iteration)
     if not math.isfinite(event) or isinstance(event_iteration, bool):
         raise ValueError(f"event_iteration must be a finite iteration number, got {event_iteration!r}")
-    if isinstance(baseline_records, bool) or not isinstance(baseline_records, int) or baseline_records < 1:
-        raise ValueError(f"baseline_records must be an int >= 1, got {baseline_records!r}")
-    if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) or not tolerance >= 0:
+    check_int(baseline_records, "baseline_records")
+    if not (is_int(tolerance) or isinstance(tolerance, float)) or not tolerance >= 0:  # inf allowed
         raise ValueError(f"tolerance must be a non-negative number, got {tolerance!r}")
     y = _series(records, key)
     valid = np.isfinite(y)

@@ -9,6 +9,7 @@ import os
 import sys
 from typing import Sequence
 
+from aectorch._checks import is_int
 from aectorch._cli import UsageError, parse_key_values, run_main
 
 USAGE = """\
@@ -41,7 +42,7 @@ def _parse(argv: Sequence[str]) -> dict:
     args = parse_key_values(argv, _KEYS, required=("checkpoint", "out"), paths=("checkpoint", "out", "textures"))
     for key, default, minimum in (("trials", 2, 1), ("envs", 1, 1), ("seed", 0, 0)):
         value = args.setdefault(key, default)
-        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        if not is_int(value) or value < minimum:
             raise UsageError(f"{key} must be an int >= {minimum}, got {value!r}")
     if args.setdefault("renderer", "torch") not in RENDERERS:
         raise UsageError(f"renderer must be one of {', '.join(RENDERERS)}, got {args['renderer']!r}")
@@ -64,7 +65,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _record(argv: list[str]) -> int:
     args = _parse(argv)
-    from aectorch.experiment import load_learner
+    from aectorch.runtime import load_learner
     from aectorch.integrations.lerobot import record_trials
     from aectorch.sim import ActiveDepthEnv, TextureBank
 

@@ -7,7 +7,7 @@ import platform
 import sys
 from pathlib import Path
 
-from aectorch.provenance import cpu_model  # noqa: F401  (re-exported for the benchmarks)
+from aectorch.runtime.provenance import cpu_model  # noqa: F401  (re-exported for the benchmarks)
 
 
 def machine_info() -> dict:

@@ -48,8 +48,8 @@ def worker(batch: int, kernel_threads: int, iterations: int, warmup: int) -> dic
 
     from aectorch import profiling
     from aectorch.coding import native, use_backend
-    from aectorch.config import ExperimentConfig
-    from aectorch.experiment import build_env, build_learner
+    from aectorch.runtime.config import ExperimentConfig
+    from aectorch.runtime import build_env, build_learner
     from aectorch.sim.env import _finer
 
     torch.set_num_threads(1)

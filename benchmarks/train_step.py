@@ -90,7 +90,7 @@ def env_protocol() -> dict:
     (the shift over 20 iterations, yoked pursuit), the instant shift for the recorded tables."""
     if _learner_name() != "default":
         return {}
-    from aectorch.config import EnvConfig
+    from aectorch.runtime.config import EnvConfig
 
     e = EnvConfig()
     return {"shift_iterations": e.shift_iterations, "yoked_pursuit": e.yoked_pursuit}
@@ -163,8 +163,8 @@ def depth_refit_seconds(device: str) -> float:
     pursuit = torch.rad2deg(torch.atan(0.1 / d))
     vergence = torch.rad2deg(2 * torch.atan(0.03 / d))
     q = torch.stack((-pursuit, vergence, pursuit, vergence), -1) + 0.05 * torch.randn(FIT_TRIALS, 4, generator=g, dtype=torch.float64)
-    learner.depth_inputs = q.to(learner.depth_inputs)
-    learner.depth_targets = d.to(learner.depth_targets)
+    learner.depth_learner.inputs = q.to(learner.depth_inputs)
+    learner.depth_learner.targets = d.to(learner.depth_targets)
     start = time.perf_counter()
     learner.fit_depth(seed=0)
     return time.perf_counter() - start
@@ -175,14 +175,14 @@ def build(renderer: str, batch: int, mode: str, device: str):
     ``cudagraphs`` (the encoders compiled with CUDA graphs, ``mode="reduce-overhead"``; GPU only)."""
     import torch
 
-    from aectorch.experiment import _compile
+    from aectorch.runtime import compile_hot_path
     from aectorch.framework import JointLearner
     from aectorch.sim import ActiveDepthEnv
 
     env = ActiveDepthEnv(batch, renderer=renderer, seed=0, device=device, **env_protocol())
     learner = JointLearner(learner_config(), generator=torch.Generator().manual_seed(0), device=device)
     if mode == "compile":
-        _compile(learner, env)
+        compile_hot_path(learner, env)
     elif mode == "cudagraphs":
         for cue in ("parallax", "stereo"):
             getattr(learner, cue).compile(mode="reduce-overhead")
@@ -257,9 +257,7 @@ def measure(renderer: str, batch: int, mode: str, iterations: int, warmup: int, 
     }
     if device == "cuda":
         row["peak_cuda_mb"] = (torch.cuda.max_memory_allocated() - base_cuda) / 2**20
-    close = getattr(env.renderer, "close", None)
-    if close is not None:
-        close()
+    env.close()
     return row
 
 

@@ -36,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--trials must be at least 10 (a fit needs 10), got {args.trials}")
 
     from aectorch.evaluate import evaluate, run_trials
-    from aectorch.experiment import build_textures, calibration_conditions, load_learner, trial_options
+    from aectorch.runtime import build_textures, calibration_conditions, load_learner, trial_options
     from aectorch.sim import DEFAULT_DISTANCES_M
 
     torch.set_num_threads(1)

@@ -114,7 +114,7 @@ def _trials(learner, cfg, sets, calibration: int, cache: str | None, key: str) -
     from pathlib import Path
 
     from aectorch.evaluate import run_trials
-    from aectorch.experiment import build_textures, calibration_conditions, trial_options
+    from aectorch.runtime import build_textures, calibration_conditions, trial_options
 
     if cache and Path(cache).exists():
         stored = torch.load(cache, weights_only=False)
@@ -147,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
     if any(n < 10 for n in args.calibration):
         parser.error(f"--calibration counts must be at least 10 (a fit needs 10), got {args.calibration}")
 
-    from aectorch.experiment import build_textures, load_learner
+    from aectorch.runtime import build_textures, load_learner
     from aectorch.sim import DEFAULT_DISTANCES_M, ActiveDepthEnv
 
     torch.set_num_threads(1)

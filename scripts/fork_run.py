@@ -23,7 +23,7 @@ def fork(checkpoint: Path, folder: Path, overrides: list[str], iterations: int) 
     """Write the fork's folder (``ValueError`` before writing anything when an argument is bad)."""
     from omegaconf import OmegaConf
 
-    from aectorch.experiment import checkpoint_config, load_checkpoint, save_checkpoint
+    from aectorch.runtime import checkpoint_config, load_checkpoint, save_checkpoint
 
     if folder.exists() and any(folder.iterdir()):
         raise ValueError(f"folder {str(folder)!r} exists and is not empty; forks go to a new folder")
@@ -54,8 +54,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
 
-    from aectorch.config import to_experiment_config
-    from aectorch.experiment import run_experiment
+    from aectorch.runtime.config import to_experiment_config
+    from aectorch.runtime import run_experiment
 
     try:
         fork(args.checkpoint, args.folder, args.overrides, args.iterations)

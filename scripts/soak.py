@@ -3,7 +3,7 @@
     .venv/bin/python scripts/soak.py runs/soak                    # 100,000 iterations, defaults
     .venv/bin/python scripts/soak.py runs/soak --iterations 200000  # longer (resumes if it can)
 
-Runs `aectorch.experiment.run_experiment` with the default `ExperimentConfig` (the watchdog on,
+Runs `aectorch.runtime.run_experiment` with the default `ExperimentConfig` (the watchdog on,
 in mode ``stop``), except ``train.iterations``, no final evaluation and figures only at the end.
 If the folder already holds a checkpoint the run is resumed, so a soak can be spread over
 several sessions (Ctrl-C or SIGTERM leaves a checkpoint). Every ``--memory-every`` iterations
@@ -158,8 +158,8 @@ def main() -> None:
     os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
     from omegaconf import OmegaConf
 
-    from aectorch.config import to_experiment_config
-    from aectorch.experiment import run_experiment
+    from aectorch.runtime.config import to_experiment_config
+    from aectorch.runtime import run_experiment
 
     overrides = [f"train.iterations={args.iterations}", "eval.enabled=false", "train.checkpoint_every=1000",
                  "train.log_every=100"]

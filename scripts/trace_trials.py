@@ -26,7 +26,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--every", type=int, default=3, help="print every this many iterations")
     args = parser.parse_args(argv)
 
-    from aectorch.experiment import load_learner
+    from aectorch.runtime import load_learner
     from aectorch.sim import ActiveDepthEnv, TextureBank
 
     cfg, learner = load_learner(args.checkpoint)

@@ -443,7 +443,7 @@ def test_cuda_matches_cpu():
         (dict(theta_bound=0), "theta_bound must be a finite float > 0"),
         (dict(weight_decay=-0.1), "weight_decay must be a finite float >= 0"),
         (dict(alpha_theta=0.5, weight_decay=3.0), "alpha_theta \\* weight_decay must be <= 1"),
-        (dict(normalize_features=1), "normalize_features must be a bool"),
+        (dict(normalize_features=1), "normalize_features must be true or false"),
         (dict(feature_norm=0.0), "feature_norm must be None or a finite float > 0"),
     ],
 )
@@ -455,7 +455,7 @@ def test_config_rejects_impossible_values(kwargs, match):
 
 
 def test_constructor_rejects_bad_arguments():
-    with pytest.raises(ValueError, match="num_features must be a positive int, got 0"):
+    with pytest.raises(ValueError, match="num_features must be an int >= 1, got 0"):
         NaturalActorCritic(0)
     with pytest.raises(ValueError, match="actions_deg must be a non-empty sequence"):
         NaturalActorCritic(2, actions_deg=())

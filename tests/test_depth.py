@@ -189,7 +189,7 @@ def test_set_normalisation_validates():
         model.set_normalisation(torch.zeros(5, 4), torch.zeros(4))
     with pytest.raises(ValueError, match="finite"):
         model.set_normalisation(torch.full((5, 4), float("nan")), torch.zeros(5))
-    with pytest.raises(ValueError, match="hidden must be a positive int"):
+    with pytest.raises(ValueError, match="hidden must be an int >= 1"):
         DepthMLP(hidden=0)
     with pytest.raises(ValueError, match="activation must be one of"):
         DepthMLP(activation="relu")

@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from aectorch.experiment import load_checkpoint
+from aectorch.framework import Shard
+from aectorch.runtime import load_checkpoint
 
 from test_train import TINY, _lines, _without_time  # noqa: F401
 from test_train import textures  # noqa: F401  (the fixture)
@@ -117,11 +118,11 @@ def test_multirun_sweep_through_the_submitit_launcher(tmp_path, textures):
 def test_teardown_leaves_a_process_group_the_caller_made(tmp_path):
     import torch.distributed as dist
 
-    from aectorch import distributed
+    from aectorch.runtime import distributed
 
     dist.init_process_group("gloo", init_method=f"file://{tmp_path / 'rendezvous'}", rank=0, world_size=1)
     try:
-        assert distributed.setup(4) is None  # one process: no shard
+        assert distributed.setup(4) == Shard.single(4)  # one process: a shard of world size 1
         distributed.teardown()
         assert dist.is_initialized()  # still the caller's
     finally:

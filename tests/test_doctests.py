@@ -21,8 +21,8 @@ torch.set_num_threads(1)
 PACKAGES = (aectorch.coding, aectorch.sim, aectorch.control, aectorch.depth)
 MODULES = sorted(
     f"{package.__name__}.{m.name}" for package in PACKAGES for m in pkgutil.iter_modules(package.__path__)
-) + ["aectorch.framework", "aectorch.figures", "aectorch.profiling", "aectorch.watchdog",
-     "aectorch.provenance", "aectorch.evaluate"]  # top-level modules with examples
+) + ["aectorch.framework.joint", "aectorch.figures", "aectorch.profiling", "aectorch.runtime.watchdog",
+     "aectorch.runtime.provenance", "aectorch.evaluate.trials", "aectorch.evaluate.summary", "aectorch._checks"]  # top-level modules with examples
 
 
 def test_module_discovery_finds_the_modules():

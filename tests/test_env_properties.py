@@ -19,8 +19,9 @@ PROPS = settings(max_examples=30, deadline=None)
 
 @pytest.fixture(scope="module")
 def env() -> ActiveDepthEnv:
+    # The whole 0.1 m shift before the first iteration, so fixation 0's first state holds it all.
     return ActiveDepthEnv(B, textures=torch.rand(3, 32, 32, generator=torch.Generator().manual_seed(0)),
-                          seed=0, dtype=torch.float64)
+                          seed=0, dtype=torch.float64, shift_iterations=1, yoked_pursuit=False)
 
 
 def _trial(env, d, left=None):

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from aectorch.config import to_experiment_config
-from aectorch.evaluate import main
-from aectorch.experiment import run_experiment
+from aectorch.runtime.config import to_experiment_config
+from aectorch.evaluate.__main__ import main
+from aectorch.runtime import run_experiment
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -229,7 +229,7 @@ def test_small_batches_train_with_the_default_steps(num_envs):
     of its B transitions) B = 1's first z-scores, from a handful of samples, are huge and its
     critic diverges within a few dozen iterations."""
     from aectorch.framework import default_control
-    from aectorch.watchdog import WatchdogConfig
+    from aectorch.runtime.watchdog import WatchdogConfig
 
     limit = WatchdogConfig().td_error_max
 

@@ -1,4 +1,4 @@
-"""aectorch.metrics.TrainingMetrics against a brute-force computation on synthetic records."""
+"""aectorch.runtime.metrics.TrainingMetrics against a brute-force computation on synthetic records."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from aectorch.framework import CueRecord, IterationRecord
-from aectorch.metrics import TrainingMetrics
+from aectorch.runtime.metrics import TrainingMetrics
 
 B, SCALES, ATOMS, H = 3, ("coarse", "fine"), 8, 2
 
@@ -144,7 +144,7 @@ def test_rejects_bad_arguments_and_records():
 def test_docstring_example_runs():
     import doctest
 
-    import aectorch.metrics
+    import aectorch.runtime.metrics
 
-    failed, attempted = doctest.testmod(aectorch.metrics, verbose=False)
+    failed, attempted = doctest.testmod(aectorch.runtime.metrics, verbose=False)
     assert attempted > 0 and failed == 0

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 import torch
 
-from aectorch.experiment import load_checkpoint, run_experiment, save_checkpoint
+from aectorch.runtime import load_checkpoint, run_experiment, save_checkpoint
 from aectorch.framework import JointLearner, LearnerConfig
 from aectorch.sim import ActiveDepthEnv, TextureBank
-from aectorch.watchdog import Watchdog, WatchdogConfig, WatchdogError
+from aectorch.runtime.watchdog import Watchdog, WatchdogConfig, WatchdogError
 
 from test_train import _cfg, _lines, _train, _without_time, TINY  # noqa: F401  (shared fixtures)
 from test_train import textures  # noqa: F401
@@ -284,7 +284,7 @@ def test_recording_without_lerobot_says_where_it_lives(tmp_path, textures):
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="checks the message on a machine without CUDA")
 def test_cuda_device_without_cuda_is_rejected_before_any_work(textures):
-    from aectorch.config import validate_resources
+    from aectorch.runtime.config import validate_resources
 
     with pytest.raises(ValueError, match="env.device='cuda', but this torch .* sees no CUDA device"):
         validate_resources(_cfg(textures, "env.device=cuda"))

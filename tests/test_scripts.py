@@ -98,8 +98,8 @@ def test_depth_calibration_script_gives_what_train_py_evaluates(tmp_path, capsys
     """scripts/depth_calibration.py --design spread reproduces train.depth_calibration_trials."""
     from omegaconf import OmegaConf
 
-    from aectorch.config import to_experiment_config
-    from aectorch.experiment import run_experiment
+    from aectorch.runtime.config import to_experiment_config
+    from aectorch.runtime import run_experiment
 
     dotlist = _tiny_dotlist(tmp_path)
     calibrated = run_experiment(to_experiment_config(OmegaConf.from_dotlist(dotlist + ["train.depth_calibration_trials=15"])),
@@ -123,8 +123,8 @@ def test_depth_readout_compares_read_outs_of_the_same_trials(tmp_path, capsys, s
     """scripts/depth_readout.py: its calibrated read-out is train.py's; the cache gives the same."""
     from omegaconf import OmegaConf
 
-    from aectorch.config import to_experiment_config
-    from aectorch.experiment import run_experiment
+    from aectorch.runtime.config import to_experiment_config
+    from aectorch.runtime import run_experiment
 
     dotlist = _tiny_dotlist(tmp_path) + ["train.iterations=20"]
     calibrated = run_experiment(to_experiment_config(OmegaConf.from_dotlist(dotlist + ["train.depth_calibration_trials=15"])),

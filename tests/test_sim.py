@@ -310,6 +310,9 @@ def test_conflicting_opengl_platform_is_explained():
 def small_env(bank, **kwargs):
     kwargs.setdefault("fixation_iterations", 3)
     kwargs.setdefault("seed", 0)
+    # These tests check the geometry step by step: the whole shift at once, pursuit by one eye.
+    kwargs.setdefault("shift_iterations", 1)
+    kwargs.setdefault("yoked_pursuit", False)
     return ActiveDepthEnv(3, textures=bank, **kwargs)
 
 

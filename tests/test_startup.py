@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from aectorch.experiment import load_checkpoint
+from aectorch.runtime import load_checkpoint
 from test_reliability import _assert_equal_everywhere
 from test_train import QUIET, ROOT, TINY, textures  # noqa: F401  (shared fixture)
 

@@ -1,4 +1,4 @@
-"""train.py and aectorch.experiment: run folder, resume, interruption, config errors, presets."""
+"""train.py and aectorch.runtime: run folder, resume, interruption, config errors, presets."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from aectorch.config import ExperimentConfig, PAPER_PRESET, to_experiment_config, validate_resources
-from aectorch.experiment import load_checkpoint, load_learner, run_experiment, save_checkpoint
+from aectorch.runtime.config import ExperimentConfig, PAPER_PRESET, to_experiment_config, validate_resources
+from aectorch.runtime import load_checkpoint, load_learner, run_experiment, save_checkpoint
 from aectorch.sim import ActiveDepthEnv
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -222,7 +222,7 @@ def test_checkpoint_errors_name_the_path(tmp_path):
 def test_config_errors_name_the_field(override, field, textures):
     from hydra import compose, initialize
 
-    from aectorch.config import register_configs
+    from aectorch.runtime.config import register_configs
 
     register_configs()
     with initialize(version_base=None, config_path=None):
@@ -251,7 +251,7 @@ def test_bad_override_exits_2_before_any_work(tmp_path):
 def test_preset_paper_and_perturbation_fractions():
     from hydra import compose, initialize
 
-    from aectorch.config import PerturbationConfig, register_configs
+    from aectorch.runtime.config import PerturbationConfig, register_configs
 
     register_configs()
     with initialize(version_base=None, config_path=None):
@@ -304,8 +304,8 @@ def test_compile_gives_the_same_run_as_eager(tmp_path, textures):
 
 
 def test_a_checkpoint_from_before_the_symmetries_loads_without_them():
-    from aectorch.config import to_container
-    from aectorch.experiment import checkpoint_config
+    from aectorch.runtime.config import to_container
+    from aectorch.runtime import checkpoint_config
 
     stored = to_container(ExperimentConfig())
     assert stored["learner"]["symmetry"] == ["parallax", "stereo"]
@@ -378,7 +378,7 @@ def test_depth_calibration_refits_the_evaluated_mlp_on_greedy_training_trials(tm
 
 
 def test_start_spread_draws_the_training_start_states(textures):
-    from aectorch.experiment import build_env
+    from aectorch.runtime import build_env
 
     plain = build_env(_cfg(textures))
     assert torch.all(plain.left_pan_deg == 0) and torch.all(plain.vergence_deg == 0)
@@ -426,8 +426,8 @@ def test_fork_continues_a_run_with_changed_settings(tmp_path, textures, capsys, 
 
 
 def test_a_checkpoint_from_before_scale_rendering_reduces_whole_crops():
-    from aectorch.config import to_container
-    from aectorch.experiment import checkpoint_config
+    from aectorch.runtime.config import to_container
+    from aectorch.runtime import checkpoint_config
 
     stored = to_container(ExperimentConfig())
     assert stored["learner"]["render_scales"] is True
@@ -436,7 +436,7 @@ def test_a_checkpoint_from_before_scale_rendering_reduces_whole_crops():
 
 
 def test_threads_zero_uses_every_core_shared_among_processes():
-    from aectorch.experiment import available_threads
+    from aectorch.runtime import available_threads
 
     cores = len(os.sched_getaffinity(0))
     assert available_threads() == cores

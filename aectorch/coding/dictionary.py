@@ -12,6 +12,7 @@ from typing import Callable, NamedTuple
 import torch
 from torch import nn
 
+from aectorch._checks import check_int
 from aectorch.coding.pursuit import gram_matrix, matching_pursuit, omp
 from aectorch.coding.sparse_code import SparseCode
 
@@ -133,8 +134,7 @@ class SparseDictionary(nn.Module):
     ) -> None:
         super().__init__()
         for name, value in (("num_atoms", num_atoms), ("dim", dim), ("sparsity", sparsity)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be a positive int, got {value!r}")
+            check_int(value, name)
         if sparsity > min(num_atoms, dim):
             raise ValueError(
                 f"sparsity={sparsity} must not exceed min(num_atoms={num_atoms}, dim={dim})"
@@ -205,7 +205,7 @@ class SparseDictionary(nn.Module):
         ``r_i = x_i - D a_i`` and the code held fixed: exactly what autograd gives
         for ``output.error.mean().backward()``, without building a graph.
 
-        With ``reduce`` (a sum over processes that share the batch, `aectorch.distributed`) the
+        With ``reduce`` (a sum over processes that share the batch, `aectorch.runtime.distributed`) the
         mean runs over every process's signals.
 
         Returns:

@@ -183,7 +183,7 @@ class BinocularEncoder(nn.Module):
         with B environments this is the mean of the B per-environment updates.
         Equivalent to ``(-output.reward.mean()).backward()`` followed by an SGD
         step of size `lr` and `SparseDictionary.renormalize_`. ``reduce`` sums over processes
-        that share the batch (`aectorch.distributed`), so the mean runs over all of them.
+        that share the batch (`aectorch.runtime.distributed`), so the mean runs over all of them.
         """
         lr = self.lr if lr is None else lr
         for scale, x, out in zip(self.scales, output.patches, output.codes):

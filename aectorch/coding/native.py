@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 import platform
 import sys
@@ -43,6 +44,8 @@ from pathlib import Path
 import torch
 
 from aectorch._checks import check_int
+
+log = logging.getLogger("aectorch")
 
 __all__ = ["available", "get_threads", "load", "pursuit", "set_threads", "SOURCE", "SOURCES"]
 
@@ -121,8 +124,8 @@ class _BuildLock:
                 now = time.monotonic()
                 if now - noted >= _WAIT_NOTE_S:
                     noted = now
-                    print(f"aectorch: waiting for {self._holder()} to finish building the fused CPU kernels "
-                          f"({now - start:.0f} s so far)", file=sys.stderr, flush=True)
+                    log.warning("aectorch: waiting for %s to finish building the fused CPU kernels (%.0f s so far)",
+                                self._holder(), now - start)
                 time.sleep(0.2)
         self.file.seek(0)
         text = self.file.read().strip()
@@ -166,10 +169,9 @@ def _build(name: str, folder: Path, verbose: bool) -> None:
             torch.ops.load_library(str(library))
             return
         if lock.previous:
-            print(f"aectorch: the kernel build of process {lock.previous.get('pid')} did not finish (it is no "
-                  "longer running); building again", file=sys.stderr, flush=True)
-        print("aectorch: compiling the fused CPU kernels (once per machine, about a minute)...",
-              file=sys.stderr, flush=True)
+            log.warning("aectorch: the kernel build of process %s did not finish (it is no longer running); "
+                        "building again", lock.previous.get("pid"))
+        log.warning("aectorch: compiling the fused CPU kernels (once per machine, about a minute)...")
         # torch's own file baton, left behind by a build that was killed: nobody else builds here now.
         (folder / "lock").unlink(missing_ok=True)
         # The sources are copied in, so build.ninja names this folder, not the checkout's path.

@@ -15,6 +15,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from aectorch._checks import check_bool, check_int
 from aectorch._checks import check_finite as _check_finite
 
 __all__ = [
@@ -79,9 +80,7 @@ class Scale:
 
     def __post_init__(self) -> None:
         for name in ("crop", "downsample", "patch_size", "stride"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"Scale.{name} must be a positive int, got {value!r}")
+            check_int(getattr(self, name), f"Scale.{name}")
         if self.downsample & (self.downsample - 1):
             raise ValueError(
                 f"Scale.downsample must be a power of two (Gaussian pyramid), got {self.downsample}"
@@ -102,8 +101,7 @@ class Scale:
                 f"Scale.patch_size={self.patch_size} does not fit in the reduced crop "
                 f"{side}x{side} (crop {self.crop} / downsample {self.downsample})"
             )
-        if not isinstance(self.centred, bool):
-            raise ValueError(f"Scale.centred must be True or False, got {self.centred!r}")
+        check_bool(self.centred, "Scale.centred")
         if self.centred and (self.side - self.patch_size - (self.grid - 1) * self.stride) % 2:
             raise ValueError(
                 f"Scale {self.name!r} cannot be centred: its grid leaves an odd number of the reduced "
@@ -165,8 +163,7 @@ def patch_permutation(patch_size: int, *, flip: bool = True, swap: bool = False)
         >>> patch_permutation(2, flip=False, swap=True)
         tensor([4, 5, 6, 7, 0, 1, 2, 3])
     """
-    if isinstance(patch_size, bool) or not isinstance(patch_size, int) or patch_size < 1:
-        raise ValueError(f"patch_size must be a positive int, got {patch_size!r}")
+    check_int(patch_size, "patch_size")
     half = torch.arange(patch_size * patch_size)
     if flip:
         half = half.view(patch_size, patch_size).flip(-1).reshape(-1)
@@ -320,8 +317,7 @@ def pyramid_down(images: Tensor, levels: int, *, centred: bool = False) -> Tenso
         True
     """
     _check_image(images, "images")
-    if isinstance(levels, bool) or not isinstance(levels, int) or levels < 0:
-        raise ValueError(f"levels must be an int >= 0, got {levels!r}")
+    check_int(levels, "levels", 0)
     h, w = images.shape[-2:]
     for level in range(levels):
         if h < 3 or w < 3:

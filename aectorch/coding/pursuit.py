@@ -43,6 +43,7 @@ from typing import Callable, Iterator, NamedTuple
 import torch
 import torch.nn.functional as F
 
+from aectorch._checks import is_int
 from aectorch.coding import native
 from aectorch.coding.sparse_code import SparseCode
 
@@ -126,7 +127,7 @@ def _validate(
             f"signals must have shape [..., P] with P = dictionary.shape[0] = "
             f"{dictionary.shape[0]}, got {tuple(signals.shape)}"
         )
-    if isinstance(sparsity, bool) or not isinstance(sparsity, int):
+    if not is_int(sparsity):
         raise TypeError(f"sparsity must be an int, got {type(sparsity).__name__}")
     dim, num_atoms = dictionary.shape
     if sparsity < 1 or sparsity > dim or sparsity > num_atoms:

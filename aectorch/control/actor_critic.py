@@ -42,7 +42,6 @@ of the means (mean over the environments that update; nothing moves when none do
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 from typing import Callable, NamedTuple, Sequence
 
@@ -50,7 +49,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from aectorch._checks import check_finite
+from aectorch._checks import check_bool, check_finite, check_int, is_int, is_real
 
 __all__ = ["ActOutput", "ActorCriticConfig", "NaturalActorCritic", "PAPER_ACTIONS_DEG", "UpdateOutput"]
 
@@ -58,10 +57,6 @@ PAPER_ACTIONS_DEG = (-0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2)
 """The paper's action set A of pan increments in degrees (sec. 2.3)."""
 
 _PROJECTIONS = ("ball", "box", "none")
-
-
-def _is_real(value: object) -> bool:
-    return not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
 
 
 @dataclass
@@ -187,7 +182,7 @@ class ActorCriticConfig:
 
         def require(name: str, ok, expected: str) -> None:
             value = getattr(self, name)
-            if not (_is_real(value) and ok(value)):
+            if not (is_real(value) and ok(value)):
                 raise ValueError(f"{owner}.{name} must be {expected}, got {value!r}")
 
         positive = (lambda x: x > 0), "a finite float > 0"
@@ -202,19 +197,12 @@ class ActorCriticConfig:
             require("feature_norm", positive[0], "None or a finite float > 0")
         if self.actor_decay is not None:
             require("actor_decay", positive[0], "None or a finite float > 0")
-        if self.normalize_window is not None and (
-            isinstance(self.normalize_window, bool) or not isinstance(self.normalize_window, int)
-            or self.normalize_window < 2
-        ):
+        if self.normalize_window is not None and not (is_int(self.normalize_window) and self.normalize_window >= 2):
             raise ValueError(f"{owner}.normalize_window must be None or an int >= 2, got {self.normalize_window!r}")
-        if self.batch_reference is not None and (
-            isinstance(self.batch_reference, bool) or not isinstance(self.batch_reference, int)
-            or self.batch_reference < 1
-        ):
+        if self.batch_reference is not None and not (is_int(self.batch_reference) and self.batch_reference >= 1):
             raise ValueError(f"{owner}.batch_reference must be None or an int >= 1, got {self.batch_reference!r}")
-        if self.normalize_samples is not None and (
-            isinstance(self.normalize_samples, bool) or not isinstance(self.normalize_samples, int)
-            or self.normalize_samples < 2
+        if self.normalize_samples is not None and not (
+            is_int(self.normalize_samples) and self.normalize_samples >= 2
         ):
             raise ValueError(f"{owner}.normalize_samples must be None or an int >= 2, got {self.normalize_samples!r}")
         if self.projection not in _PROJECTIONS:
@@ -224,10 +212,7 @@ class ActorCriticConfig:
             )
         require("xi", lambda x: 0 < x <= 1, "a float in (0, 1]")
         require("critic_discount", lambda x: 0 <= x <= 1, "a float in [0, 1]")
-        if not isinstance(self.normalize_features, bool):
-            raise ValueError(
-                f"{owner}.normalize_features must be a bool, got {self.normalize_features!r}"
-            )
+        check_bool(self.normalize_features, f"{owner}.normalize_features")
         if self.alpha_theta * self.weight_decay > 1:
             raise ValueError(
                 f"{owner}.alpha_theta * weight_decay must be <= 1 (the decay factor "
@@ -341,12 +326,11 @@ class NaturalActorCritic(nn.Module):
         **options,
     ) -> None:
         super().__init__()
-        if isinstance(num_features, bool) or not isinstance(num_features, int) or num_features < 1:
-            raise ValueError(f"num_features must be a positive int, got {num_features!r}")
+        check_int(num_features, "num_features")
         actions = tuple(actions_deg) if not isinstance(actions_deg, torch.Tensor) else tuple(
             actions_deg.tolist()
         )
-        if len(actions) < 1 or not all(_is_real(a) for a in actions):
+        if len(actions) < 1 or not all(is_real(a) for a in actions):
             raise ValueError(
                 f"actions_deg must be a non-empty sequence of finite floats, got {actions_deg!r}"
             )
@@ -459,7 +443,7 @@ class NaturalActorCritic(nn.Module):
     def _temperature(self, temperature: float | None) -> float:
         if temperature is None:
             return self.config.temperature
-        if not (_is_real(temperature) and temperature > 0):
+        if not (is_real(temperature) and temperature > 0):
             raise ValueError(f"temperature must be a finite float > 0 or None, got {temperature!r}")
         return float(temperature)
 
@@ -515,6 +499,9 @@ class NaturalActorCritic(nn.Module):
         return ActOutput(actions, self.actions_deg[actions], log_prob, _entropy(logp))
 
     # ------------------------------------------------------------------ learning
+    # long: the batched update of algorithm 3, step by step in the module docstring's order (TD
+    # error, critic, advantage weights, actor, feature statistics); split, it would no longer read
+    # as the equations it implements.
     @torch.no_grad()
     def update(
         self,
@@ -539,7 +526,7 @@ class NaturalActorCritic(nn.Module):
                 environments change nothing. ``None`` (the paper): all update.
             check: check that inputs are finite and actions in range (a host sync;
                 skipped under torch.compile). Shapes are always checked.
-            reduce: for a batch split across processes (`aectorch.distributed`): sums a tensor
+            reduce: for a batch split across processes (`aectorch.runtime.distributed`): sums a tensor
                 over all of them (an all-reduce). Every mean over environments then runs over
                 the whole batch, so each process takes the same step as one process with all the
                 environments would. ``None``: this batch is the whole batch.

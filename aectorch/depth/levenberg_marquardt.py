@@ -56,6 +56,7 @@ import torch
 from torch import nn
 from torch.func import functional_call, jacfwd, jacrev, vmap
 
+from aectorch._checks import check_int, check_real, is_real
 from aectorch.depth.mlp import nguyen_widrow_
 
 __all__ = ["LevenbergMarquardtResult", "fit_levenberg_marquardt", "STOP_REASONS"]
@@ -97,34 +98,26 @@ class LevenbergMarquardtResult:
 
 
 def _check_positive(name: str, value: float, *, allow_zero: bool = False) -> None:
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-    ok = ok and (value >= 0 if allow_zero else value > 0)
-    if not ok:
+    if not (is_real(value) and (value >= 0 if allow_zero else value > 0)):
         raise ValueError(f"{name} must be a finite {'non-negative' if allow_zero else 'positive'} number, got {value!r}")
-
-
-def _check_int(name: str, value: int, minimum: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ValueError(f"{name} must be an int >= {minimum}, got {value!r}")
 
 
 def _validate_arguments(
     max_epochs, validation_fraction, goal, min_grad, mu, mu_dec, mu_inc, mu_max, max_fail, init, jacobian, chunk_size
 ) -> None:
-    _check_int("max_epochs", max_epochs, 0)
-    _check_int("max_fail", max_fail, 1)
+    check_int(max_epochs, "max_epochs", 0)
+    check_int(max_fail, "max_fail")
     if chunk_size is not None:
-        _check_int("chunk_size", chunk_size, 1)
+        check_int(chunk_size, "chunk_size")
     if not (isinstance(validation_fraction, (int, float)) and 0.0 <= validation_fraction < 1.0):
         raise ValueError(f"validation_fraction must be in [0, 1), got {validation_fraction!r}")
     _check_positive("goal", goal, allow_zero=True)
     _check_positive("min_grad", min_grad, allow_zero=True)
     _check_positive("mu", mu)
     _check_positive("mu_max", mu_max)
-    if not (isinstance(mu_dec, (int, float)) and 0.0 < mu_dec < 1.0):
+    if not (is_real(mu_dec) and 0.0 < mu_dec < 1.0):
         raise ValueError(f"mu_dec must be in (0, 1), got {mu_dec!r}")
-    if not (isinstance(mu_inc, (int, float)) and math.isfinite(mu_inc) and mu_inc > 1.0):
-        raise ValueError(f"mu_inc must be a finite number > 1, got {mu_inc!r}")
+    check_real(mu_inc, "mu_inc", above=1.0)
     if init not in (None, "nguyen-widrow"):
         raise ValueError(f"init must be None or 'nguyen-widrow', got {init!r}")
     if jacobian not in ("reverse", "forward"):
@@ -367,6 +360,39 @@ def fit_levenberg_marquardt(
         )  # fmt: skip
 
 
+def _stop_reason(epoch: int, perf: float, gradient: float, mu: float, val_fail: int | None, *, max_epochs: int,
+                 goal: float, min_grad: float, mu_max: float, max_fail: int) -> str | None:
+    """trainlm's stopping criteria, in its order, before each epoch (``val_fail`` None: no
+    validation set); ``None`` to go on."""
+    if perf <= goal:
+        return "goal"
+    if epoch == max_epochs:
+        return "max_epochs"
+    if gradient <= min_grad:
+        return "min_grad"
+    if mu >= mu_max:
+        return "max_mu"
+    if val_fail is not None and val_fail >= max_fail:
+        return "max_fail"
+    return None
+
+
+def _damped_step(problem: "_Residuals", theta: torch.Tensor, jtj: torch.Tensor, jte: torch.Tensor, sse: torch.Tensor,
+                 mu: float, eye: torch.Tensor, x_train: torch.Tensor, t_train: torch.Tensor, *, mu_dec: float,
+                 mu_inc: float, mu_max: float) -> tuple[torch.Tensor, float, bool]:
+    """Raise ``mu`` until a damped Gauss-Newton step lowers the training error (then lower it):
+    ``(theta, mu, accepted)``."""
+    while mu <= mu_max:
+        factor, info = torch.linalg.cholesky_ex(jtj + mu * eye)
+        if int(info) == 0:  # not positive definite counts as a failed step, as in trainlm
+            candidate = theta + torch.cholesky_solve(-jte[:, None], factor)[:, 0]
+            sse_new = float(problem.sse(candidate, x_train, t_train))
+            if math.isfinite(sse_new) and sse_new < float(sse):
+                return candidate, max(mu * mu_dec, _MU_FLOOR), True
+        mu *= mu_inc
+    return theta, mu, False
+
+
 def _train(
     problem: _Residuals,
     x_train: torch.Tensor,
@@ -405,33 +431,12 @@ def _train(
     epoch, reason = 0, "max_epochs"
     try:
         for epoch in range(max_epochs + 1):
-            # trainlm's stopping criteria, in its order, before each epoch.
-            if perf <= goal:
-                reason = "goal"
-            elif epoch == max_epochs:
-                reason = "max_epochs"
-            elif gradient <= min_grad:
-                reason = "min_grad"
-            elif mu >= mu_max:
-                reason = "max_mu"
-            elif validate and val_fail >= max_fail:
-                reason = "max_fail"
-            else:
-                reason = None
+            reason = _stop_reason(epoch, perf, gradient, mu, val_fail if validate else None, max_epochs=max_epochs,
+                                  goal=goal, min_grad=min_grad, mu_max=mu_max, max_fail=max_fail)
             if reason is not None:
                 break
-
-            accepted = False
-            while mu <= mu_max:
-                factor, info = torch.linalg.cholesky_ex(jtj + mu * eye)
-                if int(info) == 0:  # not positive definite counts as a failed step, as in trainlm
-                    candidate = theta + torch.cholesky_solve(-jte[:, None], factor)[:, 0]
-                    sse_new = float(problem.sse(candidate, x_train, t_train))
-                    if math.isfinite(sse_new) and sse_new < float(sse):
-                        theta, accepted = candidate, True
-                        mu = max(mu * mu_dec, _MU_FLOOR)
-                        break
-                mu *= mu_inc
+            theta, mu, accepted = _damped_step(problem, theta, jtj, jte, sse, mu, eye, x_train, t_train,
+                                               mu_dec=mu_dec, mu_inc=mu_inc, mu_max=mu_max)
 
             if accepted:
                 jtj, jte, sse = problem.normal_equations(theta, x_train, t_train)

@@ -12,6 +12,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from aectorch._checks import check_int
+
 __all__ = ["DepthMLP", "mapminmax", "mapminmax_reverse", "nguyen_widrow_", "ACTIVATIONS"]
 
 #: Hidden transfer functions: MATLAB's tansig (``2 / (1 + exp(-2n)) - 1``, which is
@@ -125,8 +127,7 @@ class DepthMLP(nn.Module):
     ) -> None:
         super().__init__()
         for name, value in (("in_features", in_features), ("hidden", hidden), ("out_features", out_features)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be a positive int, got {value!r}")
+            check_int(value, name)
         if activation not in ACTIVATIONS:
             raise ValueError(f"activation must be one of {sorted(ACTIVATIONS)}, got {activation!r}")
         self.in_features, self.hidden_features, self.out_features = in_features, hidden, out_features

@@ -39,6 +39,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from aectorch._checks import check_int, is_int
+
 __all__ = [
     "FEATURES_STATE",
     "LeRobotRecorder",
@@ -130,7 +132,7 @@ class LeRobotRecorder:
         root = Path(root)
         if root.exists():
             raise ValueError(f"the recording folder {str(root)!r} exists already; give a new one")
-        if isinstance(envs, bool) or not isinstance(envs, int) or not 1 <= envs <= env.num_envs:
+        if not (is_int(envs) and 1 <= envs <= env.num_envs):
             raise ValueError(f"envs must be an int in [1, num_envs={env.num_envs}], got {envs!r}")
         self.envs = envs
         h, w = env.window.height, env.window.width
@@ -198,8 +200,7 @@ def record_trials(learner, env, trials: int, root: str | Path, *, learn: bool = 
     Returns:
         The dataset folder.
     """
-    if isinstance(trials, bool) or not isinstance(trials, int) or trials < 1:
-        raise ValueError(f"trials must be an int >= 1, got {trials!r}")
+    check_int(trials, "trials")
     recorder = LeRobotRecorder(root, env, envs=env.num_envs, repo_id=repo_id, fps=fps)
     env.reset()
     learner.forget_transitions()

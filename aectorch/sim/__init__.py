@@ -7,6 +7,7 @@ pyrender (and with it PyOpenGL) is imported only when a :class:`PyrenderRenderer
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.env import DEFAULT_DISTANCES_M, RENDERERS, ActiveDepthEnv, IterationInfo, make_renderer
 from aectorch.sim.hoap3 import HOAP3Head
+from aectorch.sim.protocol import DEFAULT_PROTOCOL, Renderer, TrialProtocol, resolve_protocol
 from aectorch.sim.render_torch import (
     MipmapAtlas, TorchPlaneRenderer, mipmap_atlas, pixel_rays, render_planes, render_rays, sample_bilinear,
 )
@@ -25,6 +26,10 @@ def __getattr__(name: str):
 
 __all__ = [
     "ActiveDepthEnv",
+    "DEFAULT_PROTOCOL",
+    "Renderer",
+    "TrialProtocol",
+    "resolve_protocol",
     "DEFAULT_DISTANCES_M",
     "HOAP3Head",
     "IterationInfo",

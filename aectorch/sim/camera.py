@@ -18,6 +18,8 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from aectorch._checks import check_int
+
 __all__ = ["PinholeCamera", "PixelWindow"]
 
 
@@ -61,9 +63,7 @@ class PinholeCamera:
 
     def __post_init__(self) -> None:
         for name in ("width", "height"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"PinholeCamera: {name} must be an int >= 1, got {value!r}")
+            check_int(getattr(self, name), f"PinholeCamera: {name}")
         if not (isinstance(self.vfov_deg, (int, float)) and 0.0 < self.vfov_deg < 180.0):
             raise ValueError(
                 f"PinholeCamera: vfov_deg must be in (0, 180) degrees, got {self.vfov_deg!r}"

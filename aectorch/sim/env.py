@@ -36,9 +36,12 @@ from typing import NamedTuple, Sequence
 import torch
 from torch import Tensor
 
+from aectorch._checks import check_distances, check_int, is_real
+from aectorch.choices import Renderer as RendererName
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.hoap3 import HOAP3Head
 from aectorch.sim.scene import PlaneScene
+from aectorch.sim.protocol import DEFAULT_PROTOCOL, TrialProtocol
 from aectorch.sim.textures import TextureBank, pink_noise_images
 
 __all__ = ["ActiveDepthEnv", "IterationInfo", "RENDERERS", "DEFAULT_DISTANCES_M", "SCALE_FILTER", "pyramid_blur"]
@@ -46,7 +49,7 @@ __all__ = ["ActiveDepthEnv", "IterationInfo", "RENDERERS", "DEFAULT_DISTANCES_M"
 #: The paper's object distances: 1.0 to 3.0 m in 0.1 m steps.
 DEFAULT_DISTANCES_M = tuple(round(1.0 + 0.1 * i, 1) for i in range(21))
 #: Renderer names accepted by ``renderer=``.
-RENDERERS = ("torch", "pyrender")
+RENDERERS = RendererName.values()
 
 
 class IterationInfo(NamedTuple):
@@ -78,13 +81,13 @@ class IterationInfo(NamedTuple):
 
 
 def _range_or_value(value, name: str) -> tuple[float, float]:
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
+    if is_real(value):
         lo = hi = float(value)
     else:
         try:
             lo, hi = (float(v) for v in value)
         except (TypeError, ValueError):
-            raise ValueError(f"{name} must be a number or a (low, high) pair, got {value!r}") from None
+            raise ValueError(f"{name} must be a finite number or a (low, high) pair, got {value!r}") from None
     if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
         raise ValueError(f"{name} must be finite with low <= high, got {value!r}")
     return lo, hi
@@ -160,17 +163,19 @@ class ActiveDepthEnv:
             passed on, e.g. ``{"platform": "egl"}``).
         distances_m: the object distances a trial draws from uniformly (metres from the eyes'
             centres along the robot's forward axis; each > 0); default 1.0 .. 3.0 m in 0.1 m steps.
-        fixation_iterations: h, iterations per fixation (paper: 30).
+        fixation_iterations: h, iterations per fixation (paper: 30). The defaults of this and
+            the next three arguments are `aectorch.sim.TrialProtocol`'s.
         shift_m: δ, the body's lateral shift in each fixation (paper: 0.1 m).
         shift_iterations: n, the body movement's profile: during iteration ``i`` (0-based) of a
             fixation the body is at ``min(1, (i + 1) / n) * shift_m``, so the shift grows
             linearly over the first n iterations and is then held (the paper's "successive images
-            during the self-induced lateral body movement"). 1 (default) puts the whole shift
-            before the first iteration; n >= 1, and an n longer than the fixation is cut to
-            ``fixation_iterations`` (the shift is complete by every fixation's end).
+            during the self-induced lateral body movement"). 1 puts the whole shift before the
+            first iteration; n >= 1 (default 20, `TrialProtocol`), and an n longer than the
+            fixation is cut to ``fixation_iterations`` (the shift is complete by every fixation's
+            end).
         yoked_pursuit: the pursuit increment moves both eyes (Hering's law of equal innervation),
-            so vergence only has to add the convergence; ``False`` (default): it moves the
-            dominant (left) eye alone and the right eye must follow through vergence.
+            so vergence only has to add the convergence (default, `TrialProtocol`); ``False``: it
+            moves the dominant (left) eye alone and the right eye must follow through vergence.
         pursuit_start_deg: left-eye pan at each fixation's start: a number or a ``(low, high)``
             range drawn uniformly per environment and fixation.
         vergence_start_deg: right pan minus left pan at each fixation's start (0 = parallel),
@@ -184,7 +189,7 @@ class ActiveDepthEnv:
         seed: seed of the environment's own generator (textures, distances, start states).
         device, dtype: where and in which float type poses and images live.
         batch_slice: ``(start, total)``: these B environments are rows ``start .. start + B - 1``
-            of a batch of ``total`` split across processes (`aectorch.distributed`). Every random
+            of a batch of ``total`` split across processes (`aectorch.runtime.distributed`). Every random
             draw is made for the whole batch and this slice kept, so the split batch behaves as
             one environment of ``total`` would. ``None``: the batch is these B.
 
@@ -205,12 +210,12 @@ class ActiveDepthEnv:
         num_envs: int = 1,
         *,
         textures=None,
-        renderer: str = "torch",
+        renderer: str = DEFAULT_PROTOCOL.renderer,
         distances_m: Sequence[float] = DEFAULT_DISTANCES_M,
-        fixation_iterations: int = 30,
-        shift_m: float = 0.1,
-        shift_iterations: int = 1,
-        yoked_pursuit: bool = False,
+        fixation_iterations: int = DEFAULT_PROTOCOL.fixation_iterations,
+        shift_m: float = DEFAULT_PROTOCOL.shift_m,
+        shift_iterations: int = DEFAULT_PROTOCOL.shift_iterations,
+        yoked_pursuit: bool = DEFAULT_PROTOCOL.yoked_pursuit,
         pursuit_start_deg=0.0,
         vergence_start_deg=0.0,
         window: str | PixelWindow = "crops",
@@ -223,23 +228,10 @@ class ActiveDepthEnv:
         renderer_options: dict | None = None,
         batch_slice: tuple[int, int] | None = None,
     ) -> None:
-        if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
-            raise ValueError(f"num_envs must be an int >= 1, got {num_envs!r}")
-        if renderer not in RENDERERS:
-            raise ValueError(f"renderer must be one of {RENDERERS}, got {renderer!r}")
-        distances = [float(d) for d in distances_m]
-        if not distances or any(not math.isfinite(d) or d <= 0 for d in distances):
-            raise ValueError(
-                f"distances_m must be a non-empty list of distances > 0 (metres), got {distances_m!r}"
-            )
-        if isinstance(fixation_iterations, bool) or not isinstance(fixation_iterations, int) or fixation_iterations < 1:
-            raise ValueError(f"fixation_iterations must be an int >= 1, got {fixation_iterations!r}")
-        if not (isinstance(shift_m, (int, float)) and math.isfinite(shift_m) and shift_m >= 0):
-            raise ValueError(f"shift_m must be a number >= 0 (metres), got {shift_m!r}")
-        if isinstance(shift_iterations, bool) or not isinstance(shift_iterations, int) or shift_iterations < 1:
-            raise ValueError(f"shift_iterations must be an int >= 1, got {shift_iterations!r}")
-        if not isinstance(yoked_pursuit, bool):
-            raise ValueError(f"yoked_pursuit must be True or False, got {yoked_pursuit!r}")
+        check_int(num_envs, "num_envs")
+        protocol = TrialProtocol(renderer, fixation_iterations, shift_m, shift_iterations, yoked_pursuit)
+        renderer = str(protocol.renderer)
+        distances = check_distances(distances_m, "distances_m")
         if dtype not in (torch.float32, torch.float64):
             raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
         self.num_envs = num_envs
@@ -618,6 +610,19 @@ class ActiveDepthEnv:
         self._moved()
         first_roll = state.get("first_roll")
         self._first_roll = None if first_roll is None else first_roll.to(self.roll_deg)
+
+    def close(self) -> None:
+        """Free the renderers' resources (pyrender's OpenGL contexts); the environment cannot
+        render afterwards. Also ``with ActiveDepthEnv(...) as env:``."""
+        for renderer in (self.renderer, self._scale_renderer):
+            if renderer is not None:
+                renderer.close()
+
+    def __enter__(self) -> "ActiveDepthEnv":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     def __repr__(self) -> str:
         return (

@@ -30,6 +30,8 @@ import torch
 from pytorch_kinematics.transforms import Transform3d
 from torch import Tensor, nn
 
+from aectorch._checks import is_int
+
 __all__ = [
     "DEFAULT_URDF_PATH",
     "JOINT_NAMES",
@@ -533,7 +535,7 @@ class HOAP3Head(nn.Module):
         """
         _check_shift(shift_m)
         _check_like(left_pan_deg, "left_pan_deg", (), shift_m)
-        if isinstance(plane_x_m, (int, float)) and not isinstance(plane_x_m, bool):
+        if is_int(plane_x_m) or isinstance(plane_x_m, float):  # a number, finite or not
             plane_x_m = torch.full_like(shift_m, float(plane_x_m))
         _check_like(plane_x_m, "plane_x_m", (), shift_m)
         x, y, z = self._eye_xyz[0]

@@ -305,6 +305,8 @@ def render_planes(
     return image.reshape(image.shape[:-1] + (window.height // downsample, window.width // downsample))
 
 
+# long: one pass per pixel, ray -> plane hit -> texel -> filtered lookup, kept in one function so that
+# torch.compile fuses it into one kernel and the fused C++ kernel (render_cpu.cpp) can mirror it line by line.
 def render_rays(
     poses: Tensor,
     plane_x_m: Tensor,
@@ -525,6 +527,9 @@ class TorchPlaneRenderer(nn.Module):
         )
 
     render = forward
+
+    def close(self) -> None:
+        """Nothing to free (the `Renderer` interface: pyrender's frees its OpenGL contexts)."""
 
     def render_windows(self, poses: Tensor, plane_x_m: Tensor, texture_index: Tensor, windows, *,
                        check: bool = True) -> list[Tensor]:

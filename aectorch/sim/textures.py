@@ -23,6 +23,8 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from aectorch._checks import check_int, is_int, is_real
+
 __all__ = ["TextureBank", "pink_noise_images", "DEFAULT_SEEDS", "DEFAULT_SIZES", "IMAGE_EXTENSIONS"]
 
 #: File extensions `TextureBank.from_folder` loads by default (compared case-insensitively).
@@ -76,8 +78,7 @@ def pink_noise_images(
         (torch.Size([2, 240, 336]), 0.0, 1.0)
     """
     for name, value in (("batch", batch), ("height", height), ("width", width)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+        check_int(value, name)
     if not math.isfinite(alpha):
         raise ValueError(f"alpha must be finite, got {alpha!r}")
     if dtype not in (torch.float32, torch.float64):
@@ -198,7 +199,7 @@ class TextureBank:
         num = _check_count(num, "num")
         height, width = _check_size(size)
         low, high = _check_alpha(alpha)
-        if isinstance(seed, bool) or not isinstance(seed, int):
+        if not is_int(seed):
             raise TypeError(f"seed must be an int, got {type(seed).__name__} ({seed!r})")
         dtype = _check_dtype(dtype)
 
@@ -439,7 +440,7 @@ class TextureBank:
         n = len(self)
         if isinstance(index, slice):
             return self.textures[index]
-        if isinstance(index, int) and not isinstance(index, bool):
+        if is_int(index):
             if not -n <= index < n:
                 raise IndexError(f"texture index must lie in [{-n}, {n}) for {n} textures, got {index}")
             return self.textures[index]
@@ -514,11 +515,11 @@ class TextureBank:
             >>> len(train), len(test), set(train.names).isdisjoint(test.names)
             (7, 3, True)
         """
-        if isinstance(test_fraction, bool) or not isinstance(test_fraction, (int, float)):
+        if not (is_int(test_fraction) or isinstance(test_fraction, float)):  # NaN: the ValueError below
             raise TypeError(f"test_fraction must be a float, got {type(test_fraction).__name__}")
         if not 0.0 < test_fraction < 1.0:
             raise ValueError(f"test_fraction must lie in (0, 1), got {test_fraction!r}")
-        if isinstance(seed, bool) or not isinstance(seed, int):
+        if not is_int(seed):
             raise TypeError(f"seed must be an int, got {type(seed).__name__} ({seed!r})")
         n = len(self)
         if n < 2:
@@ -541,7 +542,7 @@ class TextureBank:
                 raise ValueError(f"{name} must have shape [B], got {tuple(index.shape)}")
             index = index.to(device=self.device, dtype=torch.int64)
         elif isinstance(index, Sequence) and not isinstance(index, str):
-            if not all(isinstance(i, int) and not isinstance(i, bool) for i in index):
+            if not all(is_int(i) for i in index):
                 raise TypeError(f"{name} must be ints, got {list(index)!r}")
             index = torch.tensor(list(index), dtype=torch.int64, device=self.device)
         else:
@@ -627,11 +628,11 @@ def _check_textures(textures: Tensor) -> None:
 
 
 def _check_size(size) -> tuple[int, int]:
-    if isinstance(size, int) and not isinstance(size, bool):
+    if is_int(size):
         size = (size, size)
     if isinstance(size, (str, bytes)) or not isinstance(size, Sequence) or len(size) != 2:
         raise ValueError(f"size must be (height, width) or an int, got {size!r}")
-    if not all(isinstance(s, int) and not isinstance(s, bool) for s in size):
+    if not all(is_int(s) for s in size):
         raise TypeError(f"size must hold two ints (height, width), got {size!r}")
     if min(size) < 2:
         raise ValueError(f"size must be (height, width) with both >= 2, got {tuple(size)}")
@@ -639,7 +640,7 @@ def _check_size(size) -> tuple[int, int]:
 
 
 def _check_count(value, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
+    if not is_int(value):  # a TypeError, unlike check_int's
         raise TypeError(f"{name} must be an int >= 1, got {type(value).__name__} ({value!r})")
     if value < 1:
         raise ValueError(f"{name} must be an int >= 1, got {value}")
@@ -647,12 +648,12 @@ def _check_count(value, name: str) -> int:
 
 
 def _check_alpha(alpha) -> tuple[float, float]:
-    if isinstance(alpha, (int, float)) and not isinstance(alpha, bool):
+    if is_real(alpha):
         low = high = float(alpha)
     elif isinstance(alpha, Sequence) and not isinstance(alpha, str) and len(alpha) == 2:
         low, high = (float(a) for a in alpha)
     else:
-        raise ValueError(f"alpha must be a float or a (low, high) pair, got {alpha!r}")
+        raise ValueError(f"alpha must be a finite float or a (low, high) pair, got {alpha!r}")
     if not (math.isfinite(low) and math.isfinite(high)) or low > high:
         raise ValueError(f"alpha must be finite with low <= high, got {alpha!r}")
     return low, high

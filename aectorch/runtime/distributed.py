@@ -18,18 +18,19 @@ three collectives the learning needs:
   (``tests/test_distributed.py``).
 
 `setup()` reads torchrun's environment (``RANK``, ``WORLD_SIZE``, ...) and initialises the process
-group: gloo for CPU, nccl for CUDA. Without torchrun it returns ``None`` and nothing changes.
+group: gloo for CPU, nccl for CUDA. Without torchrun it returns a shard of world size 1
+(`aectorch.framework.Shard.single`), whose collectives are the identity.
 See ``docs/scaling.md`` for multi-node and Slurm use.
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
-
 import torch
 
-__all__ = ["Shard", "setup", "teardown", "world_from_env"]
+from aectorch.framework.shard import Shard
+
+__all__ = ["ProcessGroupShard", "Shard", "setup", "teardown", "world_from_env"]
 
 _owned: list[bool] = []  # non-empty while a process group made by `setup` is alive
 
@@ -40,28 +41,17 @@ def world_from_env() -> tuple[int, int, int]:
             int(os.environ.get("LOCAL_RANK", 0)))
 
 
-@dataclass(frozen=True)
-class Shard:
-    """This process's slice ``[start, stop)`` of a batch of ``total`` environments.
+class ProcessGroupShard(Shard):
+    """A `Shard` whose collectives run over torchrun's process group (gloo or nccl)."""
 
-    Attributes:
-        rank, world_size: of the process group.
-        start, stop, total: the environments of this rank within the whole batch.
-    """
+    def whole_batch(self, local: int) -> int:
+        return self.total
 
-    rank: int
-    world_size: int
-    start: int
-    stop: int
-    total: int
-
-    @property
-    def is_main(self) -> bool:
-        """Rank 0 writes the run folder."""
-        return self.rank == 0
+    def draw(self, draws: torch.Tensor) -> torch.Tensor:
+        """This rank's rows of ``draws`` ``[total, ...]`` (random numbers drawn for the whole batch)."""
+        return draws[self.start : self.stop]
 
     def sum(self, tensor: torch.Tensor) -> torch.Tensor:
-        """The sum of ``tensor`` over all ranks (a new tensor; the input is not changed)."""
         import torch.distributed as dist
 
         out = tensor.detach().clone().contiguous()
@@ -69,7 +59,6 @@ class Shard:
         return out
 
     def gather(self, tensor: torch.Tensor) -> torch.Tensor:
-        """Every rank's ``tensor`` ``[n, ...]`` concatenated in rank order, ``[world_size * n, ...]``."""
         import torch.distributed as dist
 
         part = tensor.detach().contiguous()
@@ -78,30 +67,11 @@ class Shard:
         return torch.cat(parts)
 
     def gather_objects(self, obj) -> list:
-        """Every rank's picklable ``obj``, in rank order, on every rank."""
         import torch.distributed as dist
 
         out = [None] * self.world_size
         dist.all_gather_object(out, obj)
         return out
-
-    def draw(self, draws: torch.Tensor) -> torch.Tensor:
-        """This rank's rows of ``draws`` ``[total, ...]`` (random numbers drawn for the whole batch)."""
-        return draws[self.start : self.stop]
-
-    def gather_record(self, record):
-        """A (nested) NamedTuple of per-environment tensors ``[B, ...]`` (e.g.
-        `aectorch.framework.IterationRecord`) with every tensor gathered along the batch; fields
-        named ``atom_counts`` (counts over the batch) are summed instead. Other values are kept."""
-
-        def one(name, value):
-            if isinstance(value, tuple) and hasattr(value, "_fields"):
-                return type(value)(*(one(field, getattr(value, field)) for field in value._fields))
-            if isinstance(value, torch.Tensor) and value.ndim > 0:
-                return self.sum(value) if name == "atom_counts" else self.gather(value)
-            return value
-
-        return one("record", record)
 
     def barrier(self) -> None:
         import torch.distributed as dist
@@ -109,16 +79,15 @@ class Shard:
         dist.barrier()
 
 
-def setup(num_envs: int, device: str | torch.device = "cpu") -> Shard | None:
-    """Join torchrun's process group (gloo on CPU, nccl on CUDA) and return this rank's `Shard`.
-
-    ``None`` when the process was not started by torchrun with more than one process.
-    """
+def setup(num_envs: int, device: str | torch.device = "cpu") -> Shard:
+    """Join torchrun's process group (gloo on CPU, nccl on CUDA) and return this rank's
+    `ProcessGroupShard`; ``Shard.single(num_envs)`` when the process was not started by torchrun
+    with more than one process."""
     import torch.distributed as dist
 
     rank, world, local = world_from_env()
     if world <= 1:
-        return None
+        return Shard.single(num_envs)
     device = torch.device(device)
     if not dist.is_initialized():  # a group the caller made is used as it is, and left to them
         backend = "nccl" if device.type == "cuda" else "gloo"
@@ -126,7 +95,7 @@ def setup(num_envs: int, device: str | torch.device = "cpu") -> Shard | None:
             torch.cuda.set_device(local)
         dist.init_process_group(backend=backend)
         _owned.append(True)
-    return Shard(rank=rank, world_size=world, start=rank * num_envs, stop=(rank + 1) * num_envs,
+    return ProcessGroupShard(rank=rank, world_size=world, start=rank * num_envs, stop=(rank + 1) * num_envs,
                  total=world * num_envs)
 
 

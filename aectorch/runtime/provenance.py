@@ -4,7 +4,7 @@
 entry per resumed session, so a result can be traced to the code and machine that produced it.
 
 Example:
-    >>> from aectorch.provenance import provenance
+    >>> from aectorch.runtime.provenance import provenance
     >>> info = provenance("cpu")
     >>> {"aectorch", "torch", "git", "device"} <= set(info)
     True
@@ -23,7 +23,7 @@ import torch
 
 __all__ = ["cpu_model", "git_commit", "provenance"]
 
-_ROOT = Path(__file__).resolve().parents[1]
+_ROOT = Path(__file__).resolve().parents[2]
 
 
 def git_commit(folder: str | Path = _ROOT) -> dict | None:

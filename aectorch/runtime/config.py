@@ -16,16 +16,17 @@ Hydra composes the command line onto :class:`ExperimentConfig` (type checks), an
 
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
 import torch
 
-from aectorch.framework import LearnerConfig
-from aectorch.sim import DEFAULT_DISTANCES_M, RENDERERS
-from aectorch.watchdog import WatchdogConfig
+from aectorch._checks import check_bool, check_choice, check_device, check_distances, check_int, check_real
+from aectorch.choices import DType, Eye, Renderer
+from aectorch.framework import PAPER_ACTIONS_DEG, LearnerConfig
+from aectorch.runtime.watchdog import WatchdogConfig
+from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL
 
 __all__ = [
     "EnvConfig",
@@ -46,7 +47,7 @@ __all__ = [
 PAPER_PRESET: dict[str, Any] = {
     # What the paper states: its seven actions, its two scales, matching pursuit with 288 atoms and
     # 10 coefficients, the protocol's 30 iterations and 0.1 m, no symmetries of the cues.
-    "learner.actions_deg": [-0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2],
+    "learner.actions_deg": list(PAPER_ACTIONS_DEG),
     "learner.symmetry": [],
     "learner.algorithm": "mp",
     "learner.num_atoms": 288,
@@ -74,45 +75,14 @@ ROLL_PERTURBATION: dict[str, Any] = {
     "perturbation.second_fraction": 0.75,
 }
 
-_DTYPES = {"float32": torch.float32, "float64": torch.float64}
-_EYES = ("left", "right")
+_DTYPES = {DType.float32: torch.float32, DType.float64: torch.float64}
+#: The evaluation's batch size: environments simulated at once.
+EVAL_BATCH_SIZE = 256
 
 
-def _is_int(value: object) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
-def _is_real(value: object) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def _require_int(owner: str, name: str, value: object, minimum: int) -> None:
-    if not _is_int(value) or value < minimum:
-        raise ValueError(f"{owner}.{name} must be an int >= {minimum}, got {value!r}")
-
-
-def _require_bool(owner: str, name: str, value: object) -> None:
-    if not isinstance(value, bool):
-        raise ValueError(f"{owner}.{name} must be true or false, got {value!r}")
-
-
-def _require_distances(owner: str, name: str, value: object) -> list[float]:
-    try:
-        distances = [float(d) for d in value]  # type: ignore[union-attr]
-    except (TypeError, ValueError):
-        distances = []
-    if not distances or any(not math.isfinite(d) or d <= 0 for d in distances):
-        raise ValueError(f"{owner}.{name} must be a non-empty list of distances > 0 (metres), got {value!r}")
-    return distances
-
-
-def _require_device(owner: str, name: str, value: object) -> None:
-    try:
-        torch.device(value)  # type: ignore[arg-type]
-    except (RuntimeError, TypeError) as err:
-        raise ValueError(
-            f"{owner}.{name} must be a torch device string such as 'cpu' or 'cuda', got {value!r}"
-        ) from err
+def _check_folder(value: object, name: str) -> None:
+    if value is not None and (not isinstance(value, str) or not value):
+        raise ValueError(f"{name} must be null or a folder of images, got {value!r}")
 
 
 @dataclass
@@ -148,42 +118,36 @@ class EnvConfig:
     """
 
     num_envs: int = 32
-    renderer: str = "torch"
+    renderer: Renderer = DEFAULT_PROTOCOL.renderer
     textures: Optional[str] = None
     distances_m: list[float] = field(default_factory=lambda: list(DEFAULT_DISTANCES_M))
-    fixation_iterations: int = 30
-    shift_m: float = 0.1
-    shift_iterations: int = 20
-    yoked_pursuit: bool = True
+    fixation_iterations: int = DEFAULT_PROTOCOL.fixation_iterations
+    shift_m: float = DEFAULT_PROTOCOL.shift_m
+    shift_iterations: int = DEFAULT_PROTOCOL.shift_iterations
+    yoked_pursuit: bool = DEFAULT_PROTOCOL.yoked_pursuit
     pursuit_start_deg: float = 0.0
     vergence_start_deg: float = 0.0
     pursuit_start_spread_deg: float = 0.0
     vergence_start_spread_deg: float = 0.0
     device: str = "cpu"
-    dtype: str = "float32"
+    dtype: DType = DType.float32
 
     def __post_init__(self) -> None:
         owner = "env"
-        _require_int(owner, "num_envs", self.num_envs, 1)
-        if self.renderer not in RENDERERS:
-            raise ValueError(f"{owner}.renderer must be one of {', '.join(map(repr, RENDERERS))}, got {self.renderer!r}")
-        if self.textures is not None and (not isinstance(self.textures, str) or not self.textures):
-            raise ValueError(f"{owner}.textures must be null or a folder of images, got {self.textures!r}")
-        self.distances_m = _require_distances(owner, "distances_m", self.distances_m)
-        _require_int(owner, "fixation_iterations", self.fixation_iterations, 1)
-        if not (_is_real(self.shift_m) and self.shift_m >= 0):
-            raise ValueError(f"{owner}.shift_m must be a finite number >= 0 (metres), got {self.shift_m!r}")
-        _require_int(owner, "shift_iterations", self.shift_iterations, 1)
-        _require_bool(owner, "yoked_pursuit", self.yoked_pursuit)
+        check_int(self.num_envs, f"{owner}.num_envs", 1)
+        self.renderer = check_choice(self.renderer, f"{owner}.renderer", Renderer)
+        _check_folder(self.textures, f"{owner}.textures")
+        self.distances_m = check_distances(self.distances_m, f"{owner}.distances_m")
+        check_int(self.fixation_iterations, f"{owner}.fixation_iterations", 1)
+        check_real(self.shift_m, f"{owner}.shift_m", minimum=0, unit="metres")
+        check_int(self.shift_iterations, f"{owner}.shift_iterations", 1)
+        check_bool(self.yoked_pursuit, f"{owner}.yoked_pursuit")
         for name in ("pursuit_start_deg", "vergence_start_deg"):
-            if not _is_real(getattr(self, name)):
-                raise ValueError(f"{owner}.{name} must be a finite number (degrees), got {getattr(self, name)!r}")
+            check_real(getattr(self, name), f"{owner}.{name}", unit="degrees")
         for name in ("pursuit_start_spread_deg", "vergence_start_spread_deg"):
-            if not (_is_real(getattr(self, name)) and getattr(self, name) >= 0):
-                raise ValueError(f"{owner}.{name} must be a finite number >= 0 (degrees), got {getattr(self, name)!r}")
-        _require_device(owner, "device", self.device)
-        if self.dtype not in _DTYPES:
-            raise ValueError(f"{owner}.dtype must be 'float32' or 'float64', got {self.dtype!r}")
+            check_real(getattr(self, name), f"{owner}.{name}", minimum=0, unit="degrees")
+        check_device(self.device, f"{owner}.device")
+        self.dtype = check_choice(self.dtype, f"{owner}.dtype", DType)
 
     @property
     def torch_dtype(self) -> torch.dtype:
@@ -253,14 +217,11 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         owner = "train"
-        _require_int(owner, "iterations", self.iterations, 1)
-        _require_int(owner, "depth_calibration_trials", self.depth_calibration_trials, 0)
-        _require_int(owner, "log_every", self.log_every, 1)
-        _require_int(owner, "metrics_window", self.metrics_window, 1)
-        _require_int(owner, "checkpoint_every", self.checkpoint_every, 1)
-        _require_int(owner, "threads", self.threads, 0)
+        for name, minimum in (("iterations", 1), ("depth_calibration_trials", 0), ("log_every", 1),
+                              ("metrics_window", 1), ("checkpoint_every", 1), ("threads", 0)):
+            check_int(getattr(self, name), f"{owner}.{name}", minimum)
         for name in ("compile", "progress", "figures", "tensorboard", "deterministic", "keep_best"):
-            _require_bool(owner, name, getattr(self, name))
+            check_bool(getattr(self, name), f"{owner}.{name}")
         if self.resume is not None and (not isinstance(self.resume, str) or not self.resume):
             raise ValueError(f"{owner}.resume must be null or a run folder, got {self.resume!r}")
 
@@ -280,15 +241,14 @@ class EvalConfig:
     enabled: bool = True
     textures: Optional[str] = None
     distances_m: list[float] = field(default_factory=lambda: [1.0, 1.5, 2.0, 2.5, 3.0])
-    batch_size: int = 256
+    batch_size: int = EVAL_BATCH_SIZE
 
     def __post_init__(self) -> None:
         owner = "eval"
-        _require_bool(owner, "enabled", self.enabled)
-        if self.textures is not None and (not isinstance(self.textures, str) or not self.textures):
-            raise ValueError(f"{owner}.textures must be null or a folder of images, got {self.textures!r}")
-        self.distances_m = _require_distances(owner, "distances_m", self.distances_m)
-        _require_int(owner, "batch_size", self.batch_size, 1)
+        check_bool(self.enabled, f"{owner}.enabled")
+        _check_folder(self.textures, f"{owner}.textures")
+        self.distances_m = check_distances(self.distances_m, f"{owner}.distances_m")
+        check_int(self.batch_size, f"{owner}.batch_size", 1)
 
 
 @dataclass
@@ -307,19 +267,16 @@ class PerturbationConfig:
     """
 
     roll_deg: float = 0.0
-    first_eye: str = "right"
+    first_eye: Eye = Eye.right
     first_fraction: float = 0.5
     second_fraction: float = 0.75
 
     def __post_init__(self) -> None:
         owner = "perturbation"
-        if not _is_real(self.roll_deg):
-            raise ValueError(f"{owner}.roll_deg must be a finite number (degrees), got {self.roll_deg!r}")
-        if self.first_eye not in _EYES:
-            raise ValueError(f"{owner}.first_eye must be 'left' or 'right', got {self.first_eye!r}")
+        check_real(self.roll_deg, f"{owner}.roll_deg", unit="degrees")
+        self.first_eye = check_choice(self.first_eye, f"{owner}.first_eye", Eye)
         for name in ("first_fraction", "second_fraction"):
-            if not _is_real(getattr(self, name)):
-                raise ValueError(f"{owner}.{name} must be a number in (0, 1], got {getattr(self, name)!r}")
+            check_real(getattr(self, name), f"{owner}.{name}")
         if self.enabled and not (0 < self.first_fraction < self.second_fraction <= 1):
             raise ValueError(
                 f"{owner}.first_fraction and {owner}.second_fraction must satisfy "
@@ -338,7 +295,7 @@ class PerturbationConfig:
         """
         if not self.enabled:
             return []
-        first = _EYES.index(self.first_eye)
+        first = Eye.values().index(self.first_eye)
         one = [0.0, 0.0]
         one[first] = float(self.roll_deg)
         return [
@@ -364,7 +321,7 @@ class RecordConfig:
     def __post_init__(self) -> None:
         if self.lerobot is not None and (not isinstance(self.lerobot, str) or not self.lerobot):
             raise ValueError(f"record.lerobot must be null or a new folder, got {self.lerobot!r}")
-        _require_int("record", "envs", self.envs, 1)
+        check_int(self.envs, "record.envs", 1)
 
 
 @dataclass
@@ -379,7 +336,7 @@ class ExperimentConfig:
         eval: the final evaluation on held-out textures (:class:`EvalConfig`).
         perturbation: the roll perturbation (:class:`PerturbationConfig`).
         record: recording the training as a LeRobotDataset (:class:`RecordConfig`).
-        watchdog: the health checks after every iteration (`aectorch.watchdog.WatchdogConfig`;
+        watchdog: the health checks after every iteration (`aectorch.runtime.watchdog.WatchdogConfig`;
             on resume taken from the command line, since it changes nothing that is learned).
         seed: seeds the learner's generator (initial dictionaries and policies, actions) and the
             environments' (textures, distances) (>= 0).
@@ -397,8 +354,7 @@ class ExperimentConfig:
     def __post_init__(self) -> None:
         if self.record.envs > self.env.num_envs:
             raise ValueError(f"record.envs={self.record.envs} exceeds env.num_envs={self.env.num_envs}")
-        if not _is_int(self.seed) or self.seed < 0:
-            raise ValueError(f"seed must be an int >= 0, got {self.seed!r}")
+        check_int(self.seed, "seed", 0)
 
 
 def to_experiment_config(node) -> ExperimentConfig:
@@ -419,7 +375,7 @@ def to_container(cfg: ExperimentConfig) -> dict:
     """The plain (JSON/YAML-ready) dict of a config, as stored in checkpoints."""
     from omegaconf import OmegaConf
 
-    return OmegaConf.to_container(OmegaConf.structured(cfg), resolve=True)
+    return OmegaConf.to_container(OmegaConf.structured(cfg), resolve=True, enum_to_str=True)
 
 
 def _images(folder: str) -> list[str]:

@@ -1,6 +1,6 @@
 """A watchdog for long training runs: non-finite values and divergence, caught when they happen.
 
-`Watchdog.check` runs after every learner iteration of `aectorch.experiment.run_experiment`
+`Watchdog.check` runs after every learner iteration of `aectorch.runtime.run_experiment`
 and looks for
 
 - **non-finite values** in the iteration's rewards, reconstruction errors, TD errors and policy
@@ -26,16 +26,18 @@ message says how to resume. With ``mode="warn"`` each kind of problem is reporte
 
 from __future__ import annotations
 
-import math
 import warnings
 from dataclasses import dataclass
 
 import torch
 from torch import nn
 
+from aectorch._checks import check_choice, check_int, is_real
+from aectorch.choices import WatchdogMode
+
 __all__ = ["WATCHDOG_MODES", "Watchdog", "WatchdogConfig", "WatchdogError"]
 
-WATCHDOG_MODES = ("stop", "warn", "off")
+WATCHDOG_MODES = WatchdogMode.values()
 
 
 class WatchdogError(RuntimeError):
@@ -61,7 +63,7 @@ class WatchdogConfig:
             never in a window means the dictionary is dying.
     """
 
-    mode: str = "stop"
+    mode: WatchdogMode = WatchdogMode.stop
     td_error_max: float = 100.0
     entropy_min_nats: float = 1e-3
     entropy_grace_iterations: int = 300
@@ -71,8 +73,7 @@ class WatchdogConfig:
 
     def __post_init__(self) -> None:
         owner = "watchdog"
-        if self.mode not in WATCHDOG_MODES:
-            raise ValueError(f"{owner}.mode must be one of {WATCHDOG_MODES}, got {self.mode!r}")
+        self.mode = check_choice(self.mode, f"{owner}.mode", WatchdogMode)
         checks = (
             ("td_error_max", lambda v: v > 0, "a number > 0"),
             ("entropy_min_nats", lambda v: v >= 0, "a number >= 0"),
@@ -80,13 +81,10 @@ class WatchdogConfig:
         )
         for name, ok, expected in checks:
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-                    or not ok(value):
+            if not is_real(value) or not ok(value):
                 raise ValueError(f"{owner}.{name} must be {expected}, got {value!r}")
         for name, minimum in (("dead_atoms_window", 1), ("entropy_grace_iterations", 0), ("entropy_window", 1)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-                raise ValueError(f"{owner}.{name} must be an int >= {minimum}, got {value!r}")
+            check_int(getattr(self, name), f"{owner}.{name}", minimum)
 
 
 class Watchdog:
@@ -99,7 +97,7 @@ class Watchdog:
         >>> import torch
         >>> from aectorch.framework import JointLearner, LearnerConfig
         >>> from aectorch.sim import ActiveDepthEnv, TextureBank
-        >>> from aectorch.watchdog import Watchdog, WatchdogConfig
+        >>> from aectorch.runtime.watchdog import Watchdog, WatchdogConfig
         >>> env = ActiveDepthEnv(2, textures=TextureBank.procedural(4, size=(64, 64), seed=0), seed=0)
         >>> learner = JointLearner(LearnerConfig(num_atoms=16), generator=torch.Generator().manual_seed(0))
         >>> dog = Watchdog(WatchdogConfig())
@@ -116,8 +114,10 @@ class Watchdog:
         self._entropy_start = 0
 
     def _state_tensors(self, learner: nn.Module) -> list[tuple[str, torch.Tensor]]:
+        # Named as the checkpoint names them (`state_dict`), parameters first, then buffers.
+        stored = {id(t): name for name, t in learner.state_dict(keep_vars=True).items() if isinstance(t, torch.Tensor)}
         named = list(learner.named_parameters()) + list(learner.named_buffers())
-        return [(name, t) for name, t in named if t.is_floating_point() and t.numel() > 0]
+        return [(stored.get(id(t), name), t) for name, t in named if t.is_floating_point() and t.numel() > 0]
 
     def check(self, iteration: int, record, learner: nn.Module) -> list[str]:
         """The problems after completed iteration ``iteration`` (1-based); raises in ``stop`` mode.

@@ -28,6 +28,7 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
+from aectorch._checks import check_int
 from aectorch.coding.patches import DEFAULT_SCALES
 
 __all__ = ["CUES", "TrainingMetrics"]
@@ -72,8 +73,7 @@ class TrainingMetrics:
     ) -> None:
         for name, value in (("num_envs", num_envs), ("window_fixations", window_fixations),
                             ("window_trials", window_trials)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+            check_int(value, name, 1)
         self.num_envs = num_envs
         self.window_fixations = window_fixations
         self.window_trials = window_trials

@@ -1,0 +1,82 @@
+"""The choice fields' values, as string enums (`aectorch._checks.Choice`).
+
+A member equals, prints and serialises as its string (``Renderer.torch == "torch"``), so code and
+configs may pass either; the structured configs (`aectorch.runtime.config`) type their fields with
+these enums, and OmegaConf rejects any other value with the list of choices.
+"""
+
+from __future__ import annotations
+
+from aectorch._checks import Choice
+
+__all__ = ["Algorithm", "Cue", "DType", "Eye", "Features", "Policy", "Pooling", "Renderer", "Reward",
+           "WatchdogMode"]
+
+
+class Renderer(Choice):
+    """``torch``: differentiable ray casting (CPU and GPU); ``pyrender``: OpenGL (OSMesa or EGL)."""
+
+    torch = "torch"
+    pyrender = "pyrender"
+
+
+class DType(Choice):
+    """The floating-point type of the environment and the learner."""
+
+    float32 = "float32"
+    float64 = "float64"
+
+
+class Algorithm(Choice):
+    """Sparse coding: the paper's matching pursuit or orthogonal matching pursuit."""
+
+    mp = "mp"
+    omp = "omp"
+
+
+class Pooling(Choice):
+    """Pooling of the patches' activities: mean (the lineage) or sum (eq. 3 literally)."""
+
+    mean = "mean"
+    sum = "sum"
+
+
+class Features(Choice):
+    """What the actor-critics see: the pooled activities or them normalised to unit length."""
+
+    pooled = "pooled"
+    unit = "unit"
+
+
+class Reward(Choice):
+    """The paper's coding reward, or its improvement R(s') - R(s)."""
+
+    coding = "coding"
+    improvement = "improvement"
+
+
+class Cue(Choice):
+    """The two depth cues: motion parallax (pursuit) and stereo (vergence)."""
+
+    parallax = "parallax"
+    stereo = "stereo"
+
+
+class Eye(Choice):
+    left = "left"
+    right = "right"
+
+
+class Policy(Choice):
+    """Evaluation actions: the argmax (the protocol) or sampled as in training."""
+
+    greedy = "greedy"
+    sampled = "sampled"
+
+
+class WatchdogMode(Choice):
+    """``stop`` raises at the first problem, ``warn`` warns once per kind, ``off`` skips the checks."""
+
+    stop = "stop"
+    warn = "warn"
+    off = "off"

@@ -1,0 +1,151 @@
+"""``evaluate``: the paper's test and the earlier models' vergence test, as a JSON-ready report."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import torch
+from torch import Tensor
+
+from aectorch.choices import Policy
+from aectorch.evaluate.summary import BEYOND_DEG, WITHIN_DEG, fractions, per_trial_rows, summarise
+from aectorch.evaluate.trials import (
+    EVAL_BATCH_SIZE, all_conditions, check_trial_arguments, paper_trials, trial_session,
+)
+from aectorch.sim import DEFAULT_DISTANCES_M, TextureBank, TrialProtocol, resolve_protocol
+
+__all__ = ["evaluate"]
+
+_NAMES = {"pursuit": "pursuit_mae_deg", "vergence": "vergence_mae_deg", "depth": "depth_mae_m"}
+
+
+def evaluate(
+    learner,
+    textures: TextureBank | Tensor,
+    *,
+    distances_m: Sequence[float] = DEFAULT_DISTANCES_M,
+    protocol: TrialProtocol | None = None,
+    renderer: str | None = None,
+    fixation_iterations: int | None = None,
+    shift_m: float | None = None,
+    shift_iterations: int | None = None,
+    yoked_pursuit: bool | None = None,
+    batch_size: int = EVAL_BATCH_SIZE,
+    vergence_test: bool = True,
+    offset_deg: float = 2.0,
+    steps: int = 20,
+    seed: int = 0,
+    progress: bool = False,
+    policy: str = "greedy",
+) -> dict:
+    """Evaluate ``learner`` greedily with all learning frozen; returns a JSON-ready dict.
+
+    Args:
+        learner: a :class:`~aectorch.framework.JointLearner`; its weights and statistics are not
+            modified (it runs with ``learn=False``).
+        textures: the evaluation textures (e.g. ``TextureBank.from_folder(...)`` of photographs
+            it never trained on).
+        distances_m: object distances; every texture is tested at every distance.
+        protocol: the trial protocol (`aectorch.sim.TrialProtocol`; default its defaults, the
+            training's); a learner is evaluated under the protocol it trained in.
+        renderer, fixation_iterations, shift_m, shift_iterations, yoked_pursuit: replace that
+            field of ``protocol`` when given.
+        batch_size: environments simulated at once.
+        vergence_test: also run the earlier models' vergence test.
+        offset_deg, steps: its initial vergence offsets (uniform in +-offset_deg) and step count.
+        seed: seeds the vergence test's offsets.
+        progress: show a progress bar.
+        policy: ``"greedy"`` (the argmax action; the evaluation protocol) or ``"sampled"``
+            (actions drawn from the softmax policies, as in training, from the learner's own
+            generator), to measure what greediness costs.
+
+    Returns:
+        ``pursuit_mae_deg``, ``vergence_mae_deg``, ``depth_mae_m`` and full summaries
+        (:func:`summarise`) under ``pursuit``, ``vergence``, ``depth``; ``fractions`` (of the
+        fixation ends within ``WITHIN_DEG`` and beyond ``BEYOND_DEG``, :func:`fractions`);
+        per-distance and per-texture breakdowns (``per_distance``, ``per_texture``); one row per
+        trial (``per_trial``, :func:`per_trial_rows`); ``trials``; and ``vergence_test`` when asked.
+    """
+    distances, policy = check_trial_arguments(distances_m, batch_size, policy)
+    protocol = resolve_protocol(protocol, renderer=renderer, fixation_iterations=fixation_iterations, shift_m=shift_m,
+                                shift_iterations=shift_iterations, yoked_pursuit=yoked_pursuit)
+    bank = textures if isinstance(textures, TextureBank) else TextureBank(textures)
+    index, distance = all_conditions(len(bank), distances)
+    greedy = policy == Policy.greedy
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=index.numel() * (2 if vergence_test else 1), desc="evaluate", unit="trial")
+    # Sampled actions come from the learner's generator: the session seeds it from ``seed`` for
+    # the evaluation and gives the learner its own state back afterwards.
+    with trial_session(learner, bank, distances, protocol, seed, bar) as env_for:
+        paper = paper_trials(learner, index, distance, env_for, batch_size, protocol.fixation_iterations, greedy, bar)
+        result = _report(paper, bank.names, distances)
+        if vergence_test:
+            final, per_pixel = _vergence_test(learner, index, distance, env_for, batch_size, offset_deg, steps,
+                                              seed, greedy, bar)
+            deg = summarise(final)
+            result["vergence_test"] = {
+                "offset_deg": offset_deg,
+                "steps": steps,
+                "degrees": deg,
+                "pixels": {k: (v / per_pixel if k != "n" else v) for k, v in deg.items()},
+            }
+    result["policy"] = str(policy)
+    return result
+
+
+def _report(paper: dict[str, Tensor], names: Sequence[str], distances: list[float]) -> dict:
+    """The paper's test's summaries: overall, per distance, per texture and per trial."""
+    index, distance = paper["texture_index"], paper["distance_m"]
+    errors = {"pursuit": paper["pursuit_deg"], "vergence": paper["vergence_deg"], "depth": paper["depth_error_m"]}
+
+    def maes(mask: Tensor) -> dict:
+        """The three MAEs of the trials in ``mask`` (both fixations of each), and the fractions
+        of their fixation ends on target and failed."""
+        return {**{_NAMES[key]: summarise(x[mask])["mae"] for key, x in errors.items()},
+                "fractions": fractions(errors["pursuit"][mask], errors["vergence"][mask])}
+
+    summaries = {key: summarise(x) for key, x in errors.items()}
+    return {
+        **{_NAMES[key]: summary["mae"] for key, summary in summaries.items()},
+        **summaries,
+        "trials": index.numel(),
+        "textures": len(names),
+        "distances_m": distances,
+        "per_distance": [{"distance_m": d, **maes((distance - d).abs() < 1e-9)} for d in distances],
+        "per_texture": [{"texture": name, **maes(index == i)} for i, name in enumerate(names)],
+        "fractions": fractions(errors["pursuit"], errors["vergence"]),
+        "within_deg": WITHIN_DEG,
+        "beyond_deg": BEYOND_DEG,
+        "per_trial": per_trial_rows(paper, names),
+    }
+
+
+def _vergence_test(learner, index: Tensor, distance: Tensor, env_for, batch_size: int, offset_deg: float,
+                   steps: int, seed: int, greedy: bool, bar) -> tuple[Tensor, float]:
+    """The earlier models' vergence test: the left eye at its optimal pan, the right one off by a
+    uniform offset in +-``offset_deg``, then ``steps`` frozen iterations. Returns the final
+    vergence errors and the camera's degrees per pixel."""
+    parameter = next(learner.parameters())
+    device, dtype = parameter.device, parameter.dtype
+    total = index.numel()
+    generator = torch.Generator().manual_seed(seed)
+    finals = []
+    with torch.no_grad():
+        for start in range(0, total, batch_size):
+            stop = min(start + batch_size, total)
+            env = env_for(stop - start, steps, instant=True)
+            env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
+            left = env.optimal_left_pan_deg()
+            offsets = (torch.rand(stop - start, generator=generator, dtype=torch.float64) * 2 - 1) * offset_deg
+            right = env.optimal_right_pan_deg(left) + offsets.to(device=device, dtype=dtype)
+            env.set_pan_deg(torch.stack((left, right), -1))
+            learner.forget_transitions()
+            for _ in range(steps):
+                record = learner.iteration(env, learn=False, greedy=greedy)
+            finals.append(record.vergence_error_deg.cpu())
+            if bar is not None:
+                bar.update(stop - start)
+    return torch.cat(finals), env.camera.degrees_per_pixel

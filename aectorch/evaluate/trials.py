@@ -1,0 +1,182 @@
+"""The paper's test as tensors: every texture x distance runs one trial, learning frozen."""
+
+from __future__ import annotations
+
+import contextlib
+from typing import Sequence
+
+import torch
+from torch import Tensor
+
+from aectorch._checks import check_choice, check_distances, check_int
+from aectorch.choices import Policy
+from aectorch.sim import DEFAULT_DISTANCES_M, ActiveDepthEnv, TextureBank, TrialProtocol, resolve_protocol
+
+__all__ = ["EVAL_BATCH_SIZE", "run_trials"]
+
+#: Environments simulated at once by default.
+EVAL_BATCH_SIZE = 256
+
+
+def all_conditions(num_textures: int, distances: Sequence[float]) -> tuple[Tensor, Tensor]:
+    index = torch.arange(num_textures).repeat_interleave(len(distances))
+    distance = torch.tensor(list(distances), dtype=torch.float64).repeat(num_textures)
+    return index, distance
+
+
+@contextlib.contextmanager
+def trial_session(learner, bank: TextureBank, distances: list[float], protocol: TrialProtocol, seed: int, bar=None):
+    """``env_for(size, h, instant=False)``: environments of ``bank`` under ``protocol`` made once per
+    (size, h, instant), all closed at the end. ``instant`` environments shift the body at once (the
+    vergence test, which starts at the shifted position); the others follow the protocol's profile.
+
+    For the session the learner's generator (sampled actions) is seeded from ``seed``; it gets
+    its own state back afterwards, and the progress bar ``bar`` is closed.
+    """
+    parameter = next(learner.parameters())
+    envs: dict[tuple[int, int, bool], ActiveDepthEnv] = {}
+
+    def env_for(size: int, h: int, instant: bool = False) -> ActiveDepthEnv:
+        if (size, h, instant) not in envs:
+            options = protocol.env_kwargs()
+            options.update(fixation_iterations=h, shift_iterations=1 if instant else protocol.shift_iterations)
+            envs[size, h, instant] = ActiveDepthEnv(size, textures=bank, distances_m=distances, **options,
+                                                    seed=seed, device=parameter.device, dtype=parameter.dtype)
+        return envs[size, h, instant]
+
+    saved_generator = learner.generator.get_state()
+    learner.generator.manual_seed(seed)
+    try:
+        yield env_for
+    finally:
+        learner.generator.set_state(saved_generator)
+        if bar is not None:
+            bar.close()
+        for env in envs.values():
+            env.close()
+
+
+def check_trial_arguments(distances_m: Sequence[float], batch_size: int, policy: str) -> tuple[list[float], Policy]:
+    """The distances as floats and the policy, or ``ValueError`` naming the argument."""
+    policy = check_choice(policy, "policy", Policy)
+    distances = check_distances(distances_m, "distances_m")
+    check_int(batch_size, "batch_size", 1)
+    return distances, policy
+
+
+def check_conditions(conditions, num_textures: int, distances: list[float]) -> tuple[Tensor, Tensor]:
+    if not (isinstance(conditions, (tuple, list)) and len(conditions) == 2
+            and all(isinstance(c, Tensor) and c.dim() == 1 for c in conditions)
+            and conditions[0].shape == conditions[1].shape and conditions[0].numel() > 0):
+        raise ValueError("conditions must be (texture_index, distance_m), two non-empty 1-D tensors of one length")
+    index, distance = conditions[0].long().cpu(), conditions[1].double().cpu()
+    if bool(((index < 0) | (index >= num_textures)).any()):
+        raise ValueError(f"conditions' texture indices must be in [0, {num_textures})")
+    known = torch.tensor(distances, dtype=torch.float64)
+    if not bool(((distance[:, None] - known).abs() < 1e-9).any(1).all()):
+        raise ValueError(f"conditions' distances must be among distances_m {distances}")
+    return index, distance
+
+
+def paper_trials(learner, index: Tensor, distance: Tensor, env_for, batch_size: int,
+                  fixation_iterations: int, greedy: bool, bar) -> dict[str, Tensor]:
+    """The paper's test: one full trial per (texture index, distance), learning frozen."""
+    device, dtype = next(learner.parameters()).device, next(learner.parameters()).dtype
+    total = index.numel()
+    out: dict[str, list[Tensor]] = {"pursuit_deg": [], "vergence_deg": [], "q_deg": [], "depth_error_m": []}
+    with torch.no_grad():
+        for start in range(0, total, batch_size):
+            stop = min(start + batch_size, total)
+            env = env_for(stop - start, fixation_iterations)
+            env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
+            learner.forget_transitions()
+            finals_p, finals_v = [], []
+            while True:
+                record = learner.iteration(env, learn=False, greedy=greedy)
+                if record.fixation_end:
+                    finals_p.append(record.pursuit_error_deg)
+                    finals_v.append(record.vergence_error_deg)
+                if record.trial_end:
+                    break
+            out["pursuit_deg"].append(torch.stack(finals_p, 1))  # [b, 2 fixations]
+            out["vergence_deg"].append(torch.stack(finals_v, 1))
+            out["q_deg"].append(record.q_deg)
+            out["depth_error_m"].append(record.depth_prediction_m - record.distance_m)
+            if bar is not None:
+                bar.update(stop - start)
+    result = {key: torch.cat(value).cpu() for key, value in out.items()}
+    result["texture_index"], result["distance_m"] = index, distance
+    return result
+
+
+def run_trials(
+    learner,
+    textures: TextureBank | Tensor,
+    *,
+    distances_m: Sequence[float] = DEFAULT_DISTANCES_M,
+    protocol: TrialProtocol | None = None,
+    renderer: str | None = None,
+    fixation_iterations: int | None = None,
+    shift_m: float | None = None,
+    shift_iterations: int | None = None,
+    yoked_pursuit: bool | None = None,
+    batch_size: int = EVAL_BATCH_SIZE,
+    seed: int = 0,
+    policy: str = "greedy",
+    progress: bool | str = False,
+    conditions: tuple[Tensor, Tensor] | None = None,
+) -> dict[str, Tensor]:
+    """The paper's test as tensors: every texture x distance runs one trial, learning frozen.
+
+    The trial loop of :func:`evaluate`, for callers that want the raw results: e.g. the final
+    eye movements ``q_deg`` of greedy trials on the training textures, which
+    ``train.depth_calibration_trials`` refits the depth MLP on (:meth:`JointLearner.calibrate_depth`).
+
+    Args:
+        learner: a :class:`~aectorch.framework.JointLearner` (not modified).
+        textures: the trials' textures.
+        distances_m: object distances; every texture is tested at every distance.
+        protocol: the trial protocol (`aectorch.sim.TrialProtocol`; default its defaults, the
+            training's); a learner is evaluated under the protocol it trained in.
+        renderer, fixation_iterations, shift_m, shift_iterations, yoked_pursuit: replace that
+            field of ``protocol`` when given.
+        batch_size: environments simulated at once.
+        seed: seeds the environments and, with ``policy="sampled"``, the actions.
+        policy: ``"greedy"`` or ``"sampled"``, as for :func:`evaluate`.
+        progress: show a progress bar (a string: its label; ``True``: "trials").
+        conditions: ``(texture_index, distance_m)``, two ``[N]`` tensors: run these N trials
+            instead of every texture at every distance (the distances must be among
+            ``distances_m``).
+
+    Returns:
+        CPU tensors over the N = textures x distances trials (texture-major): ``pursuit_deg`` and
+        ``vergence_deg`` ``[N, 2]`` (signed errors at the end of each fixation), ``q_deg``
+        ``[N, 4]`` (the MLP's inputs), ``depth_error_m`` ``[N]`` (NaN before the MLP's first fit),
+        ``texture_index`` and ``distance_m`` ``[N]``.
+
+    Example:
+        >>> import torch
+        >>> from aectorch.framework import JointLearner, LearnerConfig
+        >>> learner = JointLearner(LearnerConfig(num_atoms=16), generator=torch.Generator().manual_seed(0))
+        >>> out = run_trials(learner, torch.rand(2, 64, 64), distances_m=[1.0, 2.0], fixation_iterations=2)
+        >>> out["q_deg"].shape, out["distance_m"].tolist()
+        (torch.Size([4, 4]), [1.0, 2.0, 1.0, 2.0])
+    """
+    distances, policy = check_trial_arguments(distances_m, batch_size, policy)
+    protocol = resolve_protocol(protocol, renderer=renderer, fixation_iterations=fixation_iterations, shift_m=shift_m,
+                                shift_iterations=shift_iterations, yoked_pursuit=yoked_pursuit)
+    bank = textures if isinstance(textures, TextureBank) else TextureBank(textures)
+    if conditions is None:
+        index, distance = all_conditions(len(bank), distances)
+    else:
+        index, distance = check_conditions(conditions, len(bank), distances)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=index.numel(), desc=progress if isinstance(progress, str) else "trials", unit="trial")
+    with trial_session(learner, bank, distances, protocol, seed, bar) as env_for:
+        return paper_trials(learner, index, distance, env_for, batch_size, protocol.fixation_iterations,
+                            policy == Policy.greedy, bar)
+
+

@@ -1,0 +1,104 @@
+"""The experiment runtime: run the paper's experiment from an `ExperimentConfig` into a run folder.
+
+:func:`run_experiment` is what ``train.py`` calls with a validated config and a run folder. The
+package holds, one idea per module:
+
+- `config.py`: the structured configs (`ExperimentConfig`, presets, `validate_resources`);
+- `builders.py`: textures, environments, learner and threads from a config;
+- `checkpoint.py`: the checkpoint format and the rules of a resume (`prepare_run`);
+- `loop.py`: the training loop (`TrainingRun`): log, keep the best state, checkpoint, interrupt;
+- `outputs.py`: the run folder's files (`RunFolder`);
+- `finish.py`: the end of a run: figures, depth calibration, evaluation, ``summary.json``;
+- `metrics.py`, `watchdog.py`, `provenance.py`, `distributed.py`: what the loop reads and writes.
+
+The run folder receives
+
+- ``config.yaml``: the resolved config;
+- ``provenance.json``: the aectorch, torch and Python versions, the git commit, device, CPU and
+  host of the run, one entry per session (the first run and every resume);
+- ``metrics.jsonl``: one JSON line every ``train.log_every`` iterations (`TrainingMetrics`);
+- ``tb/``: the same scalars as TensorBoard events;
+- ``checkpoint.pt``: every ``train.checkpoint_every`` iterations, at the end and when
+  interrupted (atomic: a temporary file in the same folder replaces the old one);
+- ``figures/``: Fig. 2 (dictionaries), Fig. 3 (training), Fig. 4 (perturbation, when one is
+  configured) and the evaluation figure (`aectorch.figures`);
+- ``evaluation.json``: `aectorch.evaluate.evaluate` on held-out textures;
+- ``summary.json``: final metrics, evaluation headline numbers, timing, perturbation recovery.
+
+A run continues in place from its checkpoint (``train.resume=<run folder>``) and ends
+bit-identical to an uninterrupted one (the learner's, the environments' and the metrics' state,
+random generators included, are in the checkpoint). Messages go to the ``aectorch`` logger.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Callable
+
+import torch
+
+from aectorch.framework import IterationRecord
+from aectorch.runtime import distributed
+from aectorch.runtime.builders import (
+    available_threads, build_env, build_learner, build_textures, compile_hot_path, dictionaries, set_threads,
+    trial_options, trial_protocol,
+)
+from aectorch.runtime.checkpoint import (
+    CHECKPOINT_FORMAT, RESUME_KEYS, check_resume_overrides, checkpoint_config, load_checkpoint, load_learner,
+    prepare_run, restore, resume_config, save_checkpoint,
+)
+from aectorch.runtime.config import ExperimentConfig, to_container, to_experiment_config, validate_resources
+from aectorch.runtime.finish import calibrate_depth, calibration_conditions, finish
+from aectorch.runtime.loop import TrainingRun
+from aectorch.runtime.outputs import RunFolder, format_summary
+
+__all__ = [
+    "CHECKPOINT_FORMAT", "RESUME_KEYS", "ExperimentConfig", "RunFolder", "TrainingRun", "available_threads",
+    "build_env", "build_learner", "build_textures", "calibrate_depth", "calibration_conditions",
+    "check_resume_overrides", "checkpoint_config", "compile_hot_path", "dictionaries", "format_summary",
+    "load_checkpoint", "load_learner", "prepare_run", "restore", "resume_config", "run_experiment",
+    "save_checkpoint", "set_threads", "to_container", "to_experiment_config", "trial_options", "trial_protocol",
+    "validate_resources",
+]
+
+
+def run_experiment(
+    cfg: ExperimentConfig,
+    run_dir: str | os.PathLike,
+    *,
+    callback: Callable[[int, IterationRecord], None] | None = None,
+    checkpoint: dict | None = None,
+) -> dict:
+    """Train, log, checkpoint, draw and evaluate; returns the final summary (``summary.json``).
+
+    Args:
+        cfg: the experiment. With ``cfg.train.resume`` set, the run continues in that folder
+            (``run_dir`` is ignored) with its stored config (see `resume_config`).
+        run_dir: the run folder (created if needed).
+        callback: called as ``callback(iteration, record)`` after every learner iteration
+            (1-based count of completed iterations); an exception it raises interrupts the run
+            like Ctrl-C does (a checkpoint of the last completed iteration is written first).
+        checkpoint: with ``cfg`` from `prepare_run`: the checkpoint it read (``cfg`` is then
+            used as it is, and nothing is read or validated again).
+    """
+    if checkpoint is None:
+        cfg, checkpoint = prepare_run(cfg)
+    previous = (torch.are_deterministic_algorithms_enabled(), torch.is_deterministic_algorithms_warn_only_enabled())
+    if cfg.train.deterministic:
+        if torch.device(cfg.env.device).type == "cuda":
+            os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")  # cuBLAS's condition for it
+        torch.use_deterministic_algorithms(True, warn_only=True)
+    shard = distributed.setup(cfg.env.num_envs, cfg.env.device)
+    try:
+        folder = RunFolder(cfg.train.resume if checkpoint is not None else run_dir, main=shard.is_main)
+        run = TrainingRun(cfg, folder, shard, checkpoint, callback)
+        train_seconds = run.run()
+        if not folder.main:
+            return {}
+        return finish(cfg, folder, run.learner, run.env, run.initial, run.events, train_seconds, run.session,
+                      run.best)
+    finally:
+        distributed.teardown()
+        torch.use_deterministic_algorithms(previous[0], warn_only=previous[1])  # as the caller had it
+

@@ -1,0 +1,111 @@
+"""Building a run's parts from its `ExperimentConfig`: textures, environments, learner, threads."""
+
+from __future__ import annotations
+
+import os
+
+import torch
+
+from aectorch.framework import JointLearner, Shard
+from aectorch.runtime.config import ExperimentConfig
+from aectorch.sim import ActiveDepthEnv, TextureBank, TrialProtocol
+
+__all__ = ["available_threads", "build_env", "build_learner", "build_textures", "compile_hot_path",
+           "dictionaries", "set_threads", "trial_options", "trial_protocol"]
+
+#: The learner's encoders, one per cue (`JointLearner.parallax`, `JointLearner.stereo`).
+CUES = ("parallax", "stereo")
+
+
+def set_threads(threads: int, processes: int = 1) -> None:
+    """``train.threads``: N >= 1 gives torch and the fused kernels N threads each; 0 gives the fused
+    kernels (render, pursuit) every core of this process's share and torch's own operations one
+    (they are too small to pay for a second thread: docs/performance.md)."""
+    from aectorch.coding import native
+
+    torch.set_num_threads(threads or 1)
+    native.set_threads(threads or available_threads(processes))
+
+
+def available_threads(processes: int = 1) -> int:
+    """``train.threads=0``: the cores this process may use, shared among ``processes`` (>= 1)."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        cores = os.cpu_count() or 1
+    return max(1, cores // max(1, processes))
+
+
+def build_textures(folder: str | None, split: str, cfg: ExperimentConfig) -> TextureBank:
+    """``TextureBank.from_folder(folder)``, or ``TextureBank.default(split)`` when ``folder`` is None."""
+    kwargs = dict(dtype=cfg.env.torch_dtype)
+    if folder is None:
+        return TextureBank.default(split, **kwargs)
+    return TextureBank.from_folder(folder, progress=None if cfg.train.progress else False, **kwargs)
+
+
+def trial_protocol(cfg: ExperimentConfig) -> TrialProtocol:
+    """The trial protocol of the run's environments (what its evaluation uses too)."""
+    e = cfg.env
+    return TrialProtocol(renderer=e.renderer, fixation_iterations=e.fixation_iterations, shift_m=e.shift_m,
+                         shift_iterations=e.shift_iterations, yoked_pursuit=e.yoked_pursuit)
+
+
+def trial_options(cfg: ExperimentConfig) -> dict:
+    """The keyword arguments of `aectorch.evaluate.evaluate` and `run_trials` that ``cfg`` sets:
+    the run's trial protocol and the evaluation's batch size."""
+    return dict(protocol=trial_protocol(cfg), batch_size=cfg.eval.batch_size)
+
+
+def _start(value: float, spread: float) -> float | tuple[float, float]:
+    """A start angle for `ActiveDepthEnv`: the value, or the range ``value +- spread``."""
+    return (value - spread, value + spread) if spread > 0 else value
+
+
+def build_env(cfg: ExperimentConfig, shard: Shard | None = None) -> ActiveDepthEnv:
+    """The training environments of ``cfg.env``, seeded from ``cfg.seed`` (this process's slice of
+    the whole batch: ``shard``, default the whole batch)."""
+    e = cfg.env
+    shard = shard or Shard.single(e.num_envs)
+    return ActiveDepthEnv(
+        e.num_envs,
+        textures=build_textures(e.textures, "train", cfg),
+        distances_m=e.distances_m,
+        **trial_protocol(cfg).env_kwargs(),
+        pursuit_start_deg=_start(e.pursuit_start_deg, e.pursuit_start_spread_deg),
+        vergence_start_deg=_start(e.vergence_start_deg, e.vergence_start_spread_deg),
+        seed=cfg.seed,
+        device=e.device,
+        dtype=e.torch_dtype,
+        batch_slice=(shard.start, shard.total),
+    )
+
+
+def build_learner(cfg: ExperimentConfig, device: str | torch.device | None = None,
+                  shard: Shard | None = None) -> JointLearner:
+    """A fresh :class:`JointLearner` of ``cfg.learner``, its generator seeded from ``cfg.seed``."""
+    return JointLearner(
+        cfg.learner,
+        generator=torch.Generator().manual_seed(cfg.seed),
+        dtype=cfg.env.torch_dtype,
+        device=cfg.env.device if device is None else device,
+        shard=shard,
+    )
+
+
+def dictionaries(learner: JointLearner) -> dict[str, torch.Tensor]:
+    """Copies of the learner's dictionaries ``{"parallax/coarse": atoms [P, N], ...}`` on the CPU."""
+    return {
+        f"{cue}/{name}": d.atoms.detach().cpu().clone()
+        for cue in CUES
+        for name, d in getattr(learner, cue).dictionaries.items()
+    }
+
+
+def compile_hot_path(learner: JointLearner, env: ActiveDepthEnv | None = None) -> None:
+    """``train.compile``: compile both encoders (patch extraction, pursuit, pooling, errors) and the
+    torch renderer (about 20 elementwise passes per pixel in eager mode, fused when compiled)."""
+    for cue in CUES:
+        getattr(learner, cue).compile()
+    if env is not None and isinstance(env.renderer, torch.nn.Module):
+        env.renderer.compile(dynamic=False)

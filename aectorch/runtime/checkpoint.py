@@ -1,0 +1,168 @@
+"""Checkpoints and the rules of a resume, in one place.
+
+A checkpoint (``checkpoint.pt``, ``best.pt``, ``calibrated.pt``) is a dict written with
+``torch.save`` (atomically): ``format`` (:data:`CHECKPOINT_FORMAT`), ``config`` (the run's
+resolved config as a plain dict), ``iteration``, the ``learner``'s, ``env``'s (one process: its
+state; several: a list in rank order), ``metrics``' and ``watchdog``'s states,
+``initial_dictionaries``, ``elapsed_s`` and ``best`` (the early-stopping record).
+
+A resumed run is the stored run: :func:`prepare_run` loads the checkpoint once, takes its config,
+lets only ``train.iterations``, ``train.progress``, ``train.resume``, ``watchdog.*`` and
+``record.*`` come from the caller (:data:`RESUME_KEYS`), rejects a command-line value that
+contradicts the stored config, and validates the resources once.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import torch
+
+from aectorch.framework import JointLearner
+from aectorch.runtime.builders import build_learner
+from aectorch.runtime.config import ExperimentConfig, to_container, to_experiment_config, validate_resources
+
+__all__ = ["CHECKPOINT_FORMAT", "RESUME_KEYS", "check_resume_overrides", "checkpoint_config", "load_checkpoint",
+           "load_learner", "prepare_run", "restore", "resume_config", "save_checkpoint"]
+
+CHECKPOINT_FORMAT = 1
+#: Keys of ``train`` kept from the command line when a run is resumed (and the whole ``watchdog``
+#: and ``record`` sections, which change nothing that is learned); everything else is the run's own.
+RESUME_KEYS = ("iterations", "progress", "resume")
+#: Keys of ``train`` that a resume takes from the run unless the command line gives them.
+_RUN_OWN_UNLESS_GIVEN = ("iterations", "progress")
+
+
+def save_checkpoint(path: str | os.PathLike, payload: dict) -> None:
+    """Write ``payload`` with ``torch.save`` atomically (temporary file, fsync, ``os.replace``)."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            torch.save(payload, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def load_checkpoint(path: str | os.PathLike) -> dict:
+    """Read a checkpoint written by :func:`save_checkpoint`; ``ValueError`` naming the path if it
+    is missing, unreadable or not an aectorch checkpoint."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"no checkpoint at {str(path)!r}")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:
+        raise ValueError(f"cannot read the checkpoint {str(path)!r}: {type(err).__name__}: {err}") from err
+    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{str(path)!r} is not an aectorch checkpoint (format {CHECKPOINT_FORMAT})")
+    return payload
+
+
+def checkpoint_config(payload: dict, path: str | os.PathLike) -> ExperimentConfig:
+    """The validated config stored in a checkpoint; ``ValueError`` naming ``path`` if this version
+    of aectorch cannot read it."""
+    # The watchdog and the recording change nothing that is learned and come from the command line
+    # on resume, so a checkpoint from a version with other watchdog options still loads.
+    stored = {k: v for k, v in payload["config"].items() if k not in ("watchdog", "record")}
+    # Checkpoints from before `learner.symmetry` existed learned without the symmetries.
+    if isinstance(stored.get("learner"), dict) and "symmetry" not in stored["learner"]:
+        stored["learner"] = {**stored["learner"], "symmetry": []}
+    # Checkpoints from before the body movement's profile existed shifted at once, one eye pursuing.
+    if isinstance(stored.get("env"), dict) and "shift_iterations" not in stored["env"]:
+        stored["env"] = {**stored["env"], "shift_iterations": 1, "yoked_pursuit": False}
+    # Checkpoints from before `learner.render_scales` existed reduced whole crops with the pyramid.
+    if isinstance(stored.get("learner"), dict) and "render_scales" not in stored["learner"]:
+        stored["learner"] = {**stored["learner"], "render_scales": False}
+    try:
+        return to_experiment_config(stored)
+    except Exception as err:  # unknown keys, wrong types, impossible values
+        raise ValueError(f"the checkpoint {str(path)!r} holds a config this aectorch cannot use "
+                         f"({type(err).__name__}: {str(err).strip().splitlines()[0]})") from err
+
+
+def restore(target, state: dict, path: str | os.PathLike, what: str) -> None:
+    """``target.load_state_dict(state)``; ``ValueError`` naming ``path`` when they do not fit."""
+    try:
+        target.load_state_dict(state)
+    except Exception as err:  # missing/unexpected keys, shape mismatches
+        raise ValueError(f"the {what} state in {str(path)!r} does not fit its config "
+                         f"({type(err).__name__}: {str(err).strip().splitlines()[0]}); was it written "
+                         "by an incompatible aectorch version?") from err
+
+
+def load_learner(checkpoint_path: str | os.PathLike, device=None, *,
+                 payload: dict | None = None) -> tuple[ExperimentConfig, JointLearner]:
+    """The config and the trained learner of a checkpoint (on ``device``, default the run's);
+    ``payload``: the checkpoint, when it was read already."""
+    payload = load_checkpoint(checkpoint_path) if payload is None else payload
+    cfg = checkpoint_config(payload, checkpoint_path)
+    learner = build_learner(cfg, device=device)
+    restore(learner, payload["learner"], checkpoint_path, "learner")
+    return cfg, learner
+
+
+def resume_config(cfg: ExperimentConfig, checkpoint: dict) -> ExperimentConfig:
+    """The stored config of ``checkpoint`` with ``train.iterations/progress/resume`` of ``cfg``."""
+    where = Path(cfg.train.resume) / "checkpoint.pt" if cfg.train.resume else "the checkpoint"
+    stored = to_container(checkpoint_config(checkpoint, where))
+    for key in RESUME_KEYS:
+        stored["train"][key] = getattr(cfg.train, key)
+    mine = to_container(cfg)
+    stored["watchdog"], stored["record"] = mine["watchdog"], mine["record"]
+    return to_experiment_config(stored)
+
+
+def check_resume_overrides(cfg: ExperimentConfig, stored: ExperimentConfig, given: set[str]) -> None:
+    """A resumed run is the stored run: a command-line key in ``given`` whose value contradicts it
+    is an error, not silently ignored (only train.iterations/progress/resume, watchdog.* and
+    record.* may change)."""
+    from omegaconf import OmegaConf
+
+    mine, theirs = OmegaConf.create(to_container(cfg)), OmegaConf.create(to_container(stored))
+    for key in sorted(given):
+        if key.startswith(("hydra.", "watchdog", "record")) or key in {f"train.{k}" for k in RESUME_KEYS} \
+                or key in ("preset", "experiment"):
+            continue
+        ours, run = OmegaConf.select(mine, key), OmegaConf.select(theirs, key)
+        if ours != run:
+            raise ValueError(
+                f"{key}={ours!r} contradicts the resumed run's {key}={run!r}: train.resume continues "
+                f"{cfg.train.resume} with its own config (only train.iterations, train.progress, "
+                "watchdog.* and record.* may be given); start a new run to change it")
+
+
+def prepare_run(cfg: ExperimentConfig, given: set[str] | None = None) -> tuple[ExperimentConfig, dict | None]:
+    """The config a run uses and the checkpoint it resumes (``None`` for a new run).
+
+    Validates the resources (`validate_resources`) once. With ``cfg.train.resume``, reads the
+    checkpoint once and returns its stored config (:func:`resume_config`). ``given``: the keys
+    set on the command line (``train.py``); then ``train.iterations`` and ``train.progress`` are
+    the run's own unless given, and a given key that contradicts the stored config is an error
+    (:func:`check_resume_overrides`). ``ValueError`` naming the key or the file for anything wrong.
+    """
+    if cfg.train.resume is None:
+        validate_resources(cfg)
+        return cfg, None
+    path = Path(cfg.train.resume) / "checkpoint.pt"
+    if not path.is_file():
+        raise ValueError(f"train.resume: no checkpoint at {str(path)!r}")
+    checkpoint = load_checkpoint(path)
+    if given is not None:
+        stored = checkpoint_config(checkpoint, path)
+        for key in _RUN_OWN_UNLESS_GIVEN:
+            if f"train.{key}" not in given:
+                setattr(cfg.train, key, getattr(stored.train, key))
+        check_resume_overrides(cfg, stored, given)
+    cfg = resume_config(cfg, checkpoint)
+    validate_resources(cfg)
+    return cfg, checkpoint

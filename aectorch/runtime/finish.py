@@ -1,0 +1,169 @@
+"""The end of a run: figures, the perturbation's recovery, depth calibration, the evaluation and
+``summary.json``."""
+
+from __future__ import annotations
+
+import copy
+import logging
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from aectorch.evaluate import evaluate, run_trials
+from aectorch.framework import MIN_DEPTH_TRIALS, JointLearner
+from aectorch.runtime.builders import build_textures, dictionaries, trial_options
+from aectorch.runtime.checkpoint import load_checkpoint, restore, save_checkpoint
+from aectorch.runtime.config import ExperimentConfig
+from aectorch.runtime.outputs import RunFolder, json_value, read_lines
+from aectorch.sim import TextureBank
+
+__all__ = ["calibrate_depth", "calibration_conditions", "finish"]
+
+log = logging.getLogger("aectorch")
+
+#: metrics.jsonl's bookkeeping columns, not the final metrics of ``summary.json``.
+_BOOKKEEPING = ("iteration", "env_iterations", "elapsed_s", "roll_left_deg", "roll_right_deg")
+
+
+def finish(cfg: ExperimentConfig, folder: RunFolder, learner: JointLearner, env, initial: dict, events: list,
+           train_seconds: float, session: dict, best: dict) -> dict:
+    """Draw the figures, evaluate (``best.pt``, calibrated when asked) and write ``summary.json``."""
+    total = cfg.train.iterations
+    records = read_lines(folder.metrics_path)
+    # The last line (always written at the last iteration) holds the final interval's averages.
+    final = {k: v for k, v in (records[-1] if records else {}).items() if k not in _BOOKKEEPING}
+    labels = [(when + 1, label) for when, _, label in events]
+    summary: dict = {
+        "iterations": total,
+        "env_iterations": total * cfg.env.num_envs * session.get("world_size", 1),
+        "train_seconds": train_seconds,
+        "iterations_per_s": total / max(train_seconds, 1e-9),
+        "final": {k: json_value(v) for k, v in final.items()},
+        "provenance": session,
+    }
+    figures = _figures(cfg, folder, initial, learner, labels)
+    if events:
+        summary["perturbation"] = _recovery(cfg, folder, labels, figures)
+    env.close()
+    if best["iteration"] is not None:
+        summary["best"] = {k: json_value(v) for k, v in best.items()}
+    if cfg.eval.enabled:
+        summary.update(_evaluate(cfg, folder, learner, env.textures, figures))
+    folder.write_json("summary.json", summary)
+    return summary
+
+
+def _figures(cfg: ExperimentConfig, folder: RunFolder, initial: dict, learner, labels):
+    """Fig. 2 (dictionaries), Fig. 3 (training) and Fig. 4 (perturbation); the figures module, or
+    ``None`` when figures are off or cannot be drawn."""
+    if not cfg.train.figures:
+        return None
+    try:
+        import aectorch.figures as figures
+    except ModuleNotFoundError as err:
+        if err.name != "aectorch.figures":
+            raise
+        log.warning("aectorch.figures is not available: no figures drawn")
+        return None
+    out = folder / "figures"
+    out.mkdir(exist_ok=True)
+    records = figures.read_metrics(folder.metrics_path)
+    figures.plot_dictionaries(initial, dictionaries(learner), out / "dictionaries.png")
+    figures.plot_training(records, out / "training.png", events=labels)
+    if labels:
+        figures.plot_perturbation(records, out / "perturbation.png", events=labels)
+    return figures
+
+
+def _recovery(cfg: ExperimentConfig, folder: RunFolder, labels, figures) -> dict:
+    """The perturbation's events and how the errors recovered after each (with the figures)."""
+    recovery = {}
+    recover = getattr(figures, "recovery", None) if figures is not None else None
+    if recover is not None:
+        records = figures.read_metrics(folder.metrics_path)
+        for when, label in labels:
+            recovery[label] = {key: recover(records, key, when) for key in ("pursuit_mae_deg", "vergence_mae_deg")}
+    return {"roll_deg": cfg.perturbation.roll_deg,
+            "events": [{"iteration": w, "label": lab} for w, lab in labels],
+            "recovery": recovery}
+
+
+def _evaluate(cfg: ExperimentConfig, folder: RunFolder, learner: JointLearner, train_bank: TextureBank,
+              figures) -> dict:
+    """Evaluate best.pt (or the last state), after the depth calibration when asked; writes
+    evaluation.json and returns the summary's entries."""
+    out: dict = {}
+    evaluated = "checkpoint.pt"
+    if cfg.train.keep_best and (folder / "best.pt").exists():
+        evaluated = "best.pt"  # the learner of the best training window
+        restore(learner, load_checkpoint(folder / "best.pt")["learner"], folder / "best.pt", "learner")
+    done = calibrate_depth(cfg, learner, train_bank) if cfg.train.depth_calibration_trials > 0 else None
+    if done is not None:
+        out["depth_calibration"] = done
+    if done is not None and not done["skipped"]:
+        before = "n/a" if done["depth_mae_m_before"] is None else f"{done['depth_mae_m_before']:.4g}"
+        log.info("depth calibration: the MLP refitted on %d greedy trials of %d training textures (their depth "
+                 "MAE %s -> %.4g m); written to %s", done["trials"], done["textures"], before,
+                 done["depth_mae_m_after"], folder / "calibrated.pt")
+        stored = load_checkpoint(folder / evaluated)
+        stored["learner"] = copy.deepcopy(learner.state_dict())
+        stored["depth_calibration"] = {"source": evaluated, **done}
+        save_checkpoint(folder / "calibrated.pt", stored)
+        evaluated = "calibrated.pt"
+    bank = build_textures(cfg.eval.textures, "test", cfg)
+    result = evaluate(learner, bank, distances_m=cfg.eval.distances_m, progress=cfg.train.progress,
+                      **trial_options(cfg))
+    folder.write_json("evaluation.json", result)
+    if figures is not None:
+        figures.plot_evaluation(result, folder / "figures" / "evaluation.png")
+    out["evaluation"] = {k: result[k] for k in ("pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m", "trials")}
+    out["evaluation"]["checkpoint"] = evaluated
+    if "vergence_test" in result:
+        out["evaluation"]["vergence_test_rmse_deg"] = result["vergence_test"]["degrees"]["rmse"]
+    return out
+
+
+def calibration_conditions(count: int, num_textures: int, distances: list[float], *,
+                           design: str = "spread") -> tuple[Tensor, Tensor]:
+    """The ``(texture_index, distance_m)`` of ``count`` depth-calibration trials.
+
+    ``"spread"`` (what ``train.depth_calibration_trials`` runs): trial i shows texture
+    i mod ``num_textures`` at ``distances[i mod len(distances)]``. ``"grid"``: the first
+    ``count / len(distances)`` textures, each at every distance.
+    """
+    i = torch.arange(count)
+    if design == "spread":
+        index = i % num_textures
+    elif design == "grid":
+        index = i // len(distances)
+        if count and int(index.max()) >= num_textures:
+            raise ValueError(f"a grid of {count} trials needs {int(index.max()) + 1} textures, got {num_textures}")
+    else:
+        raise ValueError(f"design must be 'spread' or 'grid', got {design!r}")
+    return index, torch.tensor(distances, dtype=torch.float64)[i % len(distances)]
+
+
+def calibrate_depth(cfg: ExperimentConfig, learner: JointLearner, bank: TextureBank) -> dict:
+    """``train.depth_calibration_trials``: refit ``learner``'s depth MLP on its greedy trials.
+
+    ``cfg.train.depth_calibration_trials`` greedy, frozen trials on the training textures
+    ``bank`` (trial i: texture i mod T, distance i mod the number of ``cfg.env.distances_m``;
+    :func:`aectorch.evaluate.run_trials`), then :meth:`JointLearner.calibrate_depth` refits the
+    MLP on their final eye angles. Returns what it did (JSON-ready): the trials, the depth MAE on
+    them before and after, and the fit's epochs and stop reason.
+    """
+    count = cfg.train.depth_calibration_trials
+    if count < MIN_DEPTH_TRIALS:
+        log.warning("depth calibration skipped: %d trials, fewer than the %d a fit needs", count, MIN_DEPTH_TRIALS)
+        return {"trials": count, "skipped": True}
+    distances = [float(d) for d in cfg.env.distances_m]
+    conditions = calibration_conditions(count, len(bank), distances)
+    trials = run_trials(learner, bank, distances_m=distances, seed=cfg.seed, conditions=conditions,
+                        progress="depth calibration" if cfg.train.progress else False, **trial_options(cfg))
+    before = trials["depth_error_m"].abs().mean().item()
+    fit = learner.calibrate_depth(trials["q_deg"], trials["distance_m"], seed=cfg.seed)
+    after = (learner.predict_depth(trials["q_deg"]).cpu().double() - trials["distance_m"]).abs().mean().item()
+    return {"trials": count, "textures": min(count, len(bank)), "skipped": False,
+            "depth_mae_m_before": json_value(before), "depth_mae_m_after": json_value(after),
+            "epochs": int(fit.epochs), "stop": str(fit.stop_reason)}

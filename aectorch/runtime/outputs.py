@@ -1,0 +1,120 @@
+"""The run folder's files: config.yaml, provenance.json, metrics.jsonl, tb/ and summary.json."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+from pathlib import Path
+
+__all__ = ["RunFolder", "format_summary", "json_value", "read_lines"]
+
+log = logging.getLogger("aectorch")
+
+
+def json_value(value):
+    """``value`` as JSON can hold it: NaN becomes null, infinities stay (``allow_nan``)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None if math.isnan(value) else value
+    return value
+
+
+def write_json(path: Path, data: dict) -> None:
+    path.write_text(json.dumps(data, indent=2, allow_nan=True) + "\n")
+
+
+def read_lines(path: Path) -> list[dict]:
+    """The records of a JSON-lines file."""
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+class RunFolder:
+    """The files a run writes into its folder; only the main process (rank 0) writes.
+
+    Args:
+        path: the run folder (created).
+        main: whether this process writes; the others' metrics go to ``os.devnull``.
+    """
+
+    def __init__(self, path: str | Path, main: bool = True) -> None:
+        self.path, self.main = Path(path), main
+        if main:
+            self.path.mkdir(parents=True, exist_ok=True)
+        self.metrics_path = self.path / "metrics.jsonl"
+        self._writer = None
+
+    def __truediv__(self, name: str) -> Path:
+        return self.path / name
+
+    def start(self, config: dict, session: dict, *, resumed_at: int | None, tensorboard: bool) -> None:
+        """Write config.yaml and provenance.json (a resume adds its session), start metrics.jsonl
+        (a resume keeps the lines up to its checkpoint's iteration) and TensorBoard."""
+        if not self.main:
+            return
+        from omegaconf import OmegaConf
+
+        (self.path / "config.yaml").write_text(OmegaConf.to_yaml(OmegaConf.create(config)))
+        provenance_path = self.path / "provenance.json"
+        sessions = json.loads(provenance_path.read_text())["sessions"] if resumed_at is not None \
+            and provenance_path.exists() else []
+        write_json(provenance_path, {"sessions": sessions + [session]})
+        if resumed_at is None:
+            self.metrics_path.write_text("")
+        else:
+            self._truncate_metrics(resumed_at)
+        if tensorboard:
+            from torch.utils.tensorboard import SummaryWriter
+
+            self._writer = SummaryWriter(log_dir=str(self.path / "tb"), purge_step=resumed_at + 1 if resumed_at else None)
+
+    def _truncate_metrics(self, iteration: int) -> None:
+        """Keep the lines up to the checkpoint's iteration; a line torn by a kill mid-write is dropped."""
+        if not self.metrics_path.exists():
+            return
+        kept = []
+        for line in self.metrics_path.read_text().splitlines():
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:
+                continue  # only the last line can be torn, and it is after the checkpoint
+            if record["iteration"] <= iteration:
+                kept.append(line)
+        self.metrics_path.write_text("".join(line + "\n" for line in kept))
+
+    def open_metrics(self):
+        """The metrics.jsonl file, open for appending (``os.devnull`` on other ranks)."""
+        return (self.metrics_path if self.main else Path(os.devnull)).open("a")
+
+    def log_line(self, file, line: dict) -> None:
+        """Append one metrics line (and its scalars to TensorBoard)."""
+        file.write(json.dumps({k: json_value(v) for k, v in line.items()}) + "\n")
+        file.flush()
+        if self._writer is not None:
+            for key, value in line.items():
+                if key != "iteration" and value is not None and math.isfinite(value):
+                    self._writer.add_scalar(key, value, line["iteration"])
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+
+    def write_json(self, name: str, data: dict) -> None:
+        write_json(self.path / name, data)
+
+
+def format_summary(summary: dict, run_dir: Path) -> str:
+    """The table ``train.py`` prints at the end: the training window's and the evaluation's MAEs."""
+    def fmt(v):
+        return "n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.4g}"
+
+    final, evaluation = summary["final"], summary.get("evaluation", {})
+    rows = [("", "training (window)", "evaluation")]
+    for key in ("pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m"):
+        rows.append((key, fmt(final.get(key)), fmt(evaluation.get(key))))
+    lines = [f"{a:<18}{b:>18}{c:>14}" for a, b, c in rows]
+    rate = summary["iterations_per_s"]
+    lines.append(f"{summary['iterations']} iterations in {summary['train_seconds']:.1f} s"
+                 + (f" ({rate:.2f} it/s)" if rate else "") + f"; run folder: {run_dir}")
+    return "\n".join(lines)

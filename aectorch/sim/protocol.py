@@ -1,0 +1,99 @@
+"""The trial protocol's defaults, held once, and the interface every renderer satisfies.
+
+:class:`TrialProtocol` is what a trial is: the renderer, the fixation length h, the body shift
+and its profile, and whether pursuit is yoked. `ActiveDepthEnv`, the experiment's
+`EnvConfig` and the evaluation (`aectorch.evaluate.run_trials`, `evaluate`) all take their
+defaults from it.
+
+:class:`Renderer` states what `ActiveDepthEnv` needs of a renderer; `TorchPlaneRenderer` and
+`PyrenderRenderer` both satisfy it (``isinstance(r, Renderer)`` checks the methods' presence).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Protocol, Sequence, runtime_checkable
+
+from torch import Tensor
+
+from aectorch._checks import check_bool, check_choice, check_int, check_real
+from aectorch.choices import Renderer as RendererName
+from aectorch.sim.camera import PixelWindow
+
+__all__ = ["DEFAULT_PROTOCOL", "Renderer", "TrialProtocol", "resolve_protocol"]
+
+
+@dataclass(frozen=True)
+class TrialProtocol:
+    """One trial's protocol (the paper's section 3, with the body movement's profile).
+
+    Attributes:
+        renderer: ``"torch"`` or ``"pyrender"``.
+        fixation_iterations: h, iterations per fixation (paper: 30).
+        shift_m: the body's lateral shift in each fixation, metres (paper: 0.1).
+        shift_iterations: the shift grows linearly over the first this many iterations of a
+            fixation and is then held (1: all of it before the first iteration).
+        yoked_pursuit: pursuit increments move both eyes (Hering's law); ``False``: the dominant
+            eye alone.
+
+    Example:
+        >>> protocol = TrialProtocol(fixation_iterations=10)
+        >>> protocol.shift_iterations, protocol.env_kwargs()["renderer"]
+        (20, 'torch')
+        >>> resolve_protocol(protocol, shift_m=0.2).shift_m
+        0.2
+    """
+
+    renderer: RendererName = RendererName.torch
+    fixation_iterations: int = 30
+    shift_m: float = 0.1
+    shift_iterations: int = 20
+    yoked_pursuit: bool = True
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "renderer", check_choice(self.renderer, "renderer", RendererName))
+        check_int(self.fixation_iterations, "fixation_iterations")
+        check_real(self.shift_m, "shift_m", minimum=0, unit="metres")
+        check_int(self.shift_iterations, "shift_iterations")
+        check_bool(self.yoked_pursuit, "yoked_pursuit")
+
+    def env_kwargs(self) -> dict:
+        """The keyword arguments of `ActiveDepthEnv` this protocol sets."""
+        out = asdict(self)
+        out["renderer"] = str(self.renderer)
+        return out
+
+
+#: The default protocol.
+DEFAULT_PROTOCOL = TrialProtocol()
+
+
+@runtime_checkable
+class Renderer(Protocol):
+    """What `ActiveDepthEnv` calls on a renderer (the torch and the pyrender renderer both do).
+
+    ``render`` / ``__call__`` draw one window ``[B, ..., h, w]``; ``render_windows`` several, each
+    at its own downsampling, in one pass; ``close`` frees what the renderer holds (OpenGL
+    contexts; nothing for the torch renderer). The arguments are those of
+    `aectorch.sim.render_torch.render_planes`.
+    """
+
+    def __call__(self, poses: Tensor, plane_x_m: Tensor, texture_index: Tensor,
+                 window: PixelWindow | None = None, *, check: bool = True) -> Tensor: ...
+
+    def render_windows(self, poses: Tensor, plane_x_m: Tensor, texture_index: Tensor,
+                       windows: Sequence[tuple[PixelWindow, int]], *, check: bool = True) -> list[Tensor]: ...
+
+    def close(self) -> None: ...
+
+
+def resolve_protocol(protocol: TrialProtocol | None = None, **fields) -> TrialProtocol:
+    """``protocol`` (default :data:`DEFAULT_PROTOCOL`) with the given fields that are not ``None``
+    replaced: the evaluation functions take a protocol and, for convenience, single fields."""
+    from dataclasses import replace
+
+    base = DEFAULT_PROTOCOL if protocol is None else protocol
+    if not isinstance(base, TrialProtocol):
+        raise ValueError(f"protocol must be a TrialProtocol, got {type(base).__name__}")
+    given = {k: v for k, v in fields.items() if v is not None}
+    return replace(base, **given) if given else base
