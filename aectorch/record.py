@@ -65,9 +65,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _record(argv: list[str]) -> int:
     args = _parse(argv)
-    from aectorch.runtime import load_learner
     from aectorch.integrations.lerobot import record_trials
-    from aectorch.sim import ActiveDepthEnv, TextureBank
+    from aectorch.runtime import load_learner, trial_protocol
+    from aectorch.sim import ActiveDepthEnv, TextureBank, resolve_protocol
 
     cfg, learner = load_learner(args["checkpoint"])
     if args.get("textures") is None:
@@ -75,11 +75,9 @@ def _record(argv: list[str]) -> int:
     else:
         bank = TextureBank.from_folder(args["textures"], dtype=cfg.env.torch_dtype,
                                        progress=None if args["progress"] else False)
-    env = ActiveDepthEnv(args["envs"], textures=bank, renderer=args["renderer"],
-                         distances_m=cfg.env.distances_m, fixation_iterations=cfg.env.fixation_iterations,
-                         shift_m=cfg.env.shift_m, shift_iterations=cfg.env.shift_iterations,
-                         yoked_pursuit=cfg.env.yoked_pursuit, seed=args["seed"], device=cfg.env.device,
-                         dtype=cfg.env.torch_dtype)
+    protocol = resolve_protocol(trial_protocol(cfg), renderer=args["renderer"])
+    env = ActiveDepthEnv(args["envs"], textures=bank, distances_m=cfg.env.distances_m, **protocol.env_kwargs(),
+                         seed=args["seed"], device=cfg.env.device, dtype=cfg.env.torch_dtype)
     root = record_trials(learner, env, args["trials"], args["out"], repo_id=args["repo_id"],
                          progress=args["progress"])
     episodes = 2 * args["trials"] * args["envs"]

@@ -28,7 +28,10 @@ REPO = "aectorch/hoap3-sim"
 
 
 def _world(seed: int = 0):
-    env = ActiveDepthEnv(1, textures=TextureBank.procedural(4, size=(128, 128), seed=0), seed=seed)
+    # The whole shift before the first frame and pursuit by the left eye alone, so each recorded
+    # state can be checked step by step.
+    env = ActiveDepthEnv(1, textures=TextureBank.procedural(4, size=(128, 128), seed=0), seed=seed,
+                         shift_iterations=1, yoked_pursuit=False)
     learner = JointLearner(LearnerConfig(num_atoms=16), generator=torch.Generator().manual_seed(0))
     return env, learner
 
