@@ -779,3 +779,23 @@ def test_scale_observations_have_the_pyramids_smoothness(head):
         assert new.shape == old.shape
         blurred, unblurred = (new - old).abs().mean(), (raw - old).abs().mean()
         assert blurred < 0.008 and blurred < 0.5 * unblurred, (s.name, blurred, unblurred)
+
+
+def test_both_renderers_satisfy_the_renderer_protocol_and_close_closes_both(bank):
+    """Issue 22: the renderers' shared interface is stated (`aectorch.sim.Renderer`), and
+    `ActiveDepthEnv.close()` frees the crops' renderer and the foveal scales' renderer."""
+    from aectorch.coding.patches import as_scale
+    from aectorch.sim import Renderer
+
+    scales = [as_scale("coarse"), as_scale("fine")]
+    for name in ("torch", "pyrender"):
+        with small_env(bank, renderer=name) as env:
+            env.stereo_observation()
+            env.stereo_observation(scales=scales)  # builds the scale renderer
+            assert isinstance(env.renderer, Renderer) and isinstance(env._scale_renderer, Renderer)
+            renderers = (env.renderer, env._scale_renderer)
+            if name == "pyrender":
+                assert all(r._gl_renderer is not None for r in renderers)
+        if name == "pyrender":
+            assert all(r._gl_renderer is None for r in renderers)  # both OpenGL contexts freed
+    assert not isinstance(object(), Renderer)

@@ -444,3 +444,35 @@ def test_threads_zero_uses_every_core_shared_among_processes():
     assert to_experiment_config(OmegaConf.create({"train": {"threads": 0}})).train.threads == 0
     with pytest.raises(ValueError, match="threads"):
         to_experiment_config(OmegaConf.create({"train": {"threads": -1}}))
+
+
+def test_a_resume_reads_its_checkpoint_and_validates_its_resources_once(tmp_path, textures, monkeypatch):
+    """Issue 22: the resume's rules live in `prepare_run`, which reads the checkpoint and checks the
+    resources once; `run_experiment` given its result does neither again."""
+    import aectorch.runtime.checkpoint as checkpoint_module
+    from aectorch.runtime import prepare_run
+
+    half = tmp_path / "half"
+    run_experiment(_cfg(textures, "train.iterations=6"), half)
+    calls = {"load": 0, "validate": 0}
+    load, validate = checkpoint_module.load_checkpoint, checkpoint_module.validate_resources
+
+    def counted_load(path):
+        calls["load"] += 1
+        return load(path)
+
+    def counted_validate(cfg):
+        calls["validate"] += 1
+        return validate(cfg)
+
+    monkeypatch.setattr(checkpoint_module, "load_checkpoint", counted_load)
+    monkeypatch.setattr(checkpoint_module, "validate_resources", counted_validate)
+    cfg, checkpoint = prepare_run(_cfg(textures, f"train.resume={half}"), {"train.resume"})
+    assert cfg.train.iterations == 6 and checkpoint["iteration"] == 6  # the run's own, unless given
+    cfg.train.iterations = 8
+    run_experiment(cfg, tmp_path / "ignored", checkpoint=checkpoint)
+    assert calls == {"load": 1, "validate": 1}
+    assert load_checkpoint(half / "checkpoint.pt")["iteration"] == 8
+    with pytest.raises(ValueError, match="learner.num_atoms=32 contradicts the resumed run's"):
+        prepare_run(_cfg(textures, f"train.resume={half}", "learner.num_atoms=32"),
+                    {"train.resume", "learner.num_atoms"})

@@ -41,8 +41,8 @@ def evaluate(
     """Evaluate ``learner`` greedily with all learning frozen; returns a JSON-ready dict.
 
     Args:
-        learner: a :class:`~aectorch.framework.JointLearner`; its weights and statistics are not
-            modified (it runs with ``learn=False``).
+        learner: a :class:`~aectorch.framework.JointLearner`; its weights, statistics and generator
+            are not modified (it runs with ``learn=False``); its pending transitions are dropped.
         textures: the evaluation textures (e.g. ``TextureBank.from_folder(...)`` of photographs
             it never trained on).
         distances_m: object distances; every texture is tested at every distance.

@@ -133,7 +133,8 @@ def run_trials(
     ``train.depth_calibration_trials`` refits the depth MLP on (:meth:`JointLearner.calibrate_depth`).
 
     Args:
-        learner: a :class:`~aectorch.framework.JointLearner` (not modified).
+        learner: a :class:`~aectorch.framework.JointLearner`: its weights, statistics and generator are
+            not modified; its pending transitions are dropped (`JointLearner.forget_transitions`).
         textures: the trials' textures.
         distances_m: object distances; every texture is tested at every distance.
         protocol: the trial protocol (`aectorch.sim.TrialProtocol`; default its defaults, the
