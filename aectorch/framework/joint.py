@@ -215,6 +215,15 @@ class JointLearner(nn.Module):
         return self.depth_learner.calibrate(q_deg, distance_m, seed=seed)
 
     # -- checkpoints -------------------------------------------------------------------------------
+    @staticmethod
+    def state_name(name: str) -> str:
+        """The checkpoint's name of a parameter or buffer named ``name`` by ``named_parameters``
+        (``"stereo_cue.encoder.dictionaries.fine.atoms"`` -> ``"stereo.dictionaries.fine.atoms"``)."""
+        for old, new in _STATE_NAMES:
+            if name.startswith(new):
+                return old + name[len(new):]
+        return name
+
     def get_extra_state(self) -> dict:
         return {
             "trials_seen": self.depth_learner.trials_seen,

@@ -114,10 +114,10 @@ class Watchdog:
         self._entropy_start = 0
 
     def _state_tensors(self, learner: nn.Module) -> list[tuple[str, torch.Tensor]]:
-        # Named as the checkpoint names them (`state_dict`), parameters first, then buffers.
-        stored = {id(t): name for name, t in learner.state_dict(keep_vars=True).items() if isinstance(t, torch.Tensor)}
+        # Named as the checkpoint names them (`JointLearner.state_name`), parameters first, then buffers.
+        rename = getattr(learner, "state_name", lambda name: name)
         named = list(learner.named_parameters()) + list(learner.named_buffers())
-        return [(stored.get(id(t), name), t) for name, t in named if t.is_floating_point() and t.numel() > 0]
+        return [(rename(name), t) for name, t in named if t.is_floating_point() and t.numel() > 0]
 
     def check(self, iteration: int, record, learner: nn.Module) -> list[str]:
         """The problems after completed iteration ``iteration`` (1-based); raises in ``stop`` mode.
