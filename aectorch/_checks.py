@@ -3,10 +3,6 @@
 Each check returns the (normalised) value or raises ``ValueError`` naming the argument and what
 was expected, e.g. ``num_envs must be an int >= 1, got 0``. Config dataclasses pass dotted
 names (``env.num_envs``), so the message points at the command-line key.
-
-:class:`Choice` is the base of the string enums of choice fields (`aectorch.choices`): a member
-equals its string (``Renderer.torch == "torch"``), prints as it, and OmegaConf validates the
-structured configs' values against the members.
 """
 
 from __future__ import annotations
@@ -17,27 +13,10 @@ from typing import Any, Sequence, TypeVar
 
 import torch
 
-__all__ = ["Choice", "check_bool", "check_choice", "check_device", "check_distances", "check_finite",
+__all__ = ["check_bool", "check_choice", "check_device", "check_distances", "check_finite",
            "check_int", "check_real", "is_int", "is_real"]
 
-C = TypeVar("C", bound="Choice")
-
-
-class Choice(str, Enum):
-    """A string enum whose members print, format and compare as their string values."""
-
-    def __str__(self) -> str:
-        return str(self.value)
-
-    def __format__(self, spec: str) -> str:
-        return format(str(self.value), spec)
-
-    def __repr__(self) -> str:
-        return repr(str(self.value))
-
-    @classmethod
-    def values(cls) -> tuple[str, ...]:
-        return tuple(str(m.value) for m in cls)
+E = TypeVar("E", bound=Enum)
 
 
 def is_int(value: object) -> bool:
@@ -94,15 +73,15 @@ def check_real(value, name: str, *, minimum: float | None = None, above: float |
     return value
 
 
-def check_choice(value: Any, name: str, choices: type[C]) -> C:
-    """The member of the :class:`Choice` enum ``choices`` named by ``value`` (a member or its
-    string), else ``ValueError`` naming ``name`` and the choices.
+def check_choice(value: Any, name: str, choices: type[E]) -> E:
+    """The member of the enum ``choices`` (e.g. one of `aectorch.choices`) whose value is ``value``
+    (a member or its value), else ``ValueError`` naming ``name`` and the choices.
 
     Example:
-        >>> from aectorch.choices import Renderer
-        >>> check_choice("pyrender", "env.renderer", Renderer) is Renderer.pyrender
+        >>> from aectorch.choices import RendererName
+        >>> check_choice("pyrender", "env.renderer", RendererName) is RendererName.pyrender
         True
-        >>> check_choice("opengl", "env.renderer", Renderer)
+        >>> check_choice("opengl", "env.renderer", RendererName)
         Traceback (most recent call last):
         ...
         ValueError: env.renderer must be one of 'torch', 'pyrender', got 'opengl'
@@ -110,7 +89,8 @@ def check_choice(value: Any, name: str, choices: type[C]) -> C:
     try:
         return choices(value)
     except ValueError:
-        raise ValueError(f"{name} must be one of {', '.join(map(repr, choices.values()))}, got {value!r}") from None
+        names = ", ".join(repr(str(member.value)) for member in choices)
+        raise ValueError(f"{name} must be one of {names}, got {value!r}") from None
 
 
 def check_distances(value: Sequence[float], name: str) -> list[float]:

@@ -1,19 +1,37 @@
-"""The choice fields' values, as string enums (`aectorch._checks.Choice`).
+"""The choice fields' values, as string enums (subclasses of :class:`Choice`).
 
-A member equals, prints and serialises as its string (``Renderer.torch == "torch"``), so code and
-configs may pass either; the structured configs (`aectorch.runtime.config`) type their fields with
-these enums, and OmegaConf rejects any other value with the list of choices.
+A member equals, prints and serialises as its string (``RendererName.torch == "torch"``), so code
+and configs may pass either; the structured configs (`aectorch.runtime.config`) type their fields
+with these enums, and OmegaConf rejects any other value with the list of choices.
+`aectorch._checks.check_choice` turns a string into a member, or an error naming the argument.
 """
 
 from __future__ import annotations
 
-from aectorch._checks import Choice
+from enum import Enum
 
-__all__ = ["Algorithm", "Cue", "DType", "Eye", "Features", "Policy", "Pooling", "Renderer", "Reward",
+__all__ = ["Algorithm", "Choice", "Cue", "DType", "Eye", "Features", "Policy", "Pooling", "RendererName", "Reward",
            "WatchdogMode"]
 
 
-class Renderer(Choice):
+class Choice(str, Enum):
+    """A string enum whose members print, format and compare as their string values."""
+
+    def __str__(self) -> str:
+        return str(self.value)
+
+    def __format__(self, spec: str) -> str:
+        return format(str(self.value), spec)
+
+    def __repr__(self) -> str:
+        return repr(str(self.value))
+
+    @classmethod
+    def values(cls) -> tuple[str, ...]:
+        return tuple(str(m.value) for m in cls)
+
+
+class RendererName(Choice):
     """``torch``: differentiable ray casting (CPU and GPU); ``pyrender``: OpenGL (OSMesa or EGL)."""
 
     torch = "torch"

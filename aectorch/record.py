@@ -26,7 +26,7 @@ keys:
   trials=<int>           trials per environment (default: 2)
   envs=<int>             environments simulated (and recorded) at once (default: 1)
   seed=<int>             seeds the environments' textures and distances (default: 0)
-  renderer=torch|pyrender  (default: torch)
+  renderer=torch|pyrender  (default: the run's, env.renderer)
   repo_id=<owner/name>   the dataset's name in its metadata (default: aectorch/hoap3-sim)
   progress=true|false    show a progress bar (default: true)
 
@@ -44,7 +44,7 @@ def _parse(argv: Sequence[str]) -> dict:
         value = args.setdefault(key, default)
         if not is_int(value) or value < minimum:
             raise UsageError(f"{key} must be an int >= {minimum}, got {value!r}")
-    if args.setdefault("renderer", "torch") not in RENDERERS:
+    if args.get("renderer") is not None and args["renderer"] not in RENDERERS:
         raise UsageError(f"renderer must be one of {', '.join(RENDERERS)}, got {args['renderer']!r}")
     if not isinstance(args.setdefault("progress", True), bool):
         raise UsageError(f"progress must be true or false, got {args['progress']!r}")
@@ -75,7 +75,7 @@ def _record(argv: list[str]) -> int:
     else:
         bank = TextureBank.from_folder(args["textures"], dtype=cfg.env.torch_dtype,
                                        progress=None if args["progress"] else False)
-    protocol = resolve_protocol(trial_protocol(cfg), renderer=args["renderer"])
+    protocol = resolve_protocol(trial_protocol(cfg), renderer=args.get("renderer"))
     env = ActiveDepthEnv(args["envs"], textures=bank, distances_m=cfg.env.distances_m, **protocol.env_kwargs(),
                          seed=args["seed"], device=cfg.env.device, dtype=cfg.env.torch_dtype)
     root = record_trials(learner, env, args["trials"], args["out"], repo_id=args["repo_id"],

@@ -89,11 +89,10 @@ def env_protocol() -> dict:
     """The body movement of the measured runs: train.py's defaults for ``--learner default``
     (the shift over 20 iterations, yoked pursuit), the instant shift for the recorded tables."""
     if _learner_name() != "default":
-        return {}
-    from aectorch.runtime.config import EnvConfig
+        return {"shift_iterations": 1, "yoked_pursuit": False}
+    from aectorch.sim import DEFAULT_PROTOCOL
 
-    e = EnvConfig()
-    return {"shift_iterations": e.shift_iterations, "yoked_pursuit": e.yoked_pursuit}
+    return {"shift_iterations": DEFAULT_PROTOCOL.shift_iterations, "yoked_pursuit": DEFAULT_PROTOCOL.yoked_pursuit}
 
 
 def _rss_mb(field: str = "VmRSS") -> float:
@@ -139,7 +138,7 @@ def flops_per_env_iteration(device: str) -> float:
     from aectorch.sim import ActiveDepthEnv
 
     batch = 64
-    env = ActiveDepthEnv(batch, seed=0, device=device)
+    env = ActiveDepthEnv(batch, seed=0, device=device, **env_protocol())
     learner = JointLearner(learner_config(), generator=torch.Generator().manual_seed(0), device=device)
     learner.iteration(env)  # so that the next one also updates the actor-critics
     # With the torch backend: FlopCounterMode cannot see the matrix product inside the fused
@@ -268,7 +267,7 @@ def leak(iterations: int, batch: int, device: str, samples: int = 50) -> dict:
     from aectorch.framework import JointLearner
     from aectorch.sim import ActiveDepthEnv
 
-    env = ActiveDepthEnv(batch, seed=0, device=device)
+    env = ActiveDepthEnv(batch, seed=0, device=device, **env_protocol())
     learner = JointLearner(learner_config(), generator=torch.Generator().manual_seed(0), device=device)
     every = max(1, iterations // samples)
     trace = []

@@ -286,3 +286,24 @@ def test_dictionary_rate_decays_and_resumes():
     assert twin.dictionary_steps == {"m": 1, "s": 1}
     with pytest.raises(ValueError, match="dictionary_decay"):
         LearnerConfig(dictionary_decay=0)
+
+
+def test_one_process_shard_checkpoint_names_and_buffer_dtype():
+    """Issue 22: a Shard of world size > 1 must come from the process group; the learner's state
+    keeps the checkpoint's names also in load_state_dict's report; loaded depth buffers keep the
+    learner's dtype."""
+    from aectorch.framework import Shard
+
+    with pytest.raises(ValueError, match="ProcessGroupShard"):
+        Shard(rank=0, world_size=2, start=0, stop=2, total=4)
+    learner = JointLearner(LearnerConfig(num_atoms=16), generator=torch.Generator().manual_seed(0))
+    assert {"parallax.dictionaries.fine.atoms", "pursuit.actor_weight", "depth_inputs"} <= set(learner.state_dict())
+    assert learner.state_name("stereo_cue.encoder.dictionaries.fine.atoms") == "stereo.dictionaries.fine.atoms"
+    state = learner.state_dict()
+    del state["depth_inputs"]
+    assert learner.load_state_dict(state, strict=False).missing_keys == ["depth_inputs"]
+    wide = JointLearner(LearnerConfig(num_atoms=16), generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    state = learner.state_dict()
+    state["depth_inputs"], state["depth_targets"] = torch.ones(3, 4), torch.ones(3)
+    wide.load_state_dict(state)
+    assert wide.depth_inputs.dtype == torch.float64 and wide.depth_inputs.shape == (3, 4)

@@ -473,6 +473,11 @@ def test_a_resume_reads_its_checkpoint_and_validates_its_resources_once(tmp_path
     run_experiment(cfg, tmp_path / "ignored", checkpoint=checkpoint)
     assert calls == {"load": 1, "validate": 1}
     assert load_checkpoint(half / "checkpoint.pt")["iteration"] == 8
+    new = _cfg(textures, "train.iterations=2")  # a new run, as train.py starts it
+    calls.update(load=0, validate=0)
+    cfg, checkpoint = prepare_run(new, set())
+    run_experiment(cfg, tmp_path / "new", checkpoint=checkpoint)
+    assert checkpoint is None and calls == {"load": 0, "validate": 1}
     with pytest.raises(ValueError, match="learner.num_atoms=32 contradicts the resumed run's"):
         prepare_run(_cfg(textures, f"train.resume={half}", "learner.num_atoms=32"),
                     {"train.resume", "learner.num_atoms"})

@@ -7,6 +7,10 @@ from typing import NamedTuple
 import torch
 import torch.nn.functional as F
 
+from aectorch._checks import check_int
+
+__all__ = ["SparseCode"]
+
 
 class SparseCode(NamedTuple):
     """k atoms and their coefficients for each signal.
@@ -43,8 +47,7 @@ class SparseCode(NamedTuple):
 
     def to_dense(self, num_atoms: int) -> torch.Tensor:
         """Scatter the code into a dense coefficient tensor `[..., num_atoms]` (differentiable)."""
-        if not isinstance(num_atoms, int) or num_atoms <= 0:
-            raise ValueError(f"num_atoms must be a positive int, got {num_atoms!r}")
+        check_int(num_atoms, "num_atoms")
         shape = self.coefficients.shape[:-1] + (num_atoms,)
         dense = self.coefficients.new_zeros(shape)
         return dense.scatter_add(-1, self.indices, self.coefficients)

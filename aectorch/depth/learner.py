@@ -126,5 +126,5 @@ class DepthLearner(nn.Module):
         for name in ("inputs", "targets"):
             key = prefix + name
             if key in state_dict:
-                setattr(self, name, torch.empty_like(state_dict[key]))
+                setattr(self, name, getattr(self, name).new_empty(state_dict[key].shape))
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)

@@ -14,15 +14,15 @@ from typing import Sequence
 from aectorch._checks import is_int, is_real
 from aectorch._cli import UsageError, parse_key_values, run_main
 from aectorch.choices import Policy
-from aectorch.evaluate import BEYOND_DEG, WITHIN_DEG, evaluate
+from aectorch.evaluate import BEYOND_DEG, EVAL_BATCH_SIZE, WITHIN_DEG, evaluate
 from aectorch.figures import plot_evaluation
 from aectorch.runtime.builders import trial_protocol
 from aectorch.runtime.checkpoint import load_checkpoint, load_learner
-from aectorch.sim import DEFAULT_DISTANCES_M, RENDERERS, TextureBank
+from aectorch.sim import DEFAULT_DISTANCES_M, RENDERERS, TextureBank, resolve_protocol
 
 __all__ = ["main"]
 
-USAGE = """usage: python -m aectorch.evaluate checkpoint=<file> out=<file.json> [key=value ...]
+USAGE = f"""usage: python -m aectorch.evaluate checkpoint=<file> out=<file.json> [key=value ...]
 
 Evaluate a trained checkpoint (train.py's checkpoint.pt) frozen and greedy: every texture at
 every distance runs one trial, then the earlier models' vergence test.
@@ -32,9 +32,9 @@ keys:
   out=<file.json>        where to write the result (required)
   textures=<folder>      held-out images (default: the default test bank, 40 procedural
                          textures disjoint from the default training set)
-  renderer=torch|pyrender                    (default: torch)
+  renderer=torch|pyrender                    (default: the run's, env.renderer)
   depths=[1.0,2.0,3.0]   distances in metres (default: 1.0 to 3.0 in 0.1 m steps)
-  batch_size=<int>       environments at once (default: 256)
+  batch_size=<int>       environments at once (default: {EVAL_BATCH_SIZE})
   seed=<int>             seeds the vergence test's offsets (default: 0)
   figure=<file.png>      also draw the evaluation figure
   progress=true|false    show a progress bar (default: true)
@@ -52,8 +52,8 @@ def _parse(argv: Sequence[str]) -> dict:
 
     args = parse_key_values(argv, _KEYS, required=("checkpoint", "out"),
                             paths=("checkpoint", "out", "textures", "figure"))
-    renderer = args.setdefault("renderer", "torch")
-    if renderer not in RENDERERS:
+    renderer = args.get("renderer")  # default: the run's, once the checkpoint is read
+    if renderer is not None and renderer not in RENDERERS:
         raise UsageError(f"renderer must be one of {', '.join(RENDERERS)}, got {renderer!r}")
     depths = args.setdefault("depths", list(DEFAULT_DISTANCES_M))
     if is_real(depths):
@@ -61,7 +61,7 @@ def _parse(argv: Sequence[str]) -> dict:
     if (not isinstance(depths, list) or not depths
             or any(not is_real(d) or d <= 0 for d in depths)):
         raise UsageError(f"depths must be a list of distances > 0 in metres such as [1.0,2.0], got {depths!r}")
-    for key, default, minimum in (("batch_size", 256, 1), ("seed", 0, 0)):
+    for key, default, minimum in (("batch_size", EVAL_BATCH_SIZE, 1), ("seed", 0, 0)):
         value = args.setdefault(key, default)
         if not is_int(value) or value < minimum:
             raise UsageError(f"{key} must be an int >= {minimum}, got {value!r}")
@@ -97,10 +97,11 @@ def _evaluate(argv: list[str]) -> int:
         except (ValueError, OSError) as err:
             raise UsageError(f"textures: {err}") from err
         textures = args["textures"]
-    result = evaluate(learner, bank, distances_m=args["depths"], protocol=trial_protocol(cfg),
-                      renderer=args["renderer"], batch_size=args["batch_size"], seed=args["seed"],
-                      progress=args["progress"], policy=args["policy"])
-    result.update(checkpoint=args["checkpoint"], textures=textures, renderer=args["renderer"], iteration=iteration)
+    protocol = resolve_protocol(trial_protocol(cfg), renderer=args.get("renderer"))
+    result = evaluate(learner, bank, distances_m=args["depths"], protocol=protocol, batch_size=args["batch_size"],
+                      seed=args["seed"], progress=args["progress"], policy=args["policy"])
+    result.update(checkpoint=args["checkpoint"], textures=textures, renderer=str(protocol.renderer),
+                  iteration=iteration)
     with open(args["out"], "w") as f:
         json.dump(result, f, indent=2)
         f.write("\n")

@@ -10,7 +10,7 @@ from torch import Tensor
 from aectorch.choices import Policy
 from aectorch.evaluate.summary import BEYOND_DEG, WITHIN_DEG, fractions, per_trial_rows, summarise
 from aectorch.evaluate.trials import (
-    EVAL_BATCH_SIZE, all_conditions, check_trial_arguments, paper_trials, trial_session,
+    EVAL_BATCH_SIZE, _all_conditions, _check_trial_arguments, _paper_trials, _trial_session,
 )
 from aectorch.sim import DEFAULT_DISTANCES_M, TextureBank, TrialProtocol, resolve_protocol
 
@@ -66,11 +66,11 @@ def evaluate(
         per-distance and per-texture breakdowns (``per_distance``, ``per_texture``); one row per
         trial (``per_trial``, :func:`per_trial_rows`); ``trials``; and ``vergence_test`` when asked.
     """
-    distances, policy = check_trial_arguments(distances_m, batch_size, policy)
+    distances, policy = _check_trial_arguments(distances_m, batch_size, policy)
     protocol = resolve_protocol(protocol, renderer=renderer, fixation_iterations=fixation_iterations, shift_m=shift_m,
                                 shift_iterations=shift_iterations, yoked_pursuit=yoked_pursuit)
     bank = textures if isinstance(textures, TextureBank) else TextureBank(textures)
-    index, distance = all_conditions(len(bank), distances)
+    index, distance = _all_conditions(len(bank), distances)
     greedy = policy == Policy.greedy
     bar = None
     if progress:
@@ -79,8 +79,8 @@ def evaluate(
         bar = tqdm(total=index.numel() * (2 if vergence_test else 1), desc="evaluate", unit="trial")
     # Sampled actions come from the learner's generator: the session seeds it from ``seed`` for
     # the evaluation and gives the learner its own state back afterwards.
-    with trial_session(learner, bank, distances, protocol, seed, bar) as env_for:
-        paper = paper_trials(learner, index, distance, env_for, batch_size, protocol.fixation_iterations, greedy, bar)
+    with _trial_session(learner, bank, distances, protocol, seed, bar) as env_for:
+        paper = _paper_trials(learner, index, distance, env_for, batch_size, protocol.fixation_iterations, greedy, bar)
         result = _report(paper, bank.names, distances)
         if vergence_test:
             final, per_pixel = _vergence_test(learner, index, distance, env_for, batch_size, offset_deg, steps,

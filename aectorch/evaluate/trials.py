@@ -18,14 +18,14 @@ __all__ = ["EVAL_BATCH_SIZE", "run_trials"]
 EVAL_BATCH_SIZE = 256
 
 
-def all_conditions(num_textures: int, distances: Sequence[float]) -> tuple[Tensor, Tensor]:
+def _all_conditions(num_textures: int, distances: Sequence[float]) -> tuple[Tensor, Tensor]:
     index = torch.arange(num_textures).repeat_interleave(len(distances))
     distance = torch.tensor(list(distances), dtype=torch.float64).repeat(num_textures)
     return index, distance
 
 
 @contextlib.contextmanager
-def trial_session(learner, bank: TextureBank, distances: list[float], protocol: TrialProtocol, seed: int, bar=None):
+def _trial_session(learner, bank: TextureBank, distances: list[float], protocol: TrialProtocol, seed: int, bar=None):
     """``env_for(size, h, instant=False)``: environments of ``bank`` under ``protocol`` made once per
     (size, h, instant), all closed at the end. ``instant`` environments shift the body at once (the
     vergence test, which starts at the shifted position); the others follow the protocol's profile.
@@ -56,7 +56,7 @@ def trial_session(learner, bank: TextureBank, distances: list[float], protocol: 
             env.close()
 
 
-def check_trial_arguments(distances_m: Sequence[float], batch_size: int, policy: str) -> tuple[list[float], Policy]:
+def _check_trial_arguments(distances_m: Sequence[float], batch_size: int, policy: str) -> tuple[list[float], Policy]:
     """The distances as floats and the policy, or ``ValueError`` naming the argument."""
     policy = check_choice(policy, "policy", Policy)
     distances = check_distances(distances_m, "distances_m")
@@ -64,7 +64,7 @@ def check_trial_arguments(distances_m: Sequence[float], batch_size: int, policy:
     return distances, policy
 
 
-def check_conditions(conditions, num_textures: int, distances: list[float]) -> tuple[Tensor, Tensor]:
+def _check_conditions(conditions, num_textures: int, distances: list[float]) -> tuple[Tensor, Tensor]:
     if not (isinstance(conditions, (tuple, list)) and len(conditions) == 2
             and all(isinstance(c, Tensor) and c.dim() == 1 for c in conditions)
             and conditions[0].shape == conditions[1].shape and conditions[0].numel() > 0):
@@ -78,7 +78,7 @@ def check_conditions(conditions, num_textures: int, distances: list[float]) -> t
     return index, distance
 
 
-def paper_trials(learner, index: Tensor, distance: Tensor, env_for, batch_size: int,
+def _paper_trials(learner, index: Tensor, distance: Tensor, env_for, batch_size: int,
                   fixation_iterations: int, greedy: bool, bar) -> dict[str, Tensor]:
     """The paper's test: one full trial per (texture index, distance), learning frozen."""
     device, dtype = next(learner.parameters()).device, next(learner.parameters()).dtype
@@ -163,21 +163,21 @@ def run_trials(
         >>> out["q_deg"].shape, out["distance_m"].tolist()
         (torch.Size([4, 4]), [1.0, 2.0, 1.0, 2.0])
     """
-    distances, policy = check_trial_arguments(distances_m, batch_size, policy)
+    distances, policy = _check_trial_arguments(distances_m, batch_size, policy)
     protocol = resolve_protocol(protocol, renderer=renderer, fixation_iterations=fixation_iterations, shift_m=shift_m,
                                 shift_iterations=shift_iterations, yoked_pursuit=yoked_pursuit)
     bank = textures if isinstance(textures, TextureBank) else TextureBank(textures)
     if conditions is None:
-        index, distance = all_conditions(len(bank), distances)
+        index, distance = _all_conditions(len(bank), distances)
     else:
-        index, distance = check_conditions(conditions, len(bank), distances)
+        index, distance = _check_conditions(conditions, len(bank), distances)
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
         bar = tqdm(total=index.numel(), desc=progress if isinstance(progress, str) else "trials", unit="trial")
-    with trial_session(learner, bank, distances, protocol, seed, bar) as env_for:
-        return paper_trials(learner, index, distance, env_for, batch_size, protocol.fixation_iterations,
+    with _trial_session(learner, bank, distances, protocol, seed, bar) as env_for:
+        return _paper_trials(learner, index, distance, env_for, batch_size, protocol.fixation_iterations,
                             policy == Policy.greedy, bar)
 
 

@@ -106,7 +106,7 @@ class JointLearner(nn.Module):
         agent = dict(actions_deg=config.actions_deg, config=config.control,
                      generator=self.generator, dtype=dtype, device=device)
         pursuit = NaturalActorCritic(parallax.num_features, **agent)
-        vergence = NaturalActorCritic(parallax.num_features, **agent)
+        vergence = NaturalActorCritic(stereo.num_features, **agent)
         cue = dict(config=config, generator=self.generator, shard=shard)
         self.parallax_cue = CueLearner(parallax, pursuit, **cue)
         self.stereo_cue = CueLearner(stereo, vergence, **cue)
@@ -114,8 +114,9 @@ class JointLearner(nn.Module):
             config.depth_hidden, every_trials=config.depth_every_trials, max_samples=config.depth_max_samples,
             max_epochs=config.depth_max_epochs, generator=self.generator, device=device, dtype=dtype)
         # Checkpoints name the parts as they were before the cue and depth learners existed.
-        self._register_state_dict_hook(_old_names)
+        self.register_state_dict_post_hook(_old_names)
         self.register_load_state_dict_pre_hook(_new_names)
+        self.register_load_state_dict_post_hook(_report_old_names)
 
     # -- the parts, by the names the paper's roles give them ----------------------------------------
     parallax = property(lambda self: self.parallax_cue.encoder, doc="The motion-parallax `BinocularEncoder` (cue m).")
@@ -277,3 +278,18 @@ def _old_names(module, state_dict, prefix, local_metadata):
 
 def _new_names(module, state_dict, prefix, local_metadata, strict, missing_keys, unexpected_keys, error_msgs):
     _rename(state_dict, prefix, _STATE_NAMES)
+
+
+def _report_old_names(module, incompatible_keys) -> None:
+    """Missing and unexpected keys named as the checkpoint names them."""
+    for keys in (incompatible_keys.missing_keys, incompatible_keys.unexpected_keys):
+        keys[:] = [_checkpoint_name(key) for key in keys]
+
+
+def _checkpoint_name(key: str) -> str:
+    """``key`` (possibly under a parent module's prefix) with the part's checkpoint name."""
+    for old, new in _STATE_NAMES:
+        at = key.find(new)
+        if at != -1 and (at == 0 or key[at - 1] == "."):
+            return key[:at] + old + key[at + len(new):]
+    return key

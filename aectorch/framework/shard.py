@@ -31,6 +31,11 @@ class Shard:
     stop: int
     total: int
 
+    def __post_init__(self) -> None:
+        if self.world_size > 1 and type(self) is Shard:
+            raise ValueError("Shard's collectives are a single process's; a shard of world_size > 1 is "
+                             "aectorch.runtime.distributed.ProcessGroupShard (distributed.setup makes it)")
+
     @classmethod
     def single(cls, num_envs: int = 0) -> "Shard":
         """One process holding the whole batch of ``num_envs`` environments (0: of any size; a

@@ -63,12 +63,16 @@ __all__ = [
 ]
 
 
+#: ``run_experiment``'s ``checkpoint`` when the caller did not call `prepare_run`.
+_NOT_PREPARED = object()
+
+
 def run_experiment(
     cfg: ExperimentConfig,
     run_dir: str | os.PathLike,
     *,
     callback: Callable[[int, IterationRecord], None] | None = None,
-    checkpoint: dict | None = None,
+    checkpoint: dict | None = _NOT_PREPARED,  # type: ignore[assignment]
 ) -> dict:
     """Train, log, checkpoint, draw and evaluate; returns the final summary (``summary.json``).
 
@@ -79,11 +83,14 @@ def run_experiment(
         callback: called as ``callback(iteration, record)`` after every learner iteration
             (1-based count of completed iterations); an exception it raises interrupts the run
             like Ctrl-C does (a checkpoint of the last completed iteration is written first).
-        checkpoint: with ``cfg`` from `prepare_run`: the checkpoint it read (``cfg`` is then
-            used as it is, and nothing is read or validated again).
+        checkpoint: with ``cfg`` from `prepare_run`: the checkpoint it returned (``None`` for a
+            new run); ``cfg`` is then used as it is, and nothing is read or validated again. Not
+            given: `run_experiment` calls `prepare_run` itself.
     """
-    if checkpoint is None:
+    if checkpoint is _NOT_PREPARED:
         cfg, checkpoint = prepare_run(cfg)
+    if checkpoint is not None and cfg.train.resume is None:
+        raise ValueError("run_experiment got a checkpoint but cfg.train.resume is null: pass what prepare_run returned")
     previous = (torch.are_deterministic_algorithms_enabled(), torch.is_deterministic_algorithms_warn_only_enabled())
     if cfg.train.deterministic:
         if torch.device(cfg.env.device).type == "cuda":
@@ -93,11 +100,14 @@ def run_experiment(
     try:
         folder = RunFolder(cfg.train.resume if checkpoint is not None else run_dir, main=shard.is_main)
         run = TrainingRun(cfg, folder, shard, checkpoint, callback)
-        train_seconds = run.run()
-        if not folder.main:
-            return {}
-        return finish(cfg, folder, run.learner, run.env, run.initial, run.events, train_seconds, run.session,
-                      run.best)
+        try:
+            train_seconds = run.run()
+            if not folder.main:
+                return {}
+            return finish(cfg, folder, run.learner, run.env, run.initial, run.events, train_seconds,
+                          run.session, run.best)
+        finally:
+            run.env.close()  # the renderers' OpenGL contexts, on every process and after an error
     finally:
         distributed.teardown()
         torch.use_deterministic_algorithms(previous[0], warn_only=previous[1])  # as the caller had it

@@ -66,7 +66,6 @@ def build_env(cfg: ExperimentConfig, shard: Shard | None = None) -> ActiveDepthE
     """The training environments of ``cfg.env``, seeded from ``cfg.seed`` (this process's slice of
     the whole batch: ``shard``, default the whole batch)."""
     e = cfg.env
-    shard = shard or Shard.single(e.num_envs)
     return ActiveDepthEnv(
         e.num_envs,
         textures=build_textures(e.textures, "train", cfg),
@@ -77,7 +76,7 @@ def build_env(cfg: ExperimentConfig, shard: Shard | None = None) -> ActiveDepthE
         seed=cfg.seed,
         device=e.device,
         dtype=e.torch_dtype,
-        batch_slice=(shard.start, shard.total),
+        batch_slice=(shard.start, shard.total) if shard is not None and shard.world_size > 1 else None,
     )
 
 
@@ -89,7 +88,7 @@ def build_learner(cfg: ExperimentConfig, device: str | torch.device | None = Non
         generator=torch.Generator().manual_seed(cfg.seed),
         dtype=cfg.env.torch_dtype,
         device=cfg.env.device if device is None else device,
-        shard=shard,
+        shard=shard or Shard.single(cfg.env.num_envs),
     )
 
 

@@ -23,7 +23,8 @@ from typing import Any, Optional
 import torch
 
 from aectorch._checks import check_bool, check_choice, check_device, check_distances, check_int, check_real
-from aectorch.choices import DType, Eye, Renderer
+from aectorch.choices import DType, Eye, RendererName
+from aectorch.evaluate import EVAL_BATCH_SIZE
 from aectorch.framework import PAPER_ACTIONS_DEG, LearnerConfig
 from aectorch.runtime.watchdog import WatchdogConfig
 from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL
@@ -39,6 +40,7 @@ __all__ = [
     "TrainConfig",
     "WatchdogConfig",
     "register_configs",
+    "to_container",
     "to_experiment_config",
     "validate_resources",
 ]
@@ -76,8 +78,6 @@ ROLL_PERTURBATION: dict[str, Any] = {
 }
 
 _DTYPES = {DType.float32: torch.float32, DType.float64: torch.float64}
-#: The evaluation's batch size: environments simulated at once.
-EVAL_BATCH_SIZE = 256
 
 
 def _check_folder(value: object, name: str) -> None:
@@ -118,7 +118,7 @@ class EnvConfig:
     """
 
     num_envs: int = 32
-    renderer: Renderer = DEFAULT_PROTOCOL.renderer
+    renderer: RendererName = DEFAULT_PROTOCOL.renderer
     textures: Optional[str] = None
     distances_m: list[float] = field(default_factory=lambda: list(DEFAULT_DISTANCES_M))
     fixation_iterations: int = DEFAULT_PROTOCOL.fixation_iterations
@@ -135,7 +135,7 @@ class EnvConfig:
     def __post_init__(self) -> None:
         owner = "env"
         check_int(self.num_envs, f"{owner}.num_envs", 1)
-        self.renderer = check_choice(self.renderer, f"{owner}.renderer", Renderer)
+        self.renderer = check_choice(self.renderer, f"{owner}.renderer", RendererName)
         _check_folder(self.textures, f"{owner}.textures")
         self.distances_m = check_distances(self.distances_m, f"{owner}.distances_m")
         check_int(self.fixation_iterations, f"{owner}.fixation_iterations", 1)

@@ -30,7 +30,7 @@ import torch
 
 from aectorch.framework.shard import Shard
 
-__all__ = ["ProcessGroupShard", "Shard", "setup", "teardown", "world_from_env"]
+__all__ = ["ProcessGroupShard", "setup", "teardown", "world_from_env"]
 
 _owned: list[bool] = []  # non-empty while a process group made by `setup` is alive
 
@@ -45,11 +45,13 @@ class ProcessGroupShard(Shard):
     """A `Shard` whose collectives run over torchrun's process group (gloo or nccl)."""
 
     def whole_batch(self, local: int) -> int:
-        return self.total
+        # This process's slice of the run's batch; environments of another size (an evaluation on
+        # rank 0) are a batch of their own.
+        return self.total if local == self.stop - self.start else local
 
     def draw(self, draws: torch.Tensor) -> torch.Tensor:
         """This rank's rows of ``draws`` ``[total, ...]`` (random numbers drawn for the whole batch)."""
-        return draws[self.start : self.stop]
+        return draws[self.start : self.stop] if draws.shape[0] == self.total else draws
 
     def sum(self, tensor: torch.Tensor) -> torch.Tensor:
         import torch.distributed as dist

@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 import json
-import logging
 import math
 import os
 from pathlib import Path
 
-__all__ = ["RunFolder", "format_summary", "json_value", "read_lines"]
-
-log = logging.getLogger("aectorch")
+__all__ = ["RunFolder", "format_summary", "json_value", "read_lines", "write_json"]
 
 
 def json_value(value):

@@ -37,14 +37,15 @@ import torch
 from torch import Tensor
 
 from aectorch._checks import check_distances, check_int, is_real
-from aectorch.choices import Renderer as RendererName
+from aectorch.choices import RendererName
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.hoap3 import HOAP3Head
 from aectorch.sim.scene import PlaneScene
 from aectorch.sim.protocol import DEFAULT_PROTOCOL, TrialProtocol
 from aectorch.sim.textures import TextureBank, pink_noise_images
 
-__all__ = ["ActiveDepthEnv", "IterationInfo", "RENDERERS", "DEFAULT_DISTANCES_M", "SCALE_FILTER", "pyramid_blur"]
+__all__ = ["ActiveDepthEnv", "IterationInfo", "RENDERERS", "DEFAULT_DISTANCES_M", "SCALE_FILTER", "make_renderer",
+           "pyramid_blur"]
 
 #: The paper's object distances: 1.0 to 3.0 m in 0.1 m steps.
 DEFAULT_DISTANCES_M = tuple(round(1.0 + 0.1 * i, 1) for i in range(21))

@@ -17,7 +17,7 @@ from typing import Protocol, Sequence, runtime_checkable
 from torch import Tensor
 
 from aectorch._checks import check_bool, check_choice, check_int, check_real
-from aectorch.choices import Renderer as RendererName
+from aectorch.choices import RendererName
 from aectorch.sim.camera import PixelWindow
 
 __all__ = ["DEFAULT_PROTOCOL", "Renderer", "TrialProtocol", "resolve_protocol"]

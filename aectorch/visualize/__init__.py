@@ -26,14 +26,12 @@ from torch import Tensor
 
 from aectorch._checks import check_choice, check_int, check_real
 from aectorch.choices import Policy
-from aectorch.runtime import load_learner, trial_protocol
 from aectorch.sim import ActiveDepthEnv, TextureBank, TrialProtocol, resolve_protocol
 
-__all__ = ["TrialFrames", "animate_trial", "check_output", "frame_steps", "protocol_of", "record_trial"]
+__all__ = ["TrialFrames", "animate_trial", "check_output", "frame_steps", "record_trial"]
 
-log = logging.getLogger(__name__)
+log = logging.getLogger("aectorch")
 
-#: The policies a trial can follow: the argmax action (the evaluation protocol) or sampled actions.
 #: Output formats of :func:`animate_trial`, by file suffix.
 FORMATS = (".gif", ".mp4")
 FIXATION_NAMES = ("leftward", "rightward")
@@ -92,12 +90,6 @@ class _Watched:
         return pair if scales is None else self._env.stereo_observation(scales=scales)
 
 
-def protocol_of(cfg) -> dict:
-    """The trial protocol a learner trained under, from its run's config, as keyword arguments of
-    :func:`record_trial` (``{"protocol": TrialProtocol(...)}``)."""
-    return {"protocol": trial_protocol(cfg)}
-
-
 def _check_record_arguments(texture, distance_m, policy: str) -> float:
     if not isinstance(texture, Tensor) or texture.dim() != 2 or not texture.is_floating_point():
         raise ValueError(f"texture must be a floating [H, W] tensor in [0, 1], got "
@@ -151,7 +143,7 @@ def record_trial(learner, texture: Tensor, distance_m: float, *, protocol: Trial
         texture: the object's texture, a floating ``[H, W]`` tensor in [0, 1].
         distance_m: the object's distance, metres.
         protocol: the trial protocol (`aectorch.sim.TrialProtocol`, default its defaults); a
-            learner is watched under the protocol it trained in (:func:`protocol_of` of its run's
+            learner is watched under the protocol it trained in (`aectorch.runtime.trial_protocol` of its run's
             config).
         fixation_iterations, shift_m, shift_iterations, yoked_pursuit, renderer: replace that
             field of ``protocol`` when given.

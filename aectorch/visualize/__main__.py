@@ -94,7 +94,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _visualize(argv: list[str]) -> int:
     args = _parse(argv)
-    from aectorch.visualize import animate_trial, frame_steps, load_learner, protocol_of, record_trial
+    from aectorch.runtime import load_learner, trial_protocol
+    from aectorch.visualize import animate_trial, frame_steps, record_trial
 
     try:
         cfg, learner = load_learner(args["checkpoint"])
@@ -102,7 +103,7 @@ def _visualize(argv: list[str]) -> int:
         raise UsageError(f"checkpoint: {err}") from err
     texture, name = _texture(args["texture"])
     try:
-        frames = record_trial(learner, texture, float(args["distance"]), **protocol_of(cfg),
+        frames = record_trial(learner, texture, float(args["distance"]), protocol=trial_protocol(cfg),
                               renderer=args.get("renderer") or cfg.env.renderer, policy=args["policy"],
                               seed=args["seed"], texture_name=name)
     except ValueError as err:
