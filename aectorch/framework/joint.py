@@ -220,10 +220,7 @@ class JointLearner(nn.Module):
     def state_name(name: str) -> str:
         """The checkpoint's name of a parameter or buffer named ``name`` by ``named_parameters``
         (``"stereo_cue.encoder.dictionaries.fine.atoms"`` -> ``"stereo.dictionaries.fine.atoms"``)."""
-        for old, new in _STATE_NAMES:
-            if name.startswith(new):
-                return old + name[len(new):]
-        return name
+        return _checkpoint_name(name)
 
     def get_extra_state(self) -> dict:
         return {

@@ -54,9 +54,9 @@ class Shard:
     @property
     def reduce(self) -> Optional[Callable[[torch.Tensor], torch.Tensor]]:
         """The ``reduce=`` argument of the learning steps (`SparseDictionary.gradient`,
-        `NaturalActorCritic.update`): :meth:`sum`, or ``None`` for a single process, whose
-        means need no sum over processes."""
-        return self.sum if self.world_size > 1 else None
+        `NaturalActorCritic.update`): ``None`` for a single process, whose means need no sum over
+        processes (`ProcessGroupShard`: its all-reduce :meth:`sum`)."""
+        return None
 
     def sum(self, tensor: torch.Tensor) -> torch.Tensor:
         """The sum of ``tensor`` over all ranks (a new tensor; the input is not changed)."""
@@ -75,20 +75,9 @@ class Shard:
         return draws
 
     def gather_record(self, record):
-        """A (nested) NamedTuple of per-environment tensors ``[B, ...]`` (e.g.
-        `aectorch.framework.IterationRecord`) with every tensor gathered along the batch; fields
-        named ``atom_counts`` (counts over the batch) are summed instead. Other values are kept."""
-        if self.world_size == 1:
-            return record
-
-        def one(name, value):
-            if isinstance(value, tuple) and hasattr(value, "_fields"):
-                return type(value)(*(one(field, getattr(value, field)) for field in value._fields))
-            if isinstance(value, torch.Tensor) and value.ndim > 0:
-                return self.sum(value) if name == "atom_counts" else self.gather(value)
-            return value
-
-        return one("record", record)
+        """The whole batch's iteration record (`aectorch.framework.IterationRecord`): this
+        process's, since it holds the whole batch."""
+        return record
 
     def barrier(self) -> None:
         """Wait for every rank (nothing to wait for in one process)."""

@@ -8,13 +8,11 @@ import torch
 
 from aectorch.framework import JointLearner, Shard
 from aectorch.runtime.config import ExperimentConfig
+from aectorch.runtime.metrics import CUES
 from aectorch.sim import ActiveDepthEnv, TextureBank, TrialProtocol
 
 __all__ = ["available_threads", "build_env", "build_learner", "build_textures", "compile_hot_path",
            "dictionaries", "set_threads", "trial_options", "trial_protocol"]
-
-#: The learner's encoders, one per cue (`JointLearner.parallax`, `JointLearner.stereo`).
-CUES = ("parallax", "stereo")
 
 
 def set_threads(threads: int, processes: int = 1) -> None:

@@ -44,6 +44,24 @@ def world_from_env() -> tuple[int, int, int]:
 class ProcessGroupShard(Shard):
     """A `Shard` whose collectives run over torchrun's process group (gloo or nccl)."""
 
+    @property
+    def reduce(self):
+        return self.sum
+
+    def gather_record(self, record):
+        """A (nested) NamedTuple of per-environment tensors ``[B, ...]`` (e.g.
+        `aectorch.framework.IterationRecord`) with every tensor gathered along the batch; fields
+        named ``atom_counts`` (counts over the batch) are summed instead. Other values are kept."""
+
+        def one(name, value):
+            if isinstance(value, tuple) and hasattr(value, "_fields"):
+                return type(value)(*(one(field, getattr(value, field)) for field in value._fields))
+            if isinstance(value, torch.Tensor) and value.ndim > 0:
+                return self.sum(value) if name == "atom_counts" else self.gather(value)
+            return value
+
+        return one("record", record)
+
     def whole_batch(self, local: int) -> int:
         # This process's slice of the run's batch; environments of another size (an evaluation on
         # rank 0) are a batch of their own.

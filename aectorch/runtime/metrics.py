@@ -29,11 +29,13 @@ import torch
 from torch import Tensor
 
 from aectorch._checks import check_int
+from aectorch.choices import Cue
 from aectorch.coding.patches import DEFAULT_SCALES
 
 __all__ = ["CUES", "TrainingMetrics"]
 
-CUES = ("parallax", "stereo")
+#: The learner's cues, in the order the metrics report them.
+CUES = Cue.values()
 
 
 def _mean(total: float, count: int) -> float:
