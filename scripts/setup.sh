@@ -105,9 +105,9 @@ TV="$("$VPY" -c 'import importlib.metadata as m; print(m.version("torch"))')"
 # --- 5. aectorch (editable) + test extras; torch pinned to what is installed
 CONSTRAINTS="$VENV/.aectorch-torch-constraint.txt"
 printf 'torch==%s\n' "$TV" > "$CONSTRAINTS"
-say "aectorch: pip install -e .[test,docs] (keeping torch $TV)"
+say "aectorch: pip install -e .[test,docs,rl] (keeping torch $TV)"
 "$VPY" -m pip install "${PIP_FLAGS[@]}" --upgrade-strategy only-if-needed \
-    -c "$CONSTRAINTS" -e ".[test,docs]"
+    -c "$CONSTRAINTS" -e ".[test,docs,rl]"
 
 # --- 6. newer PyOpenGL (after pyrender, which pins PyOpenGL==3.1.0)
 say "PyOpenGL: upgrading to >=3.1.7 for OSMesa; pip's warning that pyrender requires PyOpenGL==3.1.0 is expected and harmless"

@@ -26,6 +26,12 @@ from aectorch.control import (
 )
 
 torch.set_num_threads(1)
+PAPER_FORM = ActorCriticConfig.paper_form()
+
+
+def paper_nac(num_features, actions_deg=PAPER_ACTIONS_DEG, config=None, **options):
+    """The agent in the paper-faithful form with the paper's actions (the oracles' setting) unless told."""
+    return NaturalActorCritic(num_features, actions_deg, PAPER_FORM if config is None else config, **options)
 
 F64 = torch.float64
 needs_cuda = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
@@ -133,7 +139,7 @@ VARIANTS = {
 def test_matches_per_step_reference(variant, batch):
     num_features, steps = 5, 40
     masked = variant in ("first step", "all options")
-    agent = NaturalActorCritic(num_features, generator=_gen(1), dtype=F64, **VARIANTS[variant])
+    agent = paper_nac(num_features, generator=_gen(1), dtype=F64, **VARIANTS[variant])
     theta0 = agent.actor_weight.numpy().copy()
     v0 = agent.critic_weight.numpy().copy()
     data = _recording(batch, steps, num_features, seed=2, masked=masked)
@@ -170,7 +176,7 @@ def test_identical_environments_give_the_sequential_step():
 
     (Not with z-scoring: its statistics count every copy, and B equal samples have no variance.)
     """
-    single = NaturalActorCritic(6, generator=_gen(3), dtype=F64, critic_discount=0.7, alpha_w=0.2)
+    single = paper_nac(6, generator=_gen(3), dtype=F64, critic_discount=0.7, alpha_w=0.2)
     batched = copy.deepcopy(single)
     for f, a, r, f2, _ in _recording(1, 25, 6, seed=4, masked=False):
         args = [torch.from_numpy(x) for x in (f, a, r, f2)]
@@ -182,7 +188,7 @@ def test_identical_environments_give_the_sequential_step():
 
 
 def test_all_first_steps_change_nothing():
-    agent = NaturalActorCritic(4, generator=_gen(5), dtype=F64, normalize_features=True)
+    agent = paper_nac(4, generator=_gen(5), dtype=F64, normalize_features=True)
     f, a, r, f2, _ = _recording(3, 1, 4, seed=6, masked=False)[0]
     before = copy.deepcopy(agent.state_dict())
     out = agent.update(
@@ -215,7 +221,7 @@ def test_contextual_bandit_finds_the_best_arm_of_each_context():
         f = torch.eye(num_contexts, dtype=F64)[c] + 0.1 * noise
         return c, f
 
-    agent = NaturalActorCritic(num_contexts, generator=g, dtype=F64)
+    agent = paper_nac(num_contexts, generator=g, dtype=F64)
     eye = torch.eye(num_contexts, dtype=F64)
     assert not torch.equal(agent.act(eye, greedy=True).actions, best)  # the task is not solved at start
     c, f = contexts()
@@ -244,7 +250,7 @@ def test_angle_error_toy_greedy_policy_ends_within_the_smallest_action():
     g = _gen(0)
     batch, span, horizon = 32, 1.0, 10
     centers = torch.arange(-1.2, 1.2 + 1e-9, 0.05, dtype=F64)
-    agent = NaturalActorCritic(len(centers), generator=g, dtype=F64)
+    agent = paper_nac(len(centers), generator=g, dtype=F64)
 
     def greedy_final_error(steps=30):
         e = torch.linspace(-span, span, 41, dtype=F64) + 0.013
@@ -266,7 +272,7 @@ def test_angle_error_toy_greedy_policy_ends_within_the_smallest_action():
 
 # --------------------------------------------------------------------------- act
 def test_act_outputs_and_greedy_ties_take_the_first_action():
-    agent = NaturalActorCritic(3, actor_init=0.0)  # all logits equal
+    agent = paper_nac(3, actor_init=0.0)  # all logits equal
     out = agent.act(torch.rand(5, 3), greedy=True)
     assert isinstance(out, ActOutput)
     assert out.actions.dtype == torch.int64
@@ -277,7 +283,7 @@ def test_act_outputs_and_greedy_ties_take_the_first_action():
 
 
 def test_sampling_follows_the_policy_and_is_reproducible():
-    agent = NaturalActorCritic(4, generator=_gen(7), dtype=F64, actor_init=2.0)
+    agent = paper_nac(4, generator=_gen(7), dtype=F64, actor_init=2.0)
     f = torch.rand(1, 4, generator=_gen(8), dtype=F64).expand(40000, 4)
     out = agent.act(f, generator=_gen(9))
     probs = agent(f[:1])[0]
@@ -290,14 +296,14 @@ def test_sampling_follows_the_policy_and_is_reproducible():
 
 
 def test_zero_probability_actions_are_never_sampled():
-    agent = NaturalActorCritic(1, actions_deg=(-1.0, 0.0, 1.0), actor_init=0.0, dtype=F64)
+    agent = paper_nac(1, actions_deg=(-1.0, 0.0, 1.0), actor_init=0.0, dtype=F64)
     agent.actor_weight.copy_(torch.tensor([[-1e4], [0.0], [-1e4]], dtype=F64))
     out = agent.act(torch.ones(1000, 1, dtype=F64), generator=_gen(0))
     assert torch.equal(out.actions, torch.ones(1000, dtype=torch.int64))
 
 
 def test_test_temperature_sharpens_the_policy():
-    agent = NaturalActorCritic(4, generator=_gen(11))
+    agent = paper_nac(4, generator=_gen(11))
     f = torch.rand(8, 4, generator=_gen(12))
     hot = agent.act(f, temperature=1.0, generator=_gen(0))
     cold = agent.act(f, temperature=0.1, generator=_gen(0))
@@ -315,7 +321,7 @@ def test_test_temperature_sharpens_the_policy():
     seed=st.integers(0, 2**16),
 )
 def test_policy_is_a_distribution(batch, num_features, temperature, seed):
-    agent = NaturalActorCritic(
+    agent = paper_nac(
         num_features, generator=_gen(seed), actor_init=3.0, temperature=temperature
     )
     f = torch.randn(batch, num_features, generator=_gen(seed + 1)) * 3
@@ -329,7 +335,7 @@ def test_policy_is_a_distribution(batch, num_features, temperature, seed):
 
 # --------------------------------------------------------------------------- module behaviour
 def test_state_dict_round_trip_continues_identically():
-    make = lambda seed: NaturalActorCritic(  # noqa: E731
+    make = lambda seed: paper_nac(  # noqa: E731
         5, generator=_gen(seed), dtype=F64, normalize_features=True
     )
     agent = make(13)
@@ -351,7 +357,7 @@ def test_state_dict_round_trip_continues_identically():
 
 
 def test_update_output_fields():
-    agent = NaturalActorCritic(5, generator=_gen(15), dtype=F64)
+    agent = paper_nac(5, generator=_gen(15), dtype=F64)
     f, a, r, f2, _ = _recording(3, 1, 5, seed=16, masked=False)[0]
     ft, at, rt, f2t = (torch.from_numpy(x) for x in (f, a, r, f2))
     v, w_before = agent.critic_weight.clone(), agent.advantage_weight.clone()
@@ -367,27 +373,27 @@ def test_update_output_fields():
 
 
 def test_inputs_are_cast_to_the_module_dtype():
-    agent = NaturalActorCritic(3, generator=_gen(17))
+    agent = paper_nac(3, generator=_gen(17))
     f = torch.rand(2, 3, dtype=F64)
     actions, rewards = torch.tensor([0, 6], dtype=torch.int32), torch.tensor([-0.5, -0.1], dtype=F64)
     out = agent.update(f, actions, rewards, f)
     assert out.td_error.dtype == torch.float32
     assert agent.act(f).increments_deg.dtype == torch.float32
-    assert NaturalActorCritic(3, dtype=F64).act(f.float()).log_prob.dtype == F64
+    assert paper_nac(3, dtype=F64).act(f.float()).log_prob.dtype == F64
 
 
 def test_generator_seeds_the_initial_weights():
-    a, b = NaturalActorCritic(8, generator=_gen(0)), NaturalActorCritic(8, generator=_gen(0))
+    a, b = paper_nac(8, generator=_gen(0)), paper_nac(8, generator=_gen(0))
     assert torch.equal(a.actor_weight, b.actor_weight) and torch.equal(a.critic_weight, b.critic_weight)
     assert a.actor_weight.abs().max() <= 0.4 and a.critic_weight.abs().max() <= 0.05
     assert a.actor_weight.abs().max() > 0.2  # uniform over +-0.4, not a constant
-    assert not torch.equal(a.actor_weight, NaturalActorCritic(8, generator=_gen(1)).actor_weight)
+    assert not torch.equal(a.actor_weight, paper_nac(8, generator=_gen(1)).actor_weight)
     assert not any(p.requires_grad for p in a.parameters())
 
 
 def test_config_object_and_keyword_overrides():
     cfg = ActorCriticConfig(alpha_v=0.1)
-    agent = NaturalActorCritic(2, config=cfg, xi=0.5)
+    agent = paper_nac(2, config=cfg, xi=0.5)
     assert agent.config.alpha_v == 0.1 and agent.config.xi == 0.5 and cfg.xi == 0.01
     assert agent.config.step_w == 0.1
     assert ActorCriticConfig() == NaturalActorCritic(2).config
@@ -396,7 +402,7 @@ def test_config_object_and_keyword_overrides():
 
 def test_update_and_act_compile_without_graph_breaks():
     """fullgraph under aot_eager (functionalised in-place updates, as inductor sees them)."""
-    agent = NaturalActorCritic(4, generator=_gen(18), dtype=F64, normalize_features=True)
+    agent = paper_nac(4, generator=_gen(18), dtype=F64, normalize_features=True)
     reference = copy.deepcopy(agent)
     torch._dynamo.reset()
     update = torch.compile(agent.update, backend="aot_eager", fullgraph=True)
@@ -419,7 +425,7 @@ def test_update_and_act_compile_without_graph_breaks():
 
 @needs_cuda
 def test_cuda_matches_cpu():
-    cpu = NaturalActorCritic(5, generator=_gen(20), dtype=F64)
+    cpu = paper_nac(5, generator=_gen(20), dtype=F64)
     gpu = copy.deepcopy(cpu).cuda()
     for f, a, r, f2, first in _recording(4, 10, 5, seed=21, masked=True):
         args = [torch.from_numpy(x) for x in (f, a, r, f2, first)]
@@ -451,7 +457,7 @@ def test_config_rejects_impossible_values(kwargs, match):
     with pytest.raises(ValueError, match=match):
         ActorCriticConfig(**kwargs)
     with pytest.raises(ValueError, match=match):
-        NaturalActorCritic(2, **kwargs)
+        paper_nac(2, **kwargs)
 
 
 def test_constructor_rejects_bad_arguments():
@@ -466,7 +472,7 @@ def test_constructor_rejects_bad_arguments():
 
 
 def test_inputs_are_validated_with_the_argument_named():
-    agent = NaturalActorCritic(3)
+    agent = paper_nac(3)
     f, a, r = torch.rand(2, 3), torch.tensor([0, 1]), torch.tensor([-1.0, 0.0])
     act, update = agent.act, agent.update
     cases = [
@@ -500,7 +506,7 @@ def test_a_normalize_window_follows_drifting_features_and_none_remembers_everyth
     gen = torch.Generator().manual_seed(0)
     data = [torch.randn(20, 3, generator=gen, dtype=F64) * (1.0 if t < 100 else 2.0) + (0.0 if t < 100 else 4.0)
             for t in range(200)]
-    agents = {w: NaturalActorCritic(3, actions_deg=PAPER_ACTIONS_DEG, dtype=F64, normalize_features=True,
+    agents = {w: paper_nac(3, actions_deg=PAPER_ACTIONS_DEG, dtype=F64, normalize_features=True,
                                     normalize_window=w) for w in (None, 200)}
     for f in data:
         for agent in agents.values():
@@ -528,7 +534,7 @@ def _one_update(agent, seed=0, batch=1):
 
 
 def test_batch_reference_scales_a_small_batch_to_per_transition_steps():
-    make = lambda **kw: NaturalActorCritic(6, dtype=torch.float64, generator=torch.Generator().manual_seed(0),
+    make = lambda **kw: paper_nac(6, dtype=torch.float64, generator=torch.Generator().manual_seed(0),
                                            alpha_v=0.1, alpha_theta=0.5, **kw)
     full, quarter = _one_update(make()), _one_update(make(batch_reference=4))
     for key in ("critic_weight", "advantage_weight"):
@@ -544,7 +550,7 @@ def test_batch_reference_scales_a_small_batch_to_per_transition_steps():
 
 @pytest.mark.parametrize("power", [1.0, 2.0])
 def test_actor_decay_slows_only_the_actor(power):
-    make = lambda **kw: NaturalActorCritic(6, dtype=torch.float64, generator=torch.Generator().manual_seed(0),
+    make = lambda **kw: paper_nac(6, dtype=torch.float64, generator=torch.Generator().manual_seed(0),
                                            **{"alpha_v": 0.1, "alpha_theta": 0.5, **kw})
     decayed = make(actor_decay=2.0, actor_decay_power=power)
     for _ in range(3):
@@ -555,16 +561,11 @@ def test_actor_decay_slows_only_the_actor(power):
     a, b = _one_update(decayed, seed=7), _one_update(reference, seed=7)
     torch.testing.assert_close(a["actor_weight"], b["actor_weight"])
     torch.testing.assert_close(a["critic_weight"], b["critic_weight"])
-    # state saved before the step count existed loads as a count of 0
-    state = decayed.state_dict()
-    del state["step_count"]
-    fresh = make(actor_decay=2.0)
-    fresh.load_state_dict(state)
-    assert float(fresh.step_count) == 0.0
+    # (checkpoints from before the step count existed: aectorch.runtime.migrations, tests/test_migrations.py)
 
 
 def test_normalize_samples_freezes_the_statistics():
-    agent = NaturalActorCritic(6, dtype=torch.float64, normalize_features=True, normalize_samples=4)
+    agent = paper_nac(6, dtype=torch.float64, normalize_features=True, normalize_samples=4)
     for seed in range(2):
         _one_update(agent, seed=seed, batch=3)
     frozen = (agent.feature_count.clone(), agent.feature_mean.clone(), agent.feature_m2.clone())

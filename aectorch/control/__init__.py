@@ -1,11 +1,13 @@
-"""Eye control: the natural actor-critic (Bhatnagar et al. 2009, algorithm 3) that chooses pan increments."""
+"""Eye control: the `Agent` protocol and its agents, the natural actor-critic (Bhatnagar et al. 2009,
+algorithm 3) and PPO, that choose pan increments from a cue's features."""
 
-from aectorch.control.actor_critic import (
-    PAPER_ACTIONS_DEG,
-    ActorCriticConfig,
-    ActOutput,
-    NaturalActorCritic,
-    UpdateOutput,
+from aectorch.control.actor_critic import ActorCriticConfig, NaturalActorCritic, UpdateOutput
+from aectorch.control.agent import (
+    DEFAULT_ACTIONS_DEG, PAPER_ACTIONS_DEG, ActOutput, Agent, LearnOutput, Transitions, sample_actions,
 )
+from aectorch.control.factory import AGENTS, agent_config, make_agent
+from aectorch.control.ppo import PPO, PPOConfig
 
-__all__ = ["PAPER_ACTIONS_DEG", "ActOutput", "ActorCriticConfig", "NaturalActorCritic", "UpdateOutput"]
+__all__ = ["AGENTS", "DEFAULT_ACTIONS_DEG", "PAPER_ACTIONS_DEG", "PPO", "ActOutput", "ActorCriticConfig", "Agent",
+           "LearnOutput", "NaturalActorCritic", "PPOConfig", "Transitions", "UpdateOutput", "agent_config",
+           "make_agent", "sample_actions"]

@@ -18,8 +18,8 @@ as ``psi (psi.w)``: no F x F matrix is formed. The order of the lines is the
 paper's: J is updated first and the TD error uses the new J and the old critic;
 the actor step uses the new w.
 
-The paper-faithful form is the default: ``gamma = 1``, ``lambda = 0``,
-``alpha_w = alpha_v`` (the paper has one fast step size alpha_t for v and w) and
+The paper-faithful form (:meth:`ActorCriticConfig.paper_form`) has ``gamma = 1``,
+``lambda = 0``, ``alpha_w = alpha_v`` (the paper has one fast step size alpha_t for v and w) and
 Gamma a Euclidean projection onto a compact convex set, here the ball
 ``||theta||_F <= theta_bound`` (or the box ``|theta_ij| <= theta_bound``). The
 variants of the MATLAB AEC lineage are options of `ActorCriticConfig`: a
@@ -27,7 +27,8 @@ discounted ``V(s')`` (``critic_discount``), weight decay instead of the projecti
 (``weight_decay`` with ``projection="none"``), a separate ``alpha_w``, online
 z-scoring of the features (``normalize_features``), and, per call of
 `NaturalActorCritic.update`, no update on the first step of a fixation (the
-``first_step`` mask).
+``first_step`` mask). The defaults are the values `aectorch.framework.JointLearner` trains
+with (docs/paper-mapping.md says why each differs from the paper-faithful form).
 
 Batched rule (B environments, one shared learner): every environment computes its
 sequential step from the same shared state (its own ``J_b = (1 - xi) J + xi r_b``
@@ -43,36 +44,43 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Callable, NamedTuple, Sequence
+from typing import Callable, NamedTuple, Optional, Sequence
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from aectorch._checks import check_bool, check_finite, check_int, is_int, is_real
+from aectorch.control.features import merge_moments, scale_to_norm, standardize
+from aectorch.control.agent import (
+    DEFAULT_ACTIONS_DEG, PAPER_ACTIONS_DEG, ActOutput, LearnOutput, Reduce, Transitions, entropy, sample_actions,
+)
 
-__all__ = ["ActOutput", "ActorCriticConfig", "NaturalActorCritic", "PAPER_ACTIONS_DEG", "UpdateOutput"]
-
-PAPER_ACTIONS_DEG = (-0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2)
-"""The paper's action set A of pan increments in degrees (sec. 2.3)."""
+__all__ = ["ActOutput", "ActorCriticConfig", "NaturalActorCritic", "UpdateOutput"]
 
 _PROJECTIONS = ("ball", "box", "none")
 
 
 @dataclass
 class ActorCriticConfig:
-    """Hyperparameters of `NaturalActorCritic`; the defaults are the paper-faithful form.
+    """Hyperparameters of `NaturalActorCritic`; the defaults are those the joint learner trains with.
 
-    The 2017 paper gives no step sizes. alpha_v = alpha_w = 0.4 and xi = 0.01 are
-    the constant set of the older discrete natural-actor-critic AEC models (see
-    ``aec-lineage.md``), which has the paper's single fast step size for v and w.
-    Those models moved the actor at 0.4 as well; here alpha_theta = 0.04 = alpha_v / 10
-    puts the actor on the slower time scale that Bhatnagar et al.'s convergence
-    proof needs (decaying step sizes with ``sum alpha = inf``, ``sum alpha^2 < inf``,
-    ``alpha_theta / alpha_v -> 0`` and ``xi = c alpha_v``; constant step sizes, as
-    every AEC model used, only track that ideal). On the angle-error toy of the
-    tests, alpha_theta = 0.4 ends farther than 0.05 degrees from zero for 3 to 6 of
-    10 seeds after 1000 to 2000 steps; 0.04 ends within it for all 10.
+    The 2017 paper gives no step sizes. The defaults (docs/paper-mapping.md) are the lineage's
+    z-scored features (Welford) scaled to norm ``feature_norm`` = 30 with a critic step
+    ``alpha_v`` = 0.001 for that norm, a near-zero initial policy (``actor_init`` 0.01), the
+    critic discounted by 0.3 (the lineage's 0.3-0.6; the improvement reward needs gamma < 1), a
+    fast actor (the advantage parameters w estimate the advantage, the actor follows them with
+    step 10, decaying over ``actor_decay`` = 1000 full steps) and steps meant for the mean of
+    ``batch_reference`` = 64 transitions.
+
+    :meth:`paper_form` is algorithm 3 as the paper states it with the constant step sizes of the
+    older discrete natural-actor-critic AEC models (``aec-lineage.md``): alpha_v = alpha_w = 0.4,
+    xi = 0.01, and alpha_theta = 0.04 = alpha_v / 10, which puts the actor on the slower time
+    scale that Bhatnagar et al.'s convergence proof needs (decaying step sizes with
+    ``sum alpha = inf``, ``sum alpha^2 < inf``, ``alpha_theta / alpha_v -> 0`` and
+    ``xi = c alpha_v``; constant step sizes, as every AEC model used, only track that ideal). On
+    the angle-error toy of the tests, alpha_theta = 0.4 ends farther than 0.05 degrees from zero
+    for 3 to 6 of 10 seeds after 1000 to 2000 steps; 0.04 ends within it for all 10.
 
     The step sizes act on the features as given: with ``alpha_v ||f||^2 >= 2`` the
     critic diverges, so scale the features to a norm of about 1 (the pooled
@@ -96,7 +104,7 @@ class ActorCriticConfig:
         xi: average-reward rate, in (0, 1].
         temperature: softmax temperature T of the policy while learning (> 0);
             the compatible features carry the same 1/T. The lineage: 1.
-        critic_discount: gamma multiplying ``V(s')`` in the TD error, in [0, 1];
+        critic_discount: gamma multiplying ``V(s')`` in the TD error, in [0, 1] (default 0.3);
             1 is the paper (average reward, undiscounted); the lineage used 0.3-0.6.
         projection: Gamma, the projection of the actor step: ``"ball"`` (default,
             ``theta <- theta min(1, theta_bound / ||theta||_F)``), ``"box"``
@@ -107,7 +115,7 @@ class ActorCriticConfig:
         weight_decay: lambda of the actor step ``(1 - alpha_theta lambda) theta``
             (>= 0, with ``alpha_theta * lambda <= 1``); the lineage used 0.01-0.04
             with no projection (``projection="none"``). 0 is the paper.
-        normalize_features: z-score every feature online, ``(f - mean) /
+        normalize_features: z-score every feature online (default on), ``(f - mean) /
             sqrt(var + normalize_eps)``, for both the actor and the critic (a lineage
             variant). The running mean and sample variance (Welford's algorithm,
             batches merged with Chan's formula) are buffers; `update` adds the
@@ -129,20 +137,20 @@ class ActorCriticConfig:
             keep moving change what a fixed actor does (measured: with the actor and the
             dictionaries frozen, the pursuit window still drifted from 0.12 to 0.18 deg as the
             statistics moved); frozen, the z-scoring is a fixed map the actor can settle on.
-        feature_norm: ``None`` (default), or a norm every feature vector the actor and critic see
+        feature_norm: ``None``, or a norm (default 30) every feature vector the actor and critic see
             is scaled to, after the z-scoring if that is on (> 0). The critic's step is stable
             only while ``alpha_v ||f||^2 < 2``; z-scored features of unusual states (an eye far
             off its target) can be several times longer than the typical ones, and a fixed norm
             keeps every step inside the bound (the normalised-LMS form of the TD step).
-        batch_reference: ``None`` (default: every update takes its full step on the mean of its
-            transitions), or the number of transitions (>= 1) the step sizes are meant for: an
+        batch_reference: ``None`` (every update takes its full step on the mean of its
+            transitions), or the number of transitions (>= 1; default 64) the step sizes are meant for: an
             update from ``n < batch_reference`` transitions moves J, v, w and theta by
             ``n / batch_reference`` of its step, as the per-transition steps of a batch of
             ``batch_reference`` would, so a small batch (B = 1, the sequential algorithm) takes
             no larger steps per transition than the batch the steps were chosen with; larger
             batches take the full step on their (less noisy) mean.
-        actor_decay: ``None`` (default: a constant actor step, as every AEC model ran), or tau
-            (> 0): the actor's step decays as ``alpha_theta * (tau / (tau + t)) ** actor_decay_power``,
+        actor_decay: ``None`` (a constant actor step, as every AEC model ran), or tau
+            (> 0; default 1000): the actor's step decays as ``alpha_theta * (tau / (tau + t)) ** actor_decay_power``,
             where t counts the updates so far in units of full steps (an update scaled by
             ``batch_reference`` counts as that fraction of one). The critic and w keep their
             constant steps, so the actor becomes ever slower than the critic
@@ -152,30 +160,39 @@ class ActorCriticConfig:
             actor's whole path finite, ``alpha_theta * tau / (p - 1)``, so the policy converges to
             a fixed point instead of drifting on.
         actor_init: initial actor weights are uniform in ``[-actor_init, actor_init]``
-            (>= 0; lineage 0.4; the paper: "initially random").
+            (>= 0; default 0.01; lineage 0.4; the paper: "initially random").
         critic_init: initial critic weights are uniform in ``[-critic_init,
-            critic_init]`` (>= 0; lineage 0.05). The advantage parameters start at 0.
+            critic_init]`` (>= 0; default 0; lineage 0.05). The advantage parameters start at 0.
     """
 
-    alpha_v: float = 0.4
-    alpha_w: float | None = None
-    alpha_theta: float = 0.04
+    alpha_v: float = 0.001
+    alpha_w: Optional[float] = None
+    alpha_theta: float = 10.0
     xi: float = 0.01
     temperature: float = 1.0
-    critic_discount: float = 1.0
+    critic_discount: float = 0.3
     projection: str = "ball"
     theta_bound: float = 100.0
     weight_decay: float = 0.0
-    normalize_features: bool = False
+    normalize_features: bool = True
     normalize_eps: float = 1e-8
-    normalize_window: int | None = None
-    normalize_samples: int | None = None
-    feature_norm: float | None = None
-    batch_reference: int | None = None
-    actor_decay: float | None = None
+    normalize_window: Optional[int] = None
+    normalize_samples: Optional[int] = None
+    feature_norm: Optional[float] = 30.0
+    batch_reference: Optional[int] = 64
+    actor_decay: Optional[float] = 1000.0
     actor_decay_power: float = 1.0
-    actor_init: float = 0.4
-    critic_init: float = 0.05
+    actor_init: float = 0.01
+    critic_init: float = 0.0
+
+    @classmethod
+    def paper_form(cls, **overrides) -> "ActorCriticConfig":
+        """Algorithm 3 as the paper states it, with the older AEC models' constant step sizes
+        (see the class docstring): undiscounted, raw features, constant steps; ``overrides``
+        replace fields."""
+        form = dict(alpha_v=0.4, alpha_theta=0.04, critic_discount=1.0, normalize_features=False,
+                    feature_norm=None, batch_reference=None, actor_decay=None, actor_init=0.4, critic_init=0.05)
+        return cls(**{**form, **overrides})
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -226,23 +243,6 @@ class ActorCriticConfig:
         return self.alpha_v if self.alpha_w is None else self.alpha_w
 
 
-class ActOutput(NamedTuple):
-    """What `NaturalActorCritic.act` returns.
-
-    Attributes:
-        actions: chosen action indices into ``actions_deg``, `[B]` int64.
-        increments_deg: the chosen pan increments in degrees, `[B]`.
-        log_prob: ``log pi(a|s)`` of the chosen actions under the policy that chose
-            them (at the temperature used), `[B]`.
-        entropy: entropy of that policy in nats, `[B]`.
-    """
-
-    actions: torch.Tensor
-    increments_deg: torch.Tensor
-    log_prob: torch.Tensor
-    entropy: torch.Tensor
-
-
 class UpdateOutput(NamedTuple):
     """What `NaturalActorCritic.update` returns (all computed before the weights move).
 
@@ -276,9 +276,10 @@ class NaturalActorCritic(nn.Module):
 
     Args:
         num_features: length F of the feature vector f(s) (the paper: 2 x 288).
-        actions_deg: the action set A of pan increments in degrees (default: the
-            paper's seven, `PAPER_ACTIONS_DEG`).
-        config: hyperparameters (default: `ActorCriticConfig()`, the paper-faithful form).
+        actions_deg: the action set A of pan increments in degrees (default
+            `DEFAULT_ACTIONS_DEG`; the paper's seven: `PAPER_ACTIONS_DEG`).
+        config: hyperparameters (default: `ActorCriticConfig()`; the paper-faithful form:
+            `ActorCriticConfig.paper_form()`).
         generator: optional `torch.Generator` for the initial actor and critic weights.
         dtype, device: of the weights (default: torch's defaults). Inputs are cast to
             this dtype and must be on this device.
@@ -317,7 +318,7 @@ class NaturalActorCritic(nn.Module):
     def __init__(
         self,
         num_features: int,
-        actions_deg: Sequence[float] = PAPER_ACTIONS_DEG,
+        actions_deg: Sequence[float] = DEFAULT_ACTIONS_DEG,
         config: ActorCriticConfig | None = None,
         *,
         generator: torch.Generator | None = None,
@@ -369,11 +370,6 @@ class NaturalActorCritic(nn.Module):
         # Updates so far, in units of full steps (the actor's decay; `actor_decay`).
         self.register_buffer("step_count", torch.zeros((), dtype=torch.float64, device=theta.device))
 
-    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
-        # State saved before the step count existed comes from learners with a constant actor step.
-        state_dict.setdefault(prefix + "step_count", torch.zeros((), dtype=torch.float64))
-        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
-
     def extra_repr(self) -> str:
         return f"num_features={self.num_features}, num_actions={self.num_actions}, config={self.config}"
 
@@ -418,13 +414,9 @@ class NaturalActorCritic(nn.Module):
         cfg = self.config
         x = features
         if cfg.normalize_features:
-            n = self.feature_count.to(features.dtype)
-            sample_var = self.feature_m2 / (n - 1).clamp_min(1)
-            var = torch.where(n > 1, sample_var, torch.ones_like(sample_var))
-            x = (features - self.feature_mean) / torch.sqrt(var + cfg.normalize_eps)
+            x = standardize(features, self.feature_count, self.feature_mean, self.feature_m2, cfg.normalize_eps)
         if cfg.feature_norm is not None:
-            norm = torch.linalg.vector_norm(x, dim=-1, keepdim=True)
-            x = x * (cfg.feature_norm / norm.clamp_min(torch.finfo(x.dtype).tiny))
+            x = scale_to_norm(x, cfg.feature_norm)
         return x
 
     def _log_policy(self, x: torch.Tensor, temperature: float) -> torch.Tensor:
@@ -486,17 +478,14 @@ class NaturalActorCritic(nn.Module):
         if greedy:
             actions = logp.argmax(dim=-1)
         else:
-            cdf = logp.exp().cumsum(dim=-1)
             if uniform is None:
-                u = torch.rand(x.shape[0], 1, generator=generator, dtype=x.dtype, device=x.device)
+                u = torch.rand(x.shape[0], generator=generator, dtype=x.dtype, device=x.device)
             else:
                 self._per_env(uniform, "uniform", x.shape[0])
-                u = uniform.to(x.dtype)[:, None]
-            # The first action whose cumulative probability exceeds u; scaling u by the total
-            # keeps a rounding shortfall of the cdf from selecting past the last likely action.
-            actions = (cdf <= u * cdf[:, -1:]).sum(dim=-1).clamp_max(self.num_actions - 1)
+                u = uniform.to(x.dtype)
+            actions = sample_actions(logp, u)
         log_prob = logp.gather(-1, actions[:, None]).squeeze(-1)
-        return ActOutput(actions, self.actions_deg[actions], log_prob, _entropy(logp))
+        return ActOutput(actions, self.actions_deg[actions], log_prob, entropy(logp))
 
     # ------------------------------------------------------------------ learning
     # long: the batched update of algorithm 3, step by step in the module docstring's order (TD
@@ -607,7 +596,8 @@ class NaturalActorCritic(nn.Module):
         theta_new = theta * (1 - step * cfg.weight_decay) + step * w_new
         theta_new = _project(theta_new, cfg.projection, cfg.theta_bound)
         if cfg.normalize_features:
-            stats = self._merged_feature_stats(f, updated, total)
+            stats = merge_moments(self.feature_count, self.feature_mean, self.feature_m2, f, updated, total,
+                                  cfg.normalize_window)
         j.view(1).copy_(j_new.view(1))  # a 0-dim float64 buffer's copy_ is lost under torch.compile
         v.copy_(v_new)
         w.copy_(w_new)
@@ -620,33 +610,24 @@ class NaturalActorCritic(nn.Module):
                 stats = tuple(torch.where(full, o, n) for o, n in zip(old, stats))
             for buffer, new in zip((self.feature_count, self.feature_mean, self.feature_m2), stats):
                 buffer.view(-1).copy_(new.view(-1))
-        return UpdateOutput(delta, j_new, value, next_value, advantage, _entropy(logp), updated)
+        return UpdateOutput(delta, j_new, value, next_value, advantage, entropy(logp), updated)
 
-    def _merged_feature_stats(
-        self, f: torch.Tensor, mask: torch.Tensor, reduce: Callable[[torch.Tensor], torch.Tensor]
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Welford count, mean and M2 with the rows of `f` selected by `mask` merged in (Chan's rule);
-        ``reduce`` sums over the processes that share the batch (identity for one)."""
-        m = mask.to(f.dtype)[:, None]
-        nb = reduce(m.sum())
-        n = self.feature_count.to(f.dtype)
-        m2_old = self.feature_m2
-        window = self.config.normalize_window
-        if window is not None:  # the old statistics weigh at most `window - nb` samples
-            n_eff = torch.minimum(n, (window - nb).clamp_min(1))
-            m2_old = m2_old * (n_eff / n.clamp_min(1))
-            n = n_eff
-        total = (n + nb).clamp_min(1)
-        mean_b = reduce((m * f).sum(0)) / nb.clamp_min(1)
-        m2_b = reduce((m * (f - mean_b).square()).sum(0))
-        diff = mean_b - self.feature_mean
-        mean = self.feature_mean + diff * (nb / total)
-        m2 = m2_old + m2_b + diff.square() * (n * nb / total)
-        if window is None:
-            count = self.feature_count + reduce(mask.sum())
-        else:  # the weight of the statistics, at most `window`
-            count = n.round().to(self.feature_count.dtype) + reduce(mask.sum())
-        return count, mean, m2
+    def learn(self, transitions: Transitions, *, reduce: Reduce | None = None) -> LearnOutput:
+        """The `Agent` protocol's step: one :meth:`update` from the batch (algorithm 3 learns from
+        every transition as it comes; ``last`` changes nothing)."""
+        t = transitions
+        out = self.update(t.features, t.actions, t.rewards, t.next_features, check=False, reduce=reduce)
+        return LearnOutput(out.td_error, True)
+
+    @torch.no_grad()
+    def symmetrize_(self, feature_permutation: torch.Tensor, action_negation: torch.Tensor) -> None:
+        """Start the policy and the critic invariant under a symmetry: theta and v become the means of
+        themselves and their transforms (features permuted by ``feature_permutation``, actions by
+        ``action_negation``), so transformed states get the negated actions' probabilities."""
+        theta, v = self.actor_weight, self.critic_weight
+        theta.copy_((theta + theta[action_negation][:, feature_permutation]) * 0.5)
+        v.copy_((v + v[feature_permutation]) * 0.5)
+
 
 
 def _project(theta: torch.Tensor, projection: str, bound: float) -> torch.Tensor:
@@ -658,7 +639,3 @@ def _project(theta: torch.Tensor, projection: str, bound: float) -> torch.Tensor
     if projection == "box":
         return theta.clamp(-bound, bound)
     return theta
-
-
-def _entropy(logp: torch.Tensor) -> torch.Tensor:
-    return -(logp.exp() * logp).sum(-1)

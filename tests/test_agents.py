@@ -1,0 +1,172 @@
+"""The Agent protocol and its second agent, PPO (aectorch.control.ppo).
+
+Oracles: Stable-Baselines3's rollout buffer for the generalised advantage estimates (an
+implementation no one here wrote, fed the same values and rewards), a contextual task whose best
+action is known, and exact replays for checkpoints and the symmetry.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+import torch
+
+from aectorch.control import (
+    AGENTS, PPO, ActorCriticConfig, Agent, NaturalActorCritic, PPOConfig, Transitions, make_agent, sample_actions,
+)
+
+torch.set_num_threads(1)
+ACTIONS = (-0.2, -0.1, 0.0, 0.1, 0.2)
+
+
+def _gen(seed: int = 0) -> torch.Generator:
+    return torch.Generator().manual_seed(seed)
+
+
+def test_both_agents_satisfy_the_protocol_and_the_factory_builds_them():
+    for name in AGENTS:
+        agent = make_agent(name, 6, ACTIONS, generator=_gen())
+        assert isinstance(agent, Agent)
+        out = agent.act(torch.randn(3, 6, generator=_gen(1)), uniform=torch.rand(3, generator=_gen(2)))
+        assert out.actions.shape == (3,)
+        torch.testing.assert_close(out.increments_deg, torch.tensor(ACTIONS)[out.actions])
+    assert isinstance(make_agent("nac", 6, ACTIONS), NaturalActorCritic)
+    assert isinstance(make_agent("ppo", 6, ACTIONS, PPOConfig(epochs=2)), PPO)
+    with pytest.raises(ValueError, match="agent must be one of"):
+        make_agent("dqn", 6, ACTIONS)
+
+
+def test_inverse_cdf_sampling_follows_the_probabilities():
+    logp = torch.log_softmax(torch.tensor([[0.0, 1.0, 2.0]]), -1).expand(20000, 3)
+    u = torch.rand(20000, generator=_gen(3))
+    counts = torch.bincount(sample_actions(logp, u), minlength=3).double() / 20000
+    torch.testing.assert_close(counts, logp[0].exp().double(), atol=0.01, rtol=0)
+
+
+def _rollout(b: int, t: int, f: int, boundaries=(), seed: int = 0):
+    """Features of a consistent rollout (next state = the following step's state within a
+    fixation, a fresh state after each boundary), rewards and the `last` flags."""
+    g = _gen(seed)
+    states = torch.randn(b, t + 1, f, generator=g, dtype=torch.float64)
+    features, next_features = states[:, :-1].clone(), states[:, 1:].clone()
+    last = torch.zeros(t, dtype=torch.bool)
+    last[-1] = True
+    for step in boundaries:  # a new fixation starts after `step`: its next state is not the next step's
+        last[step] = True
+        next_features[:, step] = torch.randn(b, f, generator=g, dtype=torch.float64)
+    rewards = torch.randn(b, t, generator=g, dtype=torch.float64)
+    return features, next_features, rewards, last
+
+
+@pytest.mark.parametrize("boundaries", [(), (4,), (2, 6)])
+def test_ppo_advantages_match_stable_baselines3s_rollout_buffer(boundaries):
+    from gymnasium import spaces
+    from stable_baselines3.common.buffers import RolloutBuffer
+
+    b, t, f = 3, 9, 5
+    agent = PPO(f, ACTIONS, PPOConfig(discount=0.9, gae_lambda=0.8), generator=_gen(), dtype=torch.float64)
+    with torch.no_grad():
+        agent.value.weight.copy_(torch.randn(1, f, generator=_gen(4), dtype=torch.float64))
+    features, next_features, rewards, last = _rollout(b, t, f, boundaries)
+    advantage, target = agent.advantages(features, next_features, rewards, last)
+
+    values = agent.value(agent.normalize(features))[..., 0].detach()
+    next_values = agent.value(agent.normalize(next_features))[..., 0].detach()
+    buffer = RolloutBuffer(t, spaces.Box(-np.inf, np.inf, (f,)), spaces.Discrete(len(ACTIONS)), device="cpu",
+                           gamma=0.9, gae_lambda=0.8, n_envs=b)
+    for step in range(t):
+        reward = rewards[:, step].clone()
+        if step in boundaries:  # SB3's time-limit rule: bootstrap the truncated episode into its reward
+            reward += 0.9 * next_values[:, step]
+        start = np.full(b, float(step == 0 or (step - 1) in boundaries))
+        buffer.add(features[:, step].numpy(), np.zeros((b, 1)), reward.numpy(), start, values[:, step, None],
+                   torch.zeros(b))
+    buffer.compute_returns_and_advantage(last_values=next_values[:, -1, None], dones=np.zeros(b))
+    np.testing.assert_allclose(advantage[..., 0].numpy(), buffer.advantages.T, rtol=0, atol=2e-6)  # SB3 stores float32
+    np.testing.assert_allclose(target[..., 0].numpy(), buffer.returns.T, rtol=0, atol=2e-6)  # SB3 stores float32
+
+
+def _bandit(agent, steps: int, seed: int, batch: int = 16) -> float:
+    """A contextual task: the features say which action is right (+0.1 deg or -0.1 deg); the reward
+    is 1 for it and 0 otherwise; fixations of 5 steps. Returns the greedy policy's accuracy."""
+    g = _gen(seed)
+    right = torch.tensor([ACTIONS.index(-0.1), ACTIONS.index(0.1)])
+
+    def observe(n):
+        side = torch.randint(0, 2, (n,), generator=g)
+        f = torch.nn.functional.one_hot(side, 2).double() + 0.1 * torch.randn(n, 2, generator=g, dtype=torch.float64)
+        return f, side
+
+    f, side = observe(batch)
+    for step in range(steps):
+        act = agent.act(f, uniform=torch.rand(batch, generator=g, dtype=torch.float64))
+        reward = (act.actions == right[side]).double()
+        f_next, side_next = observe(batch)
+        agent.learn(Transitions(f, act.actions, reward, f_next, last=step % 5 == 4))
+        f, side = f_next, side_next
+    test, test_side = observe(1000)
+    return float((agent.act(test, greedy=True).actions == right[test_side]).double().mean())
+
+
+def test_ppo_learns_a_contextual_task_that_a_fixed_policy_cannot_solve():
+    agent = PPO(2, ACTIONS, PPOConfig(lr=0.03, discount=0.0, entropy_coef=0.0), generator=_gen(5),
+                dtype=torch.float64)
+    before = float(_bandit(copy.deepcopy(agent), 0, seed=6))
+    assert before < 0.7  # about one action in two by chance (the initial policy is near uniform)
+    assert _bandit(agent, 400, seed=6) > 0.95
+
+
+def test_ppo_updates_once_per_rollout_of_fixations():
+    agent = PPO(3, ACTIONS, PPOConfig(fixations=2), generator=_gen())
+    f = torch.randn(4, 3, generator=_gen(1))
+    flags = []
+    for step in range(6):
+        act = agent.act(f, uniform=torch.rand(4, generator=_gen(step)))
+        flags.append(agent.learn(Transitions(f, act.actions, torch.ones(4), f, last=step in (1, 3, 5))).updated)
+    assert flags == [False, False, False, True, False, False]
+
+
+def test_a_ppo_agent_restored_mid_rollout_learns_exactly_as_the_original():
+    def steps(agent, first, count, generator):
+        f = torch.randn(4, 3, generator=generator)
+        for step in range(first, first + count):
+            act = agent.act(f, uniform=torch.rand(4, generator=generator))
+            f_next = torch.randn(4, 3, generator=generator)
+            agent.learn(Transitions(f, act.actions, torch.randn(4, generator=generator), f_next, last=step % 4 == 3))
+            f = f_next
+
+    agent = PPO(3, ACTIONS, generator=_gen(7))
+    data = _gen(8)
+    steps(agent, 0, 6, data)  # one update, then half a rollout
+    saved, data_state = copy.deepcopy(agent.state_dict()), data.get_state()
+    twin = PPO(3, ACTIONS, generator=_gen(7))
+    twin.load_state_dict(saved)
+    twin.generator.set_state(agent.generator.get_state())
+    steps(agent, 6, 6, data)
+    data.set_state(data_state)
+    steps(twin, 6, 6, data)
+    for (name, a), b in zip(agent.state_dict().items(), twin.state_dict().values()):
+        if isinstance(a, torch.Tensor):
+            assert torch.equal(a, b), name
+
+
+def test_a_symmetrized_agent_gives_the_transformed_state_the_negated_actions_probabilities():
+    permutation = torch.tensor([1, 0, 3, 2])
+    negation = torch.tensor([len(ACTIONS) - 1 - i for i in range(len(ACTIONS))])
+    f = torch.randn(5, 4, generator=_gen(9), dtype=torch.float64)
+    for agent in (PPO(4, ACTIONS, PPOConfig(actor_init=1.0), generator=_gen(), dtype=torch.float64),
+                  NaturalActorCritic(4, ACTIONS, ActorCriticConfig(normalize_features=False, feature_norm=None,
+                                                                   actor_init=1.0), generator=_gen(), dtype=torch.float64)):
+        agent.symmetrize_(permutation, negation)
+        logp = agent.log_policy(f) if isinstance(agent, PPO) else agent(f).log()
+        logp_t = agent.log_policy(f[:, permutation]) if isinstance(agent, PPO) else agent(f[:, permutation]).log()
+        torch.testing.assert_close(logp_t, logp[:, negation])
+
+
+def test_ppo_config_rejects_bad_values():
+    for field, value in (("lr", 0), ("epochs", 0), ("discount", 1.5), ("gae_lambda", -0.1), ("hidden", -1),
+                         ("clip", -0.2), ("feature_norm", 0)):
+        with pytest.raises(ValueError, match=f"PPOConfig.{field} must be"):
+            PPOConfig(**{field: value})
