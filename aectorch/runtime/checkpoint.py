@@ -4,7 +4,9 @@ A checkpoint (``checkpoint.pt``, ``best.pt``, ``calibrated.pt``) is a dict writt
 ``torch.save`` (atomically): ``format`` (:data:`CHECKPOINT_FORMAT`), ``config`` (the run's
 resolved config as a plain dict), ``iteration``, the ``learner``'s, ``env``'s (one process: its
 state; several: a list in rank order), ``metrics``' and ``watchdog``'s states,
-``initial_dictionaries``, ``elapsed_s`` and ``best`` (the early-stopping record).
+``initial_dictionaries``, ``elapsed_s`` and ``best`` (the early-stopping record). A checkpoint
+of an earlier format is read through `aectorch.runtime.migrations` (:func:`load_checkpoint`), so
+the rest of the package sees today's layout only.
 
 A resumed run is the stored run: :func:`prepare_run` loads the checkpoint once, takes its config,
 lets only ``train.iterations``, ``train.progress``, ``train.resume``, ``watchdog.*`` and
@@ -23,11 +25,11 @@ import torch
 from aectorch.framework import JointLearner
 from aectorch.runtime.builders import build_learner
 from aectorch.runtime.config import ExperimentConfig, to_container, to_experiment_config, validate_resources
+from aectorch.runtime.migrations import CHECKPOINT_FORMAT, migrate
 
 __all__ = ["CHECKPOINT_FORMAT", "RESUME_KEYS", "check_resume_overrides", "checkpoint_config", "load_checkpoint",
            "load_learner", "prepare_run", "restore", "resume_config", "save_checkpoint"]
 
-CHECKPOINT_FORMAT = 1
 #: Keys of ``train`` kept from the command line when a run is resumed (and the whole ``watchdog``
 #: and ``record`` sections, which change nothing that is learned); everything else is the run's own.
 RESUME_KEYS = ("iterations", "progress", "resume")
@@ -54,8 +56,9 @@ def save_checkpoint(path: str | os.PathLike, payload: dict) -> None:
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict:
-    """Read a checkpoint written by :func:`save_checkpoint`; ``ValueError`` naming the path if it
-    is missing, unreadable or not an aectorch checkpoint."""
+    """Read a checkpoint written by :func:`save_checkpoint` (of any format since the first release,
+    in today's layout: `aectorch.runtime.migrations.migrate`); ``ValueError`` naming the path if
+    it is missing, unreadable or not an aectorch checkpoint."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"no checkpoint at {str(path)!r}")
@@ -63,26 +66,20 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
         payload = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as err:
         raise ValueError(f"cannot read the checkpoint {str(path)!r}: {type(err).__name__}: {err}") from err
-    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"{str(path)!r} is not an aectorch checkpoint (format {CHECKPOINT_FORMAT})")
-    return payload
+    if not isinstance(payload, dict) or "format" not in payload or "config" not in payload:
+        raise ValueError(f"{str(path)!r} is not an aectorch checkpoint")
+    try:
+        return migrate(payload)
+    except (ValueError, KeyError, TypeError) as err:
+        raise ValueError(f"{str(path)!r} is not an aectorch checkpoint this version reads: {err}") from err
 
 
 def checkpoint_config(payload: dict, path: str | os.PathLike) -> ExperimentConfig:
-    """The validated config stored in a checkpoint; ``ValueError`` naming ``path`` if this version
-    of aectorch cannot read it."""
+    """The validated config stored in a checkpoint (as :func:`load_checkpoint` returns it);
+    ``ValueError`` naming ``path`` if this version of aectorch cannot use it."""
     # The watchdog and the recording change nothing that is learned and come from the command line
     # on resume, so a checkpoint from a version with other watchdog options still loads.
     stored = {k: v for k, v in payload["config"].items() if k not in ("watchdog", "record")}
-    # Checkpoints from before `learner.symmetry` existed learned without the symmetries.
-    if isinstance(stored.get("learner"), dict) and "symmetry" not in stored["learner"]:
-        stored["learner"] = {**stored["learner"], "symmetry": []}
-    # Checkpoints from before the body movement's profile existed shifted at once, one eye pursuing.
-    if isinstance(stored.get("env"), dict) and "shift_iterations" not in stored["env"]:
-        stored["env"] = {**stored["env"], "shift_iterations": 1, "yoked_pursuit": False}
-    # Checkpoints from before `learner.render_scales` existed reduced whole crops with the pyramid.
-    if isinstance(stored.get("learner"), dict) and "render_scales" not in stored["learner"]:
-        stored["learner"] = {**stored["learner"], "render_scales": False}
     try:
         return to_experiment_config(stored)
     except Exception as err:  # unknown keys, wrong types, impossible values

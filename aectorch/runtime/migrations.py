@@ -1,0 +1,138 @@
+"""Checkpoints of earlier formats, read as today's: one migration per format version, in one place.
+
+A checkpoint's ``format`` is :data:`CHECKPOINT_FORMAT` when it was written by this version;
+:func:`migrate` turns an older one into today's layout step by step (``MIGRATIONS[v]`` turns
+format v into v + 1), so that every checkpoint written since the first release of ``train.py``
+loads (``tests/test_migrations.py`` loads one stored checkpoint of every version that changed what
+a checkpoint holds). Nothing else in the package knows an old layout.
+
+Format 1 (2026-11-22 to 2026-12-02): the learner's two cues were written out: the state dict named
+the parts ``parallax.*``, ``pursuit.*`` (its agent), ``stereo.*``, ``vergence.*``, ``depth.*``,
+and the config's ``learner`` section was flat (one ``control`` for both agents, ``symmetry`` a
+list of cues). Fields that later versions of format 1 added are absent from older files: each
+gets the value that reproduces what the file's version did (:data:`_ADDED_1`).
+
+Format 2 (this version): the cues are data: ``learner.cues.<cue>.*`` in the config and
+``cues.<cue>.encoder.*`` / ``cues.<cue>.agent.*`` in the state dict; the metrics keep their
+windows per eye movement.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Callable
+
+import torch
+
+__all__ = ["CHECKPOINT_FORMAT", "MIGRATIONS", "migrate"]
+
+#: The format this version writes.
+CHECKPOINT_FORMAT = 2
+
+#: Format 1's two cues: name, its symmetry's kind, its old state-dict prefixes (encoder, agent),
+#: the eye movement it drives and its key in the old per-cue extra state.
+_CUES_1 = (("parallax", "mirror", "parallax.", "pursuit.", "pursuit", "m"),
+           ("stereo", "swap", "stereo.", "vergence.", "vergence", "s"))
+
+#: Fields that versions of format 1 added over time, with the value that reproduces what a file
+#: written before the field existed did (section -> field -> value).
+_ADDED_1 = {
+    "env": {"shift_iterations": 1, "yoked_pursuit": False, "pursuit_start_spread_deg": 0.0,
+            "vergence_start_spread_deg": 0.0},
+    "learner": {"symmetry": [], "render_scales": False, "centred_patches": False, "dictionary_decay": None,
+                "dictionary_decay_power": 1.0, "reward": "coding", "features": "pooled"},
+    "control": {"normalize_window": None, "normalize_samples": None, "feature_norm": None, "batch_reference": None,
+                "actor_decay": None, "actor_decay_power": 1.0},
+    "train": {"keep_best": False, "metrics_window": 1000, "depth_calibration_trials": 0, "deterministic": False},
+}
+
+
+def _with_added(section: dict, added: dict) -> dict:
+    return {**added, **section}
+
+
+def _learner_config_1(old: dict) -> dict:
+    """Format 1's flat ``learner`` section as format 2's, with one cue config per cue."""
+    old = _with_added(old, _ADDED_1["learner"])
+    control = _with_added(old.get("control") or {}, _ADDED_1["control"])
+    encoder = {"num_atoms": old["num_atoms"], "sparsity": old["sparsity"], "algorithm": old["algorithm"],
+               "pooling": old["pooling"], "lr": old["dictionary_lr"], "decay": old["dictionary_decay"],
+               "decay_power": old["dictionary_decay_power"], "centred": old["centred_patches"]}
+    cues = {name: {"agent": "nac", "actions_deg": list(old["actions_deg"]), "scales": list(old["scales"]),
+                   "symmetry": kind if name in old["symmetry"] else None, "encoder": dict(encoder),
+                   "nac": dict(control), "features": old["features"], "feature_scale": old["feature_scale"],
+                   "reward": old["reward"]}
+            for name, kind, *_ in _CUES_1}
+    new = {"cues": cues, "active_cues": None, "render_scales": old["render_scales"],
+           "skip_fixation_boundary": old["skip_fixation_boundary"]}
+    new.update({k: v for k, v in old.items() if k.startswith("depth_")})
+    return new
+
+
+def _learner_state_1(state: dict, learner_config: dict) -> dict:
+    """Format 1's learner state dict under format 2's names."""
+    renames = [("depth.", "depth_learner.mlp."), ("depth_inputs", "depth_learner.inputs"),
+               ("depth_targets", "depth_learner.targets"), ("depth_trained", "depth_learner.trained")]
+    for name, _, encoder, agent, *_ in _CUES_1:
+        renames += [(encoder, f"cues.{name}.encoder."), (agent, f"cues.{name}.agent.")]
+    new = {}
+    for key, value in state.items():
+        if key == "_extra_state":
+            continue
+        for old, replacement in renames:
+            if key.startswith(old):
+                key = replacement + key[len(old):]
+                break
+        new[key] = value
+    extra = state.get("_extra_state", {})
+    previous = extra.get("previous", {})
+    steps = extra.get("dictionary_steps", {})  # before it existed the rates were constant: any count
+    for name, _, _, _, _, short in _CUES_1:
+        new[f"cues.{name}._extra_state"] = {"previous": previous.get(short)}
+        new[f"cues.{name}.encoder._extra_state"] = {"steps": int(steps.get(short, 0))}
+        # Before the actor's step count existed the actor's step was constant: start it at 0.
+        new.setdefault(f"cues.{name}.agent.step_count", torch.zeros((), dtype=torch.float64))
+    new["_extra_state"] = {k: extra[k] for k in ("trials_seen", "trials_at_last_fit", "generator")}
+    return new
+
+
+def _metrics_state_1(state: dict, learner_config: dict) -> dict:
+    scales = state.get("scales") or learner_config["cues"]["parallax"]["scales"]
+    new = {k: v for k, v in state.items() if k not in ("pursuit", "vergence", "scales")}
+    new["cues"] = {name: list(scales) for name, *_ in _CUES_1}
+    new["errors"] = {movement: state[movement] for *_, movement, _ in _CUES_1}
+    return new
+
+
+def _from_1(payload: dict) -> dict:
+    out = dict(payload)
+    config = copy.deepcopy(payload["config"])
+    for section in ("env", "train"):
+        if isinstance(config.get(section), dict):
+            config[section] = _with_added(config[section], _ADDED_1[section])
+    config["learner"] = _learner_config_1(config["learner"])
+    out["config"] = config
+    for key in ("learner",):
+        out[key] = _learner_state_1(payload[key], config["learner"])
+    if "metrics" in payload:
+        out["metrics"] = _metrics_state_1(payload["metrics"], config["learner"])
+    out.setdefault("best", {"iteration": None, "score": None})
+    out["format"] = 2
+    return out
+
+
+#: ``MIGRATIONS[v]`` turns a payload of format v into one of format v + 1.
+MIGRATIONS: dict[int, Callable[[dict], dict]] = {1: _from_1}
+
+
+def migrate(payload: dict) -> dict:
+    """``payload`` (a checkpoint's dict) in today's format (:data:`CHECKPOINT_FORMAT`); a new dict
+    when it was older, the same one when it is current. ``ValueError`` for a format this version
+    does not know (a newer aectorch's, or none)."""
+    version = payload.get("format") if isinstance(payload, dict) else None
+    if not isinstance(version, int) or not 1 <= version <= CHECKPOINT_FORMAT:
+        raise ValueError(f"format {version!r} is not one this aectorch reads (1 to {CHECKPOINT_FORMAT})")
+    while version < CHECKPOINT_FORMAT:
+        payload = MIGRATIONS[version](payload)
+        version = payload["format"]
+    return payload
