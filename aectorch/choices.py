@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from enum import Enum
 
-__all__ = ["Algorithm", "Choice", "Cue", "DType", "Eye", "Features", "Policy", "Pooling", "RendererName", "Reward",
-           "WatchdogMode"]
+__all__ = ["AgentName", "Algorithm", "Choice", "DType", "Eye", "Features", "Policy", "Pooling", "RendererName", "Reward",
+           "Symmetry", "WatchdogMode"]
 
 
 class Choice(str, Enum):
@@ -73,11 +73,18 @@ class Reward(Choice):
     improvement = "improvement"
 
 
-class Cue(Choice):
-    """The two depth cues: motion parallax (pursuit) and stereo (vergence)."""
+class AgentName(Choice):
+    """The learning algorithm of a cue's eye movement: the natural actor-critic or PPO."""
 
-    parallax = "parallax"
-    stereo = "stereo"
+    nac = "nac"
+    ppo = "ppo"
+
+
+class Symmetry(Choice):
+    """A cue's image-pair symmetry: both images mirrored left-right, or the two images exchanged."""
+
+    mirror = "mirror"
+    swap = "swap"
 
 
 class Eye(Choice):

@@ -8,13 +8,17 @@ with a tight layout, creates the parent folders and returns the :class:`pathlib.
 - :func:`principal_components`: PCA of a dictionary's atoms (scores and explained variance);
 - :func:`plot_dictionaries`: Fig. 2, every dictionary on its first two PCs, initial vs trained;
 - :func:`read_metrics`: a ``metrics.jsonl`` file as a list of dicts;
-- :func:`plot_training`: Fig. 3, pursuit / vergence MAE (deg) and depth MAE (m) over training;
+- :func:`plot_training`: Fig. 3, each eye movement's MAE (deg; pursuit, vergence) and depth MAE (m)
+  over training;
 - :func:`plot_perturbation`: Fig. 4, the same around perturbation events;
 - :func:`recovery`: baseline, peak and recovery iteration of an error after a perturbation;
 - :func:`plot_evaluation`: per-distance breakdown of :func:`aectorch.evaluate.evaluate`.
 
 Metric records are dicts with an ``'iteration'`` key; a value that is missing, ``None`` or NaN
-is a gap in the curve (the depth error is NaN before the depth MLP's first fit).
+is a gap in the curve (the depth error is NaN before the depth MLP's first fit). The eye
+movements are the records' ``<movement>_mae_deg`` keys and the cues their ``<cue>/reward`` and
+``<cue>/entropy`` keys, each drawn in the colour of its position (:data:`COLORS`: the paper's Fig.
+3(a) has pursuit, the first, blue and vergence red).
 """
 
 from __future__ import annotations
@@ -43,8 +47,9 @@ __all__ = [
 ]
 
 DPI = 120
-PURSUIT_COLOR = "tab:blue"  # the paper's Fig. 3(a): pursuit blue, vergence (stereo) red
-VERGENCE_COLOR = "tab:red"
+#: The colours of the eye movements (and the cues that drive them), in their order: the paper's
+#: Fig. 3(a) draws pursuit blue and vergence red.
+COLORS = ("tab:blue", "tab:red", "tab:green", "tab:purple", "tab:orange")
 DEPTH_COLOR = "black"
 EVENT_STYLE = {"color": "grey", "linestyle": ":", "linewidth": 1.5}
 
@@ -168,18 +173,30 @@ def _draw_events(axes, events: list[tuple[float, str]]) -> None:
                         ha="right", va="top", color="dimgrey", fontsize=8)
 
 
+def _keys(records: Sequence[Mapping], suffix: str) -> list[str]:
+    """The keys of ``records`` ending in ``suffix``, in their order of appearance."""
+    keys: dict[str, None] = {}
+    for record in records:
+        keys.update((k, None) for k in record if k.endswith(suffix))
+    return list(keys)
+
+
+def _color(index: int) -> str:
+    return COLORS[index % len(COLORS)]
+
+
 def _error_panels(ax_eye, ax_depth, x: np.ndarray, records: Sequence[Mapping]) -> None:
-    """Panels (a) pursuit / vergence MAE (deg) and (b) depth MAE (m) over iterations."""
-    pursuit = _series(records, "pursuit_mae_deg")
-    vergence = _series(records, "vergence_mae_deg")
+    """Panels (a) the eye movements' MAE (deg) and (b) depth MAE (m) over iterations."""
+    keys = _keys(records, "_mae_deg")
+    eyes = [_series(records, key) for key in keys]
     depth = _series(records, "depth_mae_m")
-    _curve(ax_eye, x, pursuit, color=PURSUIT_COLOR, label="pursuit")
-    _curve(ax_eye, x, vergence, color=VERGENCE_COLOR, label="vergence")
-    if np.isfinite(pursuit).any() or np.isfinite(vergence).any():
-        _log_if_positive(ax_eye, pursuit, vergence)
+    for i, (key, y) in enumerate(zip(keys, eyes)):
+        _curve(ax_eye, x, y, color=_color(i), label=key[: -len("_mae_deg")])
+    if any(np.isfinite(y).any() for y in eyes):
+        _log_if_positive(ax_eye, *eyes)
         ax_eye.legend(loc="upper right", fontsize=8)
     else:
-        _no_data(ax_eye, "'pursuit_mae_deg' / 'vergence_mae_deg'")
+        _no_data(ax_eye, " / ".join(repr(k) for k in keys) or "'<movement>_mae_deg'")
     ax_eye.set_ylabel("eye movement MAE (deg)")
     ax_eye.set_title("(a) eye movement error", loc="left", fontsize=10)
     _curve(ax_depth, x, depth, color=DEPTH_COLOR, label="depth")
@@ -362,26 +379,27 @@ def read_metrics(path: str | os.PathLike) -> list[dict]:
     return records
 
 
-_EXTRA_PANELS = (
-    ("(c) rewards", "reward", ("parallax/reward", "stereo/reward")),
-    ("(d) policy entropies", "entropy (nats)", ("parallax/entropy", "stereo/entropy")),
-)
+_EXTRA_PANELS = (("(c) rewards", "reward", "/reward"), ("(d) policy entropies", "entropy (nats)", "/entropy"))
+
+
+def _cue_keys(records: Sequence[Mapping], suffix: str) -> list[str]:
+    """The per-cue keys ``<cue><suffix>`` of ``records`` (``parallax/reward``; not the scales')."""
+    return [k for k in _keys(records, suffix) if k.count("/") == 1]
 
 
 def plot_training(records: Sequence[Mapping], path: str | os.PathLike, *,
                   events: Sequence[tuple[int, str]] = ()) -> Path:
     """Fig. 3: eye movement and depth errors over training.
 
-    Panels (a) pursuit (blue) and vergence (red) MAE in degrees and (b) depth MAE in metres
-    against ``record['iteration']``; a panel's y axis is logarithmic when all its finite values
-    are positive. Missing, ``None`` or NaN values are gaps. When the records hold any of
-    ``'parallax/reward'``, ``'stereo/reward'``, ``'parallax/entropy'``, ``'stereo/entropy'``,
-    panels (c) rewards and (d) policy entropies (parallax = pursuit, blue; stereo = vergence,
-    red) are added.
+    Panels (a) each eye movement's MAE in degrees (pursuit blue, vergence red) and (b) depth MAE
+    in metres against ``record['iteration']``; a panel's y axis is logarithmic when all its
+    finite values are positive. Missing, ``None`` or NaN values are gaps. When the records hold
+    per-cue ``'<cue>/reward'`` or ``'<cue>/entropy'`` values, panels (c) rewards and (d) policy
+    entropies are added (each cue in the colour of its position).
 
     Args:
-        records: metric dicts, each with ``'iteration'`` and some of ``'pursuit_mae_deg'``,
-            ``'vergence_mae_deg'``, ``'depth_mae_m'``.
+        records: metric dicts, each with ``'iteration'`` and some of ``'<movement>_mae_deg'``
+            (``'pursuit_mae_deg'``, ``'vergence_mae_deg'``) and ``'depth_mae_m'``.
         path: the image file to write.
         events: ``(iteration, label)`` pairs drawn as grey dotted vertical lines.
 
@@ -397,23 +415,24 @@ def plot_training(records: Sequence[Mapping], path: str | os.PathLike, *,
     """
     x = _check_records(records)
     checked_events = _check_events(events)
-    extra = any(key in r for r in records for _, _, keys in _EXTRA_PANELS for key in keys)
+    extra = any(_cue_keys(records, suffix) for _, _, suffix in _EXTRA_PANELS)
     rows = 4 if extra else 2
     fig = _new_figure((8.0, 2.7 * rows + 0.5))
     axes = list(fig.subplots(rows, 1, sharex=True, squeeze=False)[:, 0])
     _error_panels(axes[0], axes[1], x, records)
     if extra:
-        for ax, (title, ylabel, keys) in zip(axes[2:], _EXTRA_PANELS):
+        for ax, (title, ylabel, suffix) in zip(axes[2:], _EXTRA_PANELS):
             drawn = False
-            for key, color in zip(keys, (PURSUIT_COLOR, VERGENCE_COLOR)):
+            keys = _cue_keys(records, suffix)
+            for i, key in enumerate(keys):
                 y = _series(records, key)
                 if np.isfinite(y).any():
-                    _curve(ax, x, y, color=color, label=key)
+                    _curve(ax, x, y, color=_color(i), label=key)
                     drawn = True
             if drawn:
                 ax.legend(loc="best", fontsize=8)
             else:
-                _no_data(ax, " / ".join(repr(k) for k in keys))
+                _no_data(ax, " / ".join(repr(k) for k in keys) or repr(f"<cue>{suffix}"))
             ax.set_ylabel(ylabel)
             ax.set_title(title, loc="left", fontsize=10)
             ax.grid(True, alpha=0.3)
@@ -557,14 +576,14 @@ def recovery(records: Sequence[Mapping], key: str, event_iteration: int, *,
 def plot_evaluation(result: Mapping, path: str | os.PathLike) -> Path:
     """Per-distance breakdown of an evaluation result (:func:`aectorch.evaluate.evaluate`).
 
-    Two panels: (a) pursuit (blue) and vergence (red) MAE in degrees and (b) depth MAE in metres
-    against the object distance; the title gives the overall errors and the number of trials.
+    Two panels: (a) each eye movement's MAE in degrees (pursuit blue, vergence red) and (b) depth
+    MAE in metres against the object distance; the title gives the overall errors and the number
+    of trials.
 
     Args:
         result: a mapping with ``'per_distance'`` (a non-empty list of dicts with
-            ``'distance_m'``, ``'pursuit_mae_deg'``, ``'vergence_mae_deg'``, ``'depth_mae_m'``)
-            and the overall ``'pursuit_mae_deg'``, ``'vergence_mae_deg'``, ``'depth_mae_m'`` and
-            ``'trials'``.
+            ``'distance_m'``, the movements' ``'<movement>_mae_deg'`` and ``'depth_mae_m'``) and
+            the same overall errors and ``'trials'``.
         path: the image file to write.
 
     Returns:
@@ -580,7 +599,10 @@ def plot_evaluation(result: Mapping, path: str | os.PathLike) -> Path:
     """
     if not isinstance(result, Mapping):
         raise ValueError(f"result must be a mapping (an evaluation result), got {type(result).__name__}")
-    for key in ("per_distance", "pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m", "trials"):
+    eyes = _keys([result], "_mae_deg")
+    if not eyes:
+        raise ValueError(f"result has no eye movement's error '<movement>_mae_deg' (has {sorted(result)})")
+    for key in ("per_distance", "depth_mae_m", "trials"):
         if key not in result:
             raise ValueError(f"result is missing key {key!r} (has {sorted(result)})")
     rows = result["per_distance"]
@@ -593,14 +615,13 @@ def plot_evaluation(result: Mapping, path: str | os.PathLike) -> Path:
             raise ValueError(f"result['per_distance'][{i}] needs a finite 'distance_m', got {row.get('distance_m')!r}")
     rows = sorted(rows, key=lambda r: _as_float(r["distance_m"]))
     distance = _series(rows, "distance_m")
-    pursuit = _series(rows, "pursuit_mae_deg")
-    vergence = _series(rows, "vergence_mae_deg")
     depth = _series(rows, "depth_mae_m")
 
     fig = _new_figure((9.0, 3.8))
     ax_eye, ax_depth = fig.subplots(1, 2)
-    ax_eye.plot(distance, pursuit, marker="o", color=PURSUIT_COLOR, label="pursuit")
-    ax_eye.plot(distance, vergence, marker="s", color=VERGENCE_COLOR, label="vergence")
+    for i, key in enumerate(eyes):
+        ax_eye.plot(distance, _series(rows, key), marker="os^vD"[i % 5], color=_color(i),
+                    label=key[: -len("_mae_deg")])
     ax_eye.legend(fontsize=8)
     ax_eye.set_ylabel("eye movement MAE (deg)")
     ax_eye.set_title("(a) eye movement error", loc="left", fontsize=10)
@@ -611,10 +632,7 @@ def plot_evaluation(result: Mapping, path: str | os.PathLike) -> Path:
         ax.set_xlabel("object distance (m)")
         ax.grid(True, alpha=0.3)
         ax.set_ylim(bottom=0)
-    fig.suptitle(
-        f"Evaluation: pursuit {_as_float(result['pursuit_mae_deg']):.3g} deg, "
-        f"vergence {_as_float(result['vergence_mae_deg']):.3g} deg, "
-        f"depth {_as_float(result['depth_mae_m']):.3g} m MAE ({result['trials']} trials)",
-        fontsize=11,
-    )
+    overall = ", ".join(f"{key[: -len('_mae_deg')]} {_as_float(result[key]):.3g} deg" for key in eyes)
+    fig.suptitle(f"Evaluation: {overall}, depth {_as_float(result['depth_mae_m']):.3g} m MAE "
+                 f"({result['trials']} trials)", fontsize=11)
     return _save(fig, path)

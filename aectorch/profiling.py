@@ -10,7 +10,7 @@ Example:
     >>> from aectorch.framework import JointLearner, LearnerConfig
     >>> from aectorch.sim import ActiveDepthEnv
     >>> env = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64), fixation_iterations=2, seed=0)
-    >>> learner = JointLearner(LearnerConfig(num_atoms=32))
+    >>> learner = JointLearner(LearnerConfig())
     >>> with StageTimer() as timer:
     ...     _ = learner.iteration(env)
     >>> sorted(timer.seconds) == sorted(["render", "encode", "rl", "dictionary", "env", "metrics"])

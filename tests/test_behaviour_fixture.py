@@ -1,6 +1,10 @@
 """No behaviour change: a fixed-seed short run matches the fixture recorded before issue 22's
 restructure (tests/fixtures/short_run/record.py, from commit 8680a64).
 
+The fixture holds format 1 checkpoints (the cues written out); the test reads it through
+`aectorch.runtime.migrations.migrate`, as an old checkpoint is read, so the comparison is of the
+same state under today's names.
+
 The run is float64, so its numbers agree across CPUs to far better than the tolerance; on the
 machine that recorded the fixture every tensor's sha256 is equal too (reported, not asserted:
 another CPU's BLAS may round the last bit differently).
@@ -11,9 +15,13 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
+import re
 from pathlib import Path
 
 import pytest
+
+from aectorch.runtime.config import to_container, to_experiment_config
+from aectorch.runtime.migrations import migrate
 
 HERE = Path(__file__).resolve().parent / "fixtures" / "short_run"
 _spec = importlib.util.spec_from_file_location("short_run_record", HERE / "record.py")
@@ -60,10 +68,58 @@ def test_the_logs_and_results_are_those_of_the_fixture(fingerprint, part):
     _close(expected[part], fingerprint[part], part)
 
 
+class _Leaf(dict):
+    """A tensor's fingerprint: a leaf of the payload, not a dict to walk into."""
+
+
+def _unflatten(flat: dict) -> dict:
+    """The nested payload of a flat fingerprint (``/a/b[0]`` paths); tensors' prints as `_Leaf`."""
+    root: dict = {}
+    for path, value in flat.items():
+        parts = [p for p in re.split(r"/|(\[\d+\])", path) if p]
+        node = root
+        for here, ahead in zip(parts, parts[1:] + [None]):
+            key = int(here[1:-1]) if here.startswith("[") else here
+            if ahead is None:
+                leaf = _Leaf(value) if isinstance(value, dict) else value
+                if isinstance(node, list):
+                    node.append(leaf)
+                else:
+                    node[key] = leaf
+                break
+            child = [] if ahead.startswith("[") else {}
+            if isinstance(node, list):
+                if key >= len(node):
+                    node.append(child)
+                node = node[key]
+            else:
+                node = node.setdefault(key, child)
+    return root
+
+
+def _flatten(value, path: str = "") -> dict:
+    if isinstance(value, dict) and not isinstance(value, _Leaf):
+        return {k: v for key, item in value.items() for k, v in _flatten(item, f"{path}/{key}").items()}
+    if isinstance(value, (list, tuple)):
+        return {k: v for i, item in enumerate(value) for k, v in _flatten(item, f"{path}[{i}]").items()}
+    return {path: dict(value) if isinstance(value, _Leaf) else value}
+
+
+def _config(payload: dict) -> dict:
+    stored = {k: v for k, v in payload["config"].items() if k not in ("watchdog", "record")}
+    return to_container(to_experiment_config(stored))
+
+
 @pytest.mark.parametrize("name", record.CHECKPOINTS)
 def test_the_checkpoints_hold_the_fixtures_tensors(fingerprint, name):
-    expected = json.loads(record.FIXTURE.read_text())["checkpoints"][name]
-    got = fingerprint["checkpoints"][name]
+    # The fixture's format 1 checkpoint read as today's (the migration's renames), against the new
+    # run's: the same tensors under today's names, the same config once validated.
+    old = _unflatten(json.loads(record.FIXTURE.read_text())["checkpoints"][name])
+    new = _unflatten(fingerprint["checkpoints"][name])
+    migrated = migrate(old)
+    assert _config(migrated) == _config(new)
+    expected = {k: v for k, v in _flatten({**migrated, "config": None}).items()}
+    got = {k: v for k, v in _flatten({**new, "config": None}).items()}
     _close(_numbers(expected), _numbers(got), name)
     same = sum(expected[k]["sha256"] == got[k]["sha256"] for k in expected if isinstance(expected[k], dict))
     print(f"{name}: {same} of {sum(isinstance(v, dict) for v in expected.values())} tensors bit-identical")

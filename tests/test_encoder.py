@@ -36,6 +36,15 @@ def _gen(seed: int) -> torch.Generator:
     return torch.Generator().manual_seed(seed)
 
 
+#: The paper's coder (its two scales, eq. 3's sum pooling, a constant rate, the classic pyramid):
+#: the setting of these hand-computed oracles; the defaults differ (`EncoderConfig`).
+PAPER = dict(scales=(COARSE, FINE), pooling="sum", lr=0.05, decay=None, centred=False)
+
+
+def paper_encoder(**options) -> BinocularEncoder:
+    return BinocularEncoder(**{**PAPER, **options})
+
+
 def _images(b: int, seed: int, dtype=torch.float32):
     g = _gen(seed)
     return (
@@ -57,7 +66,7 @@ def _close(actual: torch.Tensor, expected: torch.Tensor, atol: float) -> None:
 
 @pytest.fixture(scope="module")
 def encoded():
-    enc = BinocularEncoder(generator=_gen(0))
+    enc = paper_encoder(generator=_gen(0))
     first, second = _images(3, seed=1)
     with torch.no_grad():
         out = enc(first, second)
@@ -99,8 +108,8 @@ def test_scale_dictionaries(encoded):
 
 
 def test_same_seed_same_encoder():
-    a = BinocularEncoder(generator=_gen(3))
-    b = BinocularEncoder(generator=_gen(3))
+    a = paper_encoder(generator=_gen(3))
+    b = paper_encoder(generator=_gen(3))
     assert torch.equal(a.coarse.atoms, b.coarse.atoms) and torch.equal(a.fine.atoms, b.fine.atoms)
 
 
@@ -110,7 +119,7 @@ def test_same_seed_same_encoder():
 
 @pytest.mark.parametrize("algorithm", ["mp", "omp"])
 def test_reward_errors_features_by_hand(algorithm):
-    enc = BinocularEncoder(algorithm=algorithm, generator=_gen(4), dtype=F64)
+    enc = paper_encoder(algorithm=algorithm, generator=_gen(4), dtype=F64)
     first, second = _images(3, seed=5, dtype=F64)
     with torch.no_grad():
         out = enc(first, second)
@@ -137,8 +146,8 @@ def test_reward_errors_features_by_hand(algorithm):
 
 def test_mean_pooling_divides_by_each_scales_patch_count():
     first, second = _images(2, seed=6)
-    summed = BinocularEncoder(generator=_gen(7))
-    meaned = BinocularEncoder(generator=_gen(7), pooling="mean")
+    summed = paper_encoder(generator=_gen(7))
+    meaned = paper_encoder(generator=_gen(7), pooling="mean")
     with torch.no_grad():
         fs, fm = summed(first, second).features, meaned(first, second).features
     _close(fm[:, :288], fs[:, :288] / 49, atol=1e-6)
@@ -157,7 +166,7 @@ def test_batch_equals_one_pair_at_a_time(encoded):
 
 
 def test_single_scale_encoder():
-    enc = BinocularEncoder(num_atoms=50, sparsity=4, scales=("fine",), generator=_gen(8))
+    enc = paper_encoder(num_atoms=50, sparsity=4, scales=("fine",), generator=_gen(8))
     first, second = _images(2, seed=9)
     with torch.no_grad():
         out = enc(first, second)
@@ -173,7 +182,7 @@ def test_single_scale_encoder():
 @pytest.mark.parametrize("algorithm", ["mp", "omp"])
 def test_learn_equals_backward_sgd_renormalize(algorithm):
     lr = 0.3
-    enc1 = BinocularEncoder(algorithm=algorithm, generator=_gen(10), dtype=F64, lr=0.01)
+    enc1 = paper_encoder(algorithm=algorithm, generator=_gen(10), dtype=F64, lr=0.01)
     enc2 = copy.deepcopy(enc1)
     before = [d.atoms.detach().clone() for d in enc1.dictionaries.values()]
     first, second = _images(2, seed=11, dtype=F64)
@@ -195,7 +204,7 @@ def test_learn_equals_backward_sgd_renormalize(algorithm):
 
 def test_learn_default_lr_is_the_configured_one():
     first, second = _images(1, seed=12, dtype=F64)
-    enc1 = BinocularEncoder(generator=_gen(13), dtype=F64, lr=0.2)
+    enc1 = paper_encoder(generator=_gen(13), dtype=F64, lr=0.2)
     enc2 = copy.deepcopy(enc1)
     enc1.learn_(enc1(first, second))
     enc2.learn_(enc2(first, second), lr=0.2)
@@ -234,7 +243,7 @@ def _mean_reward(enc, images, disparity):
 def test_learning_improves_reward_and_prefers_small_disparity():
     pool = _textures(8, _gen(99))  # training textures, randomly re-centred every step
     held_out = _textures(4, _gen(123))
-    enc = BinocularEncoder(lr=0.5, generator=_gen(1))
+    enc = paper_encoder(lr=0.5, generator=_gen(1))
     initial = _mean_reward(enc, held_out, 2)
     initial_gap = _mean_reward(enc, held_out, 0) - _mean_reward(enc, held_out, 20)
     g = _gen(0)
@@ -260,7 +269,7 @@ def test_learning_improves_reward_and_prefers_small_disparity():
 
 @pytest.mark.parametrize("algorithm", ["mp", "omp"])
 def test_flat_images_give_zero_features_and_reward(algorithm):
-    enc = BinocularEncoder(algorithm=algorithm, generator=_gen(14))
+    enc = paper_encoder(algorithm=algorithm, generator=_gen(14))
     flat = torch.full((2, 240, 320), 0.5)
     out = enc(flat, flat.clone())
     assert torch.equal(out.features, torch.zeros(2, 576))
@@ -286,18 +295,18 @@ def test_flat_images_give_zero_features_and_reward(algorithm):
 )
 def test_validation_names_the_field(kwargs, name):
     with pytest.raises(ValueError, match=name):
-        BinocularEncoder(**kwargs)
+        paper_encoder(**kwargs)
 
 
 def test_integer_images_raise_type_error():
-    enc = BinocularEncoder(num_atoms=20, sparsity=2, generator=_gen(15))
+    enc = paper_encoder(num_atoms=20, sparsity=2, generator=_gen(15))
     image = torch.zeros(1, 240, 320, dtype=torch.uint8)
     with pytest.raises(TypeError, match="first"):
         enc(image, image)
 
 
 def test_float64_encoder():
-    enc = BinocularEncoder(generator=_gen(16), dtype=F64)
+    enc = paper_encoder(generator=_gen(16), dtype=F64)
     assert enc.coarse.atoms.dtype == F64 and enc.fine.atoms.dtype == F64
     first, second = _images(2, seed=17, dtype=F64)
     with torch.no_grad():
@@ -311,8 +320,8 @@ def test_float64_encoder():
 
 @needs_cuda
 def test_cuda_matches_cpu():
-    cpu = BinocularEncoder(generator=_gen(18), dtype=F64)
-    gpu = BinocularEncoder(generator=_gen(18), dtype=F64, device="cuda")
+    cpu = paper_encoder(generator=_gen(18), dtype=F64)
+    gpu = paper_encoder(generator=_gen(18), dtype=F64, device="cuda")
     assert gpu.coarse.atoms.device.type == "cuda"
     first, second = _images(2, seed=19, dtype=F64)
     out_cpu = cpu(first, second)
@@ -333,7 +342,7 @@ def test_symmetric_encoders_give_the_transformed_pair_permuted_features(symmetry
 
     scales = (Scale("a", crop=20, downsample=1, patch_size=5, stride=5),
               Scale("b", crop=10, downsample=1, patch_size=5, stride=1))
-    enc = BinocularEncoder(16, 3, scales=scales, symmetry=symmetry, generator=torch.Generator().manual_seed(0),
+    enc = paper_encoder(num_atoms=16, sparsity=3, scales=scales, symmetry=symmetry, generator=torch.Generator().manual_seed(0),
                            dtype=torch.float64)
     first, second = torch.rand(2, 4, 24, 30, generator=torch.Generator().manual_seed(1), dtype=torch.float64).unbind(0)
     pair = (first.flip(-1), second.flip(-1)) if symmetry == "mirror" else (second, first)
@@ -343,6 +352,6 @@ def test_symmetric_encoders_give_the_transformed_pair_permuted_features(symmetry
     assert perm.shape == (32,) and torch.equal(perm[perm], torch.arange(32))
     torch.testing.assert_close(ft, f[:, perm])
     assert not torch.allclose(ft, f)
-    assert BinocularEncoder(16, 3, scales=scales).feature_permutation is None
+    assert paper_encoder(num_atoms=16, sparsity=3, scales=scales).feature_permutation is None
     with pytest.raises(ValueError, match="symmetry must be one of"):
-        BinocularEncoder(16, 3, scales=scales, symmetry="rotate")
+        paper_encoder(num_atoms=16, sparsity=3, scales=scales, symmetry="rotate")

@@ -48,7 +48,8 @@ def test_parallax_shrinks_with_distance_and_is_the_lineage_angle(env, d):
 def test_a_perfect_step_leaves_no_error_and_the_vergence_shrinks_with_distance(env, d, left):
     _trial(env, d, left)
     target_right = env.optimal_right_pan_deg()
-    info = env.apply_vergence(target_right - env.right_pan_deg)  # one exact vergence step
+    env.apply_vergence(target_right - env.right_pan_deg)  # one exact vergence step
+    info = env.end_iteration()
     ok = target_right.abs() < 45  # within the eye's pan limit
     assert info.vergence_error_deg[ok].abs().max() < 1e-9 if ok.any() else True
     # fixating a nearer plane needs more convergence (with the left eye straight ahead)

@@ -9,7 +9,8 @@ import pytest
 import torch
 
 from aectorch.evaluate import evaluate, run_trials, summarise
-from aectorch.framework import JointLearner, LearnerConfig
+from aectorch.coding import EncoderConfig
+from aectorch.framework import JointLearner, LearnerConfig, default_cues
 from aectorch.sim import ActiveDepthEnv, TextureBank
 
 torch.set_num_threads(1)
@@ -28,7 +29,7 @@ def test_summarise_matches_numpy():
 
 def test_evaluate_runs_every_texture_at_every_distance_frozen():
     bank = TextureBank(torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0)))
-    learner = JointLearner(LearnerConfig(num_atoms=32, depth_every_trials=12),
+    learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=32)), depth_every_trials=12),
                            generator=torch.Generator().manual_seed(0))
     env = ActiveDepthEnv(4, textures=bank, fixation_iterations=1, seed=0)
     for _ in range(6):  # three trials of four environments: the depth MLP gets trained
@@ -55,13 +56,13 @@ def test_evaluate_runs_every_texture_at_every_distance_frozen():
 def test_untrained_greedy_policy_is_far_from_zero_error():
     """A frozen random policy does not fixate: the metric can fail."""
     bank = TextureBank(torch.rand(2, 64, 64, generator=torch.Generator().manual_seed(1)))
-    learner = JointLearner(LearnerConfig(num_atoms=32), generator=torch.Generator().manual_seed(0))
+    learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=32))), generator=torch.Generator().manual_seed(0))
     result = evaluate(learner, bank, distances_m=[1.0], fixation_iterations=3, vergence_test=False)
     assert result["pursuit_mae_deg"] > 1.0  # at 1 m pursuit needs 5.7 degrees; 3 steps give <= 0.6
 
 
 def test_evaluate_rejects_bad_arguments():
-    learner = JointLearner(LearnerConfig(num_atoms=32))
+    learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=32))))
     bank = TextureBank(torch.rand(1, 64, 64))
     with pytest.raises(ValueError, match="distances_m"):
         evaluate(learner, bank, distances_m=[0.0])
@@ -71,7 +72,7 @@ def test_evaluate_rejects_bad_arguments():
 
 def test_sampled_policy_differs_from_greedy_and_leaves_the_learner_as_it_was():
     bank = TextureBank(torch.rand(2, 64, 64, generator=torch.Generator().manual_seed(2)))
-    learner = JointLearner(LearnerConfig(num_atoms=32), generator=torch.Generator().manual_seed(0))
+    learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=32))), generator=torch.Generator().manual_seed(0))
     before = copy.deepcopy(learner.state_dict())
     generator_before = learner.generator.get_state()
     kwargs = dict(distances_m=[1.0, 2.0], fixation_iterations=3, steps=3)
@@ -93,7 +94,7 @@ def test_sampled_policy_differs_from_greedy_and_leaves_the_learner_as_it_was():
 def _trained_learner():
     """A small learner after three trials of four environments (its depth MLP fitted), and its bank."""
     bank = TextureBank(torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0)))
-    learner = JointLearner(LearnerConfig(num_atoms=32, depth_every_trials=12),
+    learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=32)), depth_every_trials=12),
                            generator=torch.Generator().manual_seed(0))
     env = ActiveDepthEnv(4, textures=bank, fixation_iterations=1, seed=0)
     for _ in range(6):
@@ -123,7 +124,7 @@ def test_run_trials_gives_the_trials_evaluate_summarises():
 
 def test_run_trials_runs_the_given_conditions():
     bank = TextureBank(torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0)))
-    learner = JointLearner(LearnerConfig(num_atoms=32), generator=torch.Generator().manual_seed(0))
+    learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=32))), generator=torch.Generator().manual_seed(0))
     grid = run_trials(learner, bank, distances_m=[1.0, 2.0], batch_size=8, fixation_iterations=2)
     pick = (torch.tensor([2, 0]), torch.tensor([1.0, 2.0], dtype=torch.float64))
     some = run_trials(learner, bank, distances_m=[1.0, 2.0], batch_size=8, fixation_iterations=2, conditions=pick)
@@ -168,7 +169,7 @@ def test_evaluate_follows_the_training_protocol():
     """A learner is evaluated under the body movement and pursuit it trained with: a spread shift
     with yoked pursuit ends fixations elsewhere than an instant one with the left eye alone."""
     bank = TextureBank(torch.rand(2, 64, 64, generator=torch.Generator().manual_seed(0)))
-    learner = JointLearner(LearnerConfig(num_atoms=32), generator=torch.Generator().manual_seed(0))
+    learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=32))), generator=torch.Generator().manual_seed(0))
     kwargs = dict(distances_m=[1.0], batch_size=2, fixation_iterations=6)
     instant = run_trials(learner, bank, shift_iterations=1, yoked_pursuit=False, **kwargs)
     spread = run_trials(learner, bank, shift_iterations=6, yoked_pursuit=True, **kwargs)

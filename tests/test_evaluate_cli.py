@@ -30,7 +30,7 @@ def run(tmp_path_factory) -> tuple[Path, Path]:
     for i in range(2):
         Image.fromarray((rng.random((48, 48)) * 255).astype(np.uint8)).save(textures / f"t{i}.png")
     cfg = to_experiment_config(OmegaConf.from_dotlist([
-        "env.num_envs=5", "env.fixation_iterations=2", "env.distances_m=[1.0,2.0]", "learner.num_atoms=16",
+        "env.num_envs=5", "env.fixation_iterations=2", "env.distances_m=[1.0,2.0]", "learner.cues.parallax.encoder.num_atoms=16", "learner.cues.stereo.encoder.num_atoms=16",
         "learner.depth_every_trials=10", "train.iterations=8", "train.progress=false", "train.figures=false",
         "train.tensorboard=false", "eval.enabled=false", f"env.textures={textures}",
     ]))

@@ -7,22 +7,26 @@ import copy
 import pytest
 import torch
 
-from aectorch.framework import JointLearner, LearnerConfig
+from aectorch.coding import EncoderConfig
+from aectorch.control import PPO, ActorCriticConfig, NaturalActorCritic
+from aectorch.framework import CueConfig, JointLearner, LearnerConfig, default_cues
 from aectorch.sim import ActiveDepthEnv
 
 torch.set_num_threads(1)
 
 
-def make(num_envs=2, h=2, **config):
+def make(num_envs=2, h=2, *, encoder=None, cue=None, **learner):
+    """An environment and a learner of 32 atoms per dictionary; ``encoder`` and ``cue``: fields of
+    every cue's `EncoderConfig` and `CueConfig`, ``learner``: of `LearnerConfig`."""
     env = ActiveDepthEnv(num_envs, textures=torch.rand(4, 64, 64, generator=torch.Generator().manual_seed(1)),
                          fixation_iterations=h, seed=0)
-    config.setdefault("num_atoms", 32)
-    learner = JointLearner(LearnerConfig(**config), generator=torch.Generator().manual_seed(0))
+    cues = default_cues(encoder=EncoderConfig(**{"num_atoms": 32, **(encoder or {})}), **(cue or {}))
+    learner = JointLearner(LearnerConfig(cues=cues, **learner), generator=torch.Generator().manual_seed(0))
     return env, learner
 
 
 def test_iteration_records_both_cues_and_the_ground_truth():
-    env, learner = make(scales=("coarse", "fine"))  # the paper's two scales
+    env, learner = make(cue=dict(scales=("coarse", "fine")))  # the paper's two scales
     record = learner.iteration(env)
     for cue in (record.parallax, record.stereo):
         assert cue.reward.shape == (2,) and cue.errors.shape == (2, 2)
@@ -30,6 +34,8 @@ def test_iteration_records_both_cues_and_the_ground_truth():
         assert cue.td_error is None  # nothing to learn from on the very first step
         assert cue.actions.shape == (2,) and cue.entropy.shape == (2,)
     assert record.pursuit_error_deg.shape == (2,) and not record.fixation_end
+    assert list(record.cues) == ["parallax", "stereo"] and list(record.errors_deg) == ["pursuit", "vergence"]
+    assert record.stereo is record.cues["stereo"] and record.vergence_error_deg is record.errors_deg["vergence"]
     record = learner.iteration(env)
     assert record.parallax.td_error.shape == (2,) and record.fixation_end
 
@@ -39,16 +45,16 @@ def test_iteration_records_both_cues_and_the_ground_truth():
     (("wide", "coarse", "fine", "full"), "full", 200),   # with the full-resolution scale
 ])
 def test_every_scale_gets_a_dictionary_a_reward_term_and_features(scales, newest, dim):
-    env, learner = make() if scales is None else make(scales=scales)
+    env, learner = make() if scales is None else make(cue=dict(scales=scales))
     if scales is None:
-        assert learner.config.scales == ("wide", "coarse", "fine")
-    n = len(learner.config.scales)
+        assert learner.config.cues["stereo"].scales == ("wide", "coarse", "fine")
+    n = len(learner.config.cues["stereo"].scales)
     for _ in range(2):
         record = learner.iteration(env)
     for cue in (record.parallax, record.stereo):
         assert cue.errors.shape == (2, n) and torch.allclose(cue.reward, -cue.errors.sum(1))
         assert torch.isfinite(cue.td_error).all()
-    for encoder in (learner.parallax, learner.stereo):  # 32 atoms per scale
+    for encoder in (learner.parallax.encoder, learner.stereo.encoder):  # 32 atoms per scale
         assert encoder.num_features == 32 * n and encoder.dictionaries[newest].atoms.shape[0] == dim
 
 
@@ -124,8 +130,8 @@ def test_learning_moves_dictionaries_and_policies():
     for _ in range(3):
         learner.iteration(env)
     after = learner.state_dict()
-    for key in ("parallax.dictionaries.coarse.atoms", "stereo.dictionaries.fine.atoms",
-                "pursuit.actor_weight", "vergence.critic_weight"):
+    for key in ("cues.parallax.encoder.dictionaries.coarse.atoms", "cues.stereo.encoder.dictionaries.fine.atoms",
+                "cues.parallax.agent.actor_weight", "cues.stereo.agent.critic_weight"):
         assert not torch.equal(before[key], after[key]), key
 
 
@@ -144,22 +150,24 @@ def test_state_dict_round_trip_continues_identically():
 
 
 def test_config_rejects_bad_values():
-    with pytest.raises(ValueError, match="algorithm"):
-        LearnerConfig(algorithm="lasso")
-    with pytest.raises(ValueError, match="scales"):
-        LearnerConfig(scales=("medium",))
+    with pytest.raises(ValueError, match="encoder.algorithm"):
+        EncoderConfig(algorithm="lasso")
+    with pytest.raises(ValueError, match="cue.scales"):
+        CueConfig(scales=("medium",))
+    with pytest.raises(ValueError, match="cue.agent"):
+        CueConfig(agent="dqn")
     with pytest.raises(ValueError, match="depth_every_trials"):
         LearnerConfig(depth_every_trials=0)
+    with pytest.raises(ValueError, match=r"learner.active_cues must be a non-empty list of distinct cues from \['parallax', 'stereo'\]"):
+        LearnerConfig(active_cues=["vergence"])
 
 
 @pytest.mark.parametrize("reward", ["coding", "improvement"])
 def test_the_actor_critics_learn_from_the_configured_reward(reward):
     # With the critic at 0 and J = 0, the first TD error is (1 - xi) times the reward learned from:
     # R(s') for "coding", R(s') - R(s) for "improvement".
-    from aectorch.control import ActorCriticConfig
-
     control = ActorCriticConfig(critic_init=0.0, critic_discount=0.5)
-    env, learner = make(h=3, reward=reward, control=control)
+    env, learner = make(h=3, cue=dict(reward=reward, nac=control))
     first = learner.iteration(env)
     second = learner.iteration(env)
     for cue_first, cue_second in ((first.parallax, second.parallax), (first.stereo, second.stereo)):
@@ -168,24 +176,21 @@ def test_the_actor_critics_learn_from_the_configured_reward(reward):
 
 
 def test_unit_features_reach_the_actor_critics_normalised():
-    from aectorch.control import ActorCriticConfig
-
     control = ActorCriticConfig(normalize_features=True)
-    env, learner = make(h=3, features="unit", feature_scale=2.0, control=control, symmetry=())
+    env, learner = make(h=3, cue=dict(features="unit", feature_scale=2.0, nac=control, symmetry=None))
     with torch.no_grad():
-        pair = env.parallax_observation(scales=learner.parallax.scales)
-        pooled = learner.parallax({k: p[:, 0] for k, p in pair.items()}, {k: p[:, 1] for k, p in pair.items()}).features
+        pooled = learner.parallax.encoder(env.observe("parallax", learner.parallax.encoder.scales)).features
     learner.iteration(env)
     learner.iteration(env)  # learns from the first transition: its features join the statistics
     expected = 2.0 * pooled / pooled.norm(dim=-1, keepdim=True)
-    torch.testing.assert_close(learner.pursuit.feature_mean, expected.mean(0))
+    torch.testing.assert_close(learner.parallax.agent.feature_mean, expected.mean(0))
 
 
-def test_learner_config_rejects_unknown_reward_and_features():
-    with pytest.raises(ValueError, match="reward"):
-        LearnerConfig(reward="bonus")
-    with pytest.raises(ValueError, match="features"):
-        LearnerConfig(features="raw")
+def test_cue_config_rejects_unknown_reward_and_features():
+    with pytest.raises(ValueError, match="cue.reward"):
+        CueConfig(reward="bonus")
+    with pytest.raises(ValueError, match="cue.features"):
+        CueConfig(features="raw")
 
 
 def test_the_symmetric_cues_learn_equivariant_policies():
@@ -193,16 +198,16 @@ def test_the_symmetric_cues_learn_equivariant_policies():
     # stereo features, are the policies with every action negated, and the critics give both the
     # same value: after learning too.
     env, learner = make(num_envs=3, h=4)
-    assert learner.config.symmetry == ("parallax", "stereo")
+    assert [c.symmetry for c in learner.config.cues.values()] == ["mirror", "swap"]
     for _ in range(6):
         learner.iteration(env)
-    actions = learner.pursuit.actions_deg
+    actions = learner.parallax.agent.actions_deg
     negate = (actions[None, :] == -actions[:, None]).int().argmax(-1)
     assert torch.equal(actions[negate], -actions)
     with torch.no_grad():
-        for encoder, agent, pair in ((learner.parallax, learner.pursuit, env.parallax_observation()),
-                                     (learner.stereo, learner.vergence, env.stereo_observation())):
-            f = encoder(*pair.unbind(1)).features * learner.config.feature_scale
+        for name, cue in learner.cues.items():
+            encoder, agent = cue.encoder, cue.agent
+            f = encoder(env.observe(name)).features * cue.config.feature_scale
             fm = f[:, encoder.feature_permutation]
             assert not torch.allclose(fm, f, rtol=1e-2)  # the transformed features do differ
             probs = agent(f)
@@ -212,13 +217,13 @@ def test_the_symmetric_cues_learn_equivariant_policies():
 
 
 def test_symmetry_config_is_validated():
-    with pytest.raises(ValueError, match="symmetry"):
-        LearnerConfig(symmetry=("motion",))
+    with pytest.raises(ValueError, match="cue.symmetry"):
+        CueConfig(symmetry="motion")
     with pytest.raises(ValueError, match="actions_deg must be symmetric"):
-        LearnerConfig(actions_deg=(-1.0, 0.0, 0.5))
-    LearnerConfig(actions_deg=(-1.0, 0.0, 0.5), symmetry=())
+        CueConfig(actions_deg=(-1.0, 0.0, 0.5), symmetry="swap")
+    CueConfig(actions_deg=(-1.0, 0.0, 0.5))
     with pytest.raises(ValueError, match="num_atoms must be even"):
-        LearnerConfig(num_atoms=33)
+        CueConfig(encoder=EncoderConfig(num_atoms=33), symmetry="mirror")
 
 
 @pytest.mark.parametrize("num_envs", [1, 4])
@@ -228,14 +233,13 @@ def test_small_batches_train_with_the_default_steps(num_envs):
     defaults until 2026-12-02 (z-scored features of any norm, every update's full step on the mean
     of its B transitions) B = 1's first z-scores, from a handful of samples, are huge and its
     critic diverges within a few dozen iterations."""
-    from aectorch.framework import default_control
     from aectorch.runtime.watchdog import WatchdogConfig
 
     limit = WatchdogConfig().td_error_max
 
     def run(control):
         env = ActiveDepthEnv(num_envs, seed=0, shift_iterations=20, yoked_pursuit=True)
-        learner = JointLearner(LearnerConfig(control=control), generator=torch.Generator().manual_seed(0))
+        learner = JointLearner(LearnerConfig(cues=default_cues(nac=control)), generator=torch.Generator().manual_seed(0))
         worst, entropy = 0.0, []
         for _ in range(60):
             record = learner.iteration(env)
@@ -245,7 +249,7 @@ def test_small_batches_train_with_the_default_steps(num_envs):
                 entropy.append(float(cue.entropy.mean()))
         return worst, min(entropy)
 
-    control = default_control()
+    control = ActorCriticConfig()
     assert control.batch_reference is not None
     worst, entropy = run(control)
     assert worst < limit / 10 and entropy > 1.0, (worst, entropy)
@@ -263,47 +267,84 @@ def test_centred_patches_make_the_parallax_features_exactly_mirror_equivariant()
     first, second = torch.nn.functional.avg_pool2d(torch.rand(2, 3, 132, 132, generator=gen), 5, 1).unbind(0)
     gaps = {}
     for centred in (False, True):
-        learner = JointLearner(LearnerConfig(centred_patches=centred), generator=torch.Generator().manual_seed(0))
-        encoder = learner.parallax
+        cues = default_cues(encoder=EncoderConfig(centred=centred))
+        encoder = JointLearner(LearnerConfig(cues=cues), generator=torch.Generator().manual_seed(0)).parallax.encoder
         with torch.no_grad():
             f = encoder(first, second).features
             mirrored = encoder(first.flip(-1), second.flip(-1)).features
         gaps[centred] = float(((mirrored - f[:, encoder.feature_permutation]).norm(dim=1) / f.norm(dim=1)).max())
     assert gaps[True] < 1e-4 and gaps[False] > 0.1, gaps
-    with pytest.raises(ValueError, match="centred_patches"):
-        LearnerConfig(centred_patches="yes")
+    with pytest.raises(ValueError, match="encoder.centred"):
+        EncoderConfig(centred="yes")
 
 
 def test_dictionary_rate_decays_and_resumes():
-    env, learner = make(dictionary_decay=2.0, dictionary_decay_power=2.0)
-    assert learner.dictionary_rate(0) == pytest.approx(0.1) and learner.dictionary_rate(2) == pytest.approx(0.025)
-    before = learner.parallax.dictionaries["fine"].atoms.clone()
+    env, learner = make(encoder=dict(decay=2.0, decay_power=2.0))
+    config = learner.parallax.encoder.config
+    assert config.rate(0) == pytest.approx(0.1) and config.rate(2) == pytest.approx(0.025)
+    before = learner.parallax.encoder.dictionaries["fine"].atoms.clone()
     learner.iteration(env)
-    assert learner.dictionary_steps == {"m": 1, "s": 1}
-    assert not torch.equal(before, learner.parallax.dictionaries["fine"].atoms)
-    twin = make(dictionary_decay=2.0, dictionary_decay_power=2.0)[1]
+    assert learner.dictionary_steps == {"parallax": 1, "stereo": 1}
+    assert learner.parallax.encoder.rate() == pytest.approx(0.1 * (2 / 3) ** 2)
+    assert not torch.equal(before, learner.parallax.encoder.dictionaries["fine"].atoms)
+    twin = make(encoder=dict(decay=2.0, decay_power=2.0))[1]
     twin.load_state_dict(learner.state_dict())
-    assert twin.dictionary_steps == {"m": 1, "s": 1}
-    with pytest.raises(ValueError, match="dictionary_decay"):
-        LearnerConfig(dictionary_decay=0)
+    assert twin.dictionary_steps == {"parallax": 1, "stereo": 1}
+    with pytest.raises(ValueError, match="encoder.decay"):
+        EncoderConfig(decay=0)
 
 
-def test_one_process_shard_checkpoint_names_and_buffer_dtype():
-    """Issue 22: a Shard of world size > 1 must come from the process group; the learner's state
-    keeps the checkpoint's names also in load_state_dict's report; loaded depth buffers keep the
-    learner's dtype."""
+def test_one_process_shard_state_names_and_buffer_dtype():
+    """A Shard of world size > 1 must come from the process group; the learner's state is named by
+    its modules (the cues as data); loaded depth buffers keep the learner's dtype."""
     from aectorch.framework import Shard
 
     with pytest.raises(ValueError, match="ProcessGroupShard"):
         Shard(rank=0, world_size=2, start=0, stop=2, total=4)
-    learner = JointLearner(LearnerConfig(num_atoms=16), generator=torch.Generator().manual_seed(0))
-    assert {"parallax.dictionaries.fine.atoms", "pursuit.actor_weight", "depth_inputs"} <= set(learner.state_dict())
-    assert learner.state_name("stereo_cue.encoder.dictionaries.fine.atoms") == "stereo.dictionaries.fine.atoms"
+    _, learner = make(encoder=dict(num_atoms=16))
+    assert {"cues.parallax.encoder.dictionaries.fine.atoms", "cues.parallax.agent.actor_weight",
+            "depth_learner.inputs", "cues.stereo._extra_state"} <= set(learner.state_dict())
     state = learner.state_dict()
-    del state["depth_inputs"]
-    assert learner.load_state_dict(state, strict=False).missing_keys == ["depth_inputs"]
-    wide = JointLearner(LearnerConfig(num_atoms=16), generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    del state["depth_learner.inputs"]
+    assert learner.load_state_dict(state, strict=False).missing_keys == ["depth_learner.inputs"]
+    wide = JointLearner(learner.config, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
     state = learner.state_dict()
-    state["depth_inputs"], state["depth_targets"] = torch.ones(3, 4), torch.ones(3)
+    state["depth_learner.inputs"], state["depth_learner.targets"] = torch.ones(3, 4), torch.ones(3)
     wide.load_state_dict(state)
     assert wide.depth_inputs.dtype == torch.float64 and wide.depth_inputs.shape == (3, 4)
+
+
+# -- cues and agents as data --------------------------------------------------------------------------
+@pytest.mark.parametrize("active, held", [(["stereo"], "pursuit"), (["parallax"], "vergence")])
+def test_a_learner_of_one_cue_has_the_environment_hold_the_other_at_its_optimum(active, held):
+    env, learner = make(h=3, active_cues=active)
+    assert list(learner.cues) == active
+    records = [learner.iteration(env) for _ in range(4)]
+    for record in records:
+        assert list(record.cues) == active
+        assert float(record.errors_deg[held].abs().max()) < 1e-4  # held, while the learned one moves
+    assert float(records[-1].errors_deg[{"pursuit": "vergence", "vergence": "pursuit"}[held]].abs().max()) > 1e-3
+    assert not any(key.startswith(f"cues.{'parallax' if active == ['stereo'] else 'stereo'}")
+                   for key in learner.state_dict())
+
+
+def test_each_cue_builds_the_agent_its_config_names():
+    env, learner = make(h=3)
+    assert all(isinstance(c.agent, NaturalActorCritic) for c in learner.cues.values())
+    cues = default_cues(encoder=EncoderConfig(num_atoms=16))
+    cues["stereo"] = CueConfig(agent="ppo", symmetry="swap", encoder=EncoderConfig(num_atoms=16))
+    learner = JointLearner(LearnerConfig(cues=cues), generator=torch.Generator().manual_seed(0))
+    assert isinstance(learner.stereo.agent, PPO) and isinstance(learner.parallax.agent, NaturalActorCritic)
+    before = copy.deepcopy(learner.stereo.agent.state_dict())
+    updated = [learner.iteration(env).stereo.td_error for _ in range(3)]
+    assert updated[0] is None and updated[1].shape == (2,)
+    after = learner.stereo.agent.state_dict()  # PPO learned at the fixation's end (iteration 3)
+    assert not torch.equal(before["policy.weight"], after["policy.weight"])
+
+
+def test_a_learner_with_a_cue_the_environment_lacks_says_so():
+    cues = {**default_cues(encoder=EncoderConfig(num_atoms=16)), "accommodation": CueConfig(encoder=EncoderConfig(num_atoms=16))}
+    learner = JointLearner(LearnerConfig(cues=cues), generator=torch.Generator().manual_seed(0))
+    env, _ = make()
+    with pytest.raises(ValueError, match=r"the environment has no cue \['accommodation'\]"):
+        learner.iteration(env)

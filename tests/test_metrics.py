@@ -12,6 +12,7 @@ from aectorch.framework import CueRecord, IterationRecord
 from aectorch.runtime.metrics import TrainingMetrics
 
 B, SCALES, ATOMS, H = 3, ("coarse", "fine"), 8, 2
+CUES = {"parallax": SCALES, "stereo": SCALES}
 
 
 def _records(n: int, seed: int = 0) -> list[IterationRecord]:
@@ -39,8 +40,9 @@ def _records(n: int, seed: int = 0) -> list[IterationRecord]:
             if i < 6:  # before the first depth fit: NaN
                 prediction = torch.full((B,), math.nan)
             q = torch.zeros(B, 4)
-        out.append(IterationRecord(cue(), cue(), torch.randn(B, generator=g), torch.randn(B, generator=g),
-                                   fixation_end, trial_end, q, distance, prediction, False))
+        cues = {"parallax": cue(), "stereo": cue()}
+        errors = {"pursuit": torch.randn(B, generator=g), "vergence": torch.randn(B, generator=g)}
+        out.append(IterationRecord(cues, errors, fixation_end, trial_end, q, distance, prediction, False))
     return out
 
 
@@ -78,7 +80,7 @@ def _assert_close(a: dict, b: dict) -> None:
 
 def test_summary_matches_brute_force_with_windows_and_intervals():
     records = _records(40)
-    metrics = TrainingMetrics(B, window_fixations=7, window_trials=4, scales=SCALES)
+    metrics = TrainingMetrics(B, window_fixations=7, window_trials=4, cues=CUES)
     since = 0
     for i, r in enumerate(records, 1):
         metrics.update(r)
@@ -89,7 +91,7 @@ def test_summary_matches_brute_force_with_windows_and_intervals():
 
 def test_depth_is_nan_until_a_prediction_and_interval_resets():
     records = _records(6)
-    metrics = TrainingMetrics(B, scales=SCALES)
+    metrics = TrainingMetrics(B, cues=CUES)
     for r in records:
         metrics.update(r)
     first = metrics.summary()
@@ -100,7 +102,7 @@ def test_depth_is_nan_until_a_prediction_and_interval_resets():
 
 
 def test_atom_usage_extremes():
-    metrics = TrainingMetrics(1, scales=("fine",))
+    metrics = TrainingMetrics(1, cues={"parallax": ("fine",), "stereo": ("fine",)})
     record = _records(1)[0]
     one = torch.zeros(1, ATOMS, dtype=torch.long)
     one[0, 3] = 5
@@ -108,22 +110,22 @@ def test_atom_usage_extremes():
     for counts, expected in ((one, 1 / ATOMS), (uniform, 1.0)):
         cue = record.parallax._replace(errors=torch.rand(1, 1), reward=torch.zeros(1), entropy=torch.zeros(1),
                                         td_error=None, atom_counts=counts)
-        metrics.update(record._replace(parallax=cue, stereo=cue, pursuit_error_deg=torch.zeros(1),
-                                       vergence_error_deg=torch.zeros(1), trial_end=False))
+        metrics.update(record._replace(cues={"parallax": cue, "stereo": cue}, trial_end=False,
+                                       errors_deg={"pursuit": torch.zeros(1), "vergence": torch.zeros(1)}))
         assert metrics.summary()["parallax/fine/atom_usage"] == pytest.approx(expected)
 
 
 def test_state_dict_resumes_exactly():
     records = _records(30, seed=1)
-    straight = TrainingMetrics(B, window_fixations=5, scales=SCALES)
+    straight = TrainingMetrics(B, window_fixations=5, cues=CUES)
     for r in records:
         straight.update(r)
-    first = TrainingMetrics(B, window_fixations=5, scales=SCALES)
+    first = TrainingMetrics(B, window_fixations=5, cues=CUES)
     for r in records[:13]:
         first.update(r)
     state = first.state_dict()
     first.update(records[13])  # the state is a copy, not a view
-    resumed = TrainingMetrics(B, window_fixations=5, scales=SCALES)
+    resumed = TrainingMetrics(B, window_fixations=5, cues=CUES)
     resumed.load_state_dict(state)
     for r in records[13:]:
         resumed.update(r)
@@ -131,14 +133,27 @@ def test_state_dict_resumes_exactly():
     assert a.keys() == b.keys()
     assert all(a[k] == b[k] or (math.isnan(a[k]) and math.isnan(b[k])) for k in a)
     with pytest.raises(ValueError, match="window_fixations"):
-        TrainingMetrics(B, window_fixations=6, scales=SCALES).load_state_dict(state)
+        TrainingMetrics(B, window_fixations=6, cues=CUES).load_state_dict(state)
 
 
 def test_rejects_bad_arguments_and_records():
     with pytest.raises(ValueError, match="num_envs"):
         TrainingMetrics(0)
     with pytest.raises(ValueError, match="environments"):
-        TrainingMetrics(B + 1, scales=SCALES).update(_records(1)[0])
+        TrainingMetrics(B + 1, cues=CUES).update(_records(1)[0])
+    with pytest.raises(ValueError, match="the metrics expect \\['parallax'\\]"):
+        TrainingMetrics(B, cues={"parallax": SCALES}).update(_records(1)[0])
+    with pytest.raises(ValueError, match="movements"):
+        TrainingMetrics(B, cues=CUES, movements=["vergence"]).update(_records(1)[0])
+
+
+def test_a_vergence_only_record_keeps_both_movements_and_one_cue():
+    records = _records(8)
+    metrics = TrainingMetrics(B, window_fixations=100, cues={"stereo": SCALES})
+    for r in records:
+        metrics.update(r._replace(cues={"stereo": r.stereo}))
+    summary = metrics.summary()
+    assert "pursuit_mae_deg" in summary and "stereo/reward" in summary and "parallax/reward" not in summary
 
 
 def test_docstring_example_runs():

@@ -492,10 +492,15 @@ def test_encoder_reads_images_at_each_scales_resolution():
     crops = {}
     for which, images in (("first", first), ("second", second)):
         crops[which] = {s.name: pyramid_down(images[:, 56:184, 96:224][:, (128 - s.crop) // 2:(128 + s.crop) // 2,
-                                                                        (128 - s.crop) // 2:(128 + s.crop) // 2], s.levels)
+                                                                        (128 - s.crop) // 2:(128 + s.crop) // 2], s.levels,
+                                             centred=s.centred)
                         for s in encoder.scales}
     with torch.no_grad():
         whole = encoder(first, second)
         reduced = encoder(crops["first"], crops["second"])
+        pairs = encoder.encode({k: torch.stack((crops["first"][k], crops["second"][k]), 1) for k in crops["first"]})
+        window = encoder.encode({"window": torch.stack((first, second), 1)})
+    torch.testing.assert_close(pairs.features, reduced.features, rtol=0, atol=0)
+    torch.testing.assert_close(window.features, whole.features, rtol=0, atol=0)
     torch.testing.assert_close(reduced.features, whole.features)
     torch.testing.assert_close(reduced.reward, whole.reward)

@@ -7,7 +7,8 @@ import time
 import pytest
 import torch
 
-from aectorch.framework import JointLearner, LearnerConfig
+from aectorch.coding import EncoderConfig
+from aectorch.framework import JointLearner, LearnerConfig, default_cues
 from aectorch.profiling import StageTimer, stage
 from aectorch.sim import ActiveDepthEnv
 
@@ -40,7 +41,7 @@ def test_stages_cost_nothing_without_a_timer_and_timers_nest():
 
 def test_learner_iterations_cover_every_stage_including_depth():
     env = ActiveDepthEnv(4, textures=torch.rand(3, 64, 64), fixation_iterations=1, seed=0)
-    learner = JointLearner(LearnerConfig(num_atoms=32, depth_every_trials=8),
+    learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=32)), depth_every_trials=8),
                            generator=torch.Generator().manual_seed(0))
     with StageTimer() as timer:
         for _ in range(6):  # 3 trials of 4 environments: the depth MLP is fitted once

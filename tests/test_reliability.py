@@ -13,7 +13,8 @@ import pytest
 import torch
 
 from aectorch.runtime import load_checkpoint, run_experiment, save_checkpoint
-from aectorch.framework import JointLearner, LearnerConfig
+from aectorch.coding import EncoderConfig
+from aectorch.framework import JointLearner, LearnerConfig, default_cues
 from aectorch.sim import ActiveDepthEnv, TextureBank
 from aectorch.runtime.watchdog import Watchdog, WatchdogConfig, WatchdogError
 
@@ -126,11 +127,11 @@ def test_watchdog_stops_on_nan_and_keeps_the_last_healthy_checkpoint(tmp_path, t
     def poison(done, record):  # what a diverging update does: one atom goes NaN
         if done == 5:
             with torch.no_grad():
-                learners[0].stereo.dictionaries["fine"].atoms[3, 7] = float("nan")
+                learners[0].stereo.encoder.dictionaries["fine"].atoms[3, 7] = float("nan")
 
     monkeypatch.setattr(JointLearner, "__init__", capture)
     run = tmp_path / "run"
-    with pytest.raises(WatchdogError, match=r"non-finite values \(NaN or inf\) in learner\.stereo\.dictionaries\.fine\.atoms at iteration 5"):
+    with pytest.raises(WatchdogError, match=r"non-finite values \(NaN or inf\) in learner\.cues\.stereo\.encoder\.dictionaries\.fine\.atoms at iteration 5"):
         run_experiment(_cfg(textures), run, callback=poison)
     checkpoint = load_checkpoint(run / "checkpoint.pt")
     assert checkpoint["iteration"] == 4
@@ -141,19 +142,24 @@ def test_watchdog_stops_on_nan_and_keeps_the_last_healthy_checkpoint(tmp_path, t
 def _record_and_learner():
     env = ActiveDepthEnv(2, textures=TextureBank.procedural(4, size=(64, 64), seed=0), seed=0,
                          fixation_iterations=3)
-    learner = JointLearner(LearnerConfig(num_atoms=16), generator=torch.Generator().manual_seed(0))
+    learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=16))), generator=torch.Generator().manual_seed(0))
     learner.iteration(env)
     return learner.iteration(env), learner  # the second has TD errors
+
+
+def _with(record, cue: str, **fields):
+    """``record`` with fields of one cue's record replaced."""
+    return record._replace(cues={**record.cues, cue: record.cues[cue]._replace(**fields)})
 
 
 def test_watchdog_detects_divergence_and_collapse():
     record, learner = _record_and_learner()
     healthy = Watchdog(WatchdogConfig())
     assert healthy.check(1, record, learner) == []
-    exploding = record._replace(parallax=record.parallax._replace(td_error=torch.full((2,), 1e4)))
+    exploding = _with(record, "parallax", td_error=torch.full((2,), 1e4))
     with pytest.raises(WatchdogError, match="parallax mean |TD error| 1e\\+04 > watchdog.td_error_max"):
         Watchdog(WatchdogConfig()).check(2, exploding, learner)
-    collapsed = record._replace(stereo=record.stereo._replace(entropy=torch.zeros(2)))
+    collapsed = _with(record, "stereo", entropy=torch.zeros(2))
     dog = Watchdog(WatchdogConfig(entropy_window=3))
     assert dog.check(1, collapsed, learner) == [] and dog.check(2, collapsed, learner) == []
     with pytest.raises(WatchdogError, match=r"stereo policy entropy 0 nats \(mean of iterations 1-3\)"):
@@ -168,18 +174,18 @@ def test_watchdog_detects_divergence_and_collapse():
     dog = Watchdog(WatchdogConfig(dead_atoms_window=3))
     counts = torch.zeros_like(record.parallax.atom_counts)
     counts[:, :4] = 10  # 12 of 16 atoms never chosen
-    dying = record._replace(parallax=record.parallax._replace(atom_counts=counts))
+    dying = _with(record, "parallax", atom_counts=counts)
     assert dog.check(1, dying, learner) == [] and dog.check(2, dying, learner) == []
     with pytest.raises(WatchdogError, match=r"parallax dictionary \(scale 0\): 75% of the atoms never chosen"):
         dog.check(3, dying, learner)
-    nan_reward = record._replace(stereo=record.stereo._replace(reward=torch.tensor([0.0, float("nan")])))
+    nan_reward = _with(record, "stereo", reward=torch.tensor([0.0, float("nan")]))
     with pytest.raises(WatchdogError, match="non-finite values .* in stereo reward at iteration 7"):
         Watchdog(WatchdogConfig()).check(7, nan_reward, learner)
 
 
 def test_watchdog_warn_mode_warns_once_per_kind_and_off_mode_is_silent():
     record, learner = _record_and_learner()
-    exploding = record._replace(parallax=record.parallax._replace(td_error=torch.full((2,), 1e4)))
+    exploding = _with(record, "parallax", td_error=torch.full((2,), 1e4))
     dog = Watchdog(WatchdogConfig(mode="warn"))
     with pytest.warns(RuntimeWarning, match="TD error"):
         assert len(dog.check(1, exploding, learner)) == 1

@@ -88,7 +88,7 @@ def _tiny_dotlist(tmp_path: Path) -> list[str]:
     for i in range(3):
         Image.fromarray((rng.random((64, 64)) * 255).astype(np.uint8)).save(folder / f"t{i}.png")
     return ["env.num_envs=5", "env.fixation_iterations=2", "env.distances_m=[1.0,1.5,2.0,2.5,3.0]",
-            "learner.num_atoms=16", "learner.depth_every_trials=10", "eval.distances_m=[1.0]",
+            "learner.cues.parallax.encoder.num_atoms=16", "learner.cues.stereo.encoder.num_atoms=16", "learner.depth_every_trials=10", "eval.distances_m=[1.0]",
             "eval.batch_size=8", "train.iterations=12", "train.log_every=2", "train.progress=false",
             "train.figures=false", "train.tensorboard=false", "train.metrics_window=10",
             f"env.textures={folder}", f"eval.textures={folder}"]

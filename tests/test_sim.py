@@ -316,11 +316,18 @@ def small_env(bank, **kwargs):
     return ActiveDepthEnv(3, textures=bank, **kwargs)
 
 
+def vergence_step(env, delta):
+    """Step 4 of an iteration and its end (ActiveDepthEnv.end_iteration)."""
+    env.apply_vergence(delta)
+    return env.end_iteration()
+
+
 def run_iteration(env, pursuit, vergence):
-    parallax = env.parallax_observation()
+    parallax = env.parallax_observation()["window"]
     env.apply_pursuit(pursuit)
-    stereo = env.stereo_observation()
-    return parallax, stereo, env.apply_vergence(vergence)
+    stereo = env.stereo_observation()["window"]
+    env.apply_vergence(vergence)
+    return parallax, stereo, env.end_iteration()
 
 
 def test_env_protocol_fixations_trials_and_q(bank):
@@ -359,13 +366,13 @@ def test_env_optimal_pans_make_the_images_most_alike(bank, fixation):
     env.set_trial(torch.tensor([0, 1, 2]), torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
     if fixation == 1:
         run_iteration(env, torch.zeros(3), torch.zeros(3))
-    first = env.parallax_observation()[:, 0]
+    first = env.parallax_observation()["window"][:, 0]
     offsets = torch.linspace(-0.5, 0.5, 41, dtype=torch.float64)
     left = env.optimal_left_pan_deg()
     mismatch = []
     for offset in offsets:
         env.set_pan_deg(torch.stack((left + offset, left), -1))
-        second = env.parallax_observation()[:, 1]
+        second = env.parallax_observation()["window"][:, 1]
         mismatch.append(((first - second)[:, 24:104, 24:104] ** 2).mean((1, 2)))
     best = offsets[torch.stack(mismatch).argmin(0)]
     assert best.abs().max() <= 0.06, f"pursuit mismatch is least at {best.tolist()} deg off"
@@ -374,7 +381,7 @@ def test_env_optimal_pans_make_the_images_most_alike(bank, fixation):
     mismatch = []
     for offset in offsets:
         env.set_pan_deg(torch.stack((left, right + offset), -1))
-        pair = env.stereo_observation()
+        pair = env.stereo_observation()["window"]
         mismatch.append(((pair[:, 0] - pair[:, 1])[:, 24:104, 24:104] ** 2).mean((1, 2)))
     best = offsets[torch.stack(mismatch).argmin(0)]
     assert best.abs().max() <= 0.06, f"vergence mismatch is least at {best.tolist()} deg off"
@@ -383,11 +390,11 @@ def test_env_optimal_pans_make_the_images_most_alike(bank, fixation):
 def test_env_perfect_controller_reaches_zero_error(bank):
     env = small_env(bank, fixation_iterations=40, dtype=torch.float64)
     for _ in range(40):
-        env.parallax_observation()
+        env.parallax_observation()["window"]
         step = (env.optimal_left_pan_deg() - env.left_pan_deg).clamp(-0.2, 0.2)
         env.apply_pursuit(step)
-        env.stereo_observation()
-        info = env.apply_vergence((env.optimal_right_pan_deg() - env.right_pan_deg).clamp(-0.2, 0.2))
+        env.stereo_observation()["window"]
+        info = vergence_step(env, (env.optimal_right_pan_deg() - env.right_pan_deg).clamp(-0.2, 0.2))
     assert info.fixation_end
     assert info.pursuit_error_deg.abs().max() < 1e-9 and info.vergence_error_deg.abs().max() < 1e-9
 
@@ -397,10 +404,10 @@ def _perfect_fixation(env, max_step_deg):
     ``max_step_deg`` per step; the pursuit and vergence errors after every iteration."""
     errors = []
     for _ in range(env.fixation_iterations):
-        env.parallax_observation()
+        env.parallax_observation()["window"]
         env.apply_pursuit((env.optimal_left_pan_deg() - env.left_pan_deg).clamp(-max_step_deg, max_step_deg))
-        env.stereo_observation()
-        info = env.apply_vergence(
+        env.stereo_observation()["window"]
+        info = vergence_step(env, 
             (env.optimal_right_pan_deg() - env.right_pan_deg).clamp(-max_step_deg, max_step_deg))
         errors.append((info.pursuit_error_deg.abs().max().item(), info.vergence_error_deg.abs().max().item()))
     return errors, info
@@ -422,10 +429,10 @@ def test_env_spread_shift_moves_the_body_linearly_then_holds(bank):
     torch.testing.assert_close(shifts[30:], -expected)
     # the first image of the parallax pair stays the fixation's start (straight ahead, no shift)
     env.set_trial(torch.tensor([0, 1, 2]), torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64))
-    first = env.parallax_observation()[:, 0]
+    first = env.parallax_observation()["window"][:, 0]
     run_iteration(env, torch.zeros(3), torch.zeros(3))
-    torch.testing.assert_close(env.parallax_observation()[:, 0], first, rtol=0, atol=0)
-    zero = env._render(torch.zeros(3, dtype=torch.float64), torch.zeros(3, 2, dtype=torch.float64), slice(0, 1))[:, 0]
+    torch.testing.assert_close(env.parallax_observation()["window"][:, 0], first, rtol=0, atol=0)
+    zero = env._render(torch.zeros(3, dtype=torch.float64), torch.zeros(3, 2, dtype=torch.float64), slice(0, 1))["window"][:, 0]
     torch.testing.assert_close(first, zero, rtol=0, atol=0)
 
 
@@ -479,9 +486,9 @@ def test_env_start_states_and_limits(bank):
 
 def test_env_roll_changes_what_the_eye_sees(bank):
     env = small_env(bank)
-    before = env.stereo_observation()
+    before = env.stereo_observation()["window"]
     env.set_roll(torch.tensor([0.0, 5.0]))
-    after = env.stereo_observation()
+    after = env.stereo_observation()["window"]
     torch.testing.assert_close(after[:, 0], before[:, 0])
     assert (after[:, 1] - before[:, 1]).abs().mean() > 0.01
 
@@ -490,7 +497,7 @@ def test_env_is_seeded(bank):
     a, b, c = small_env(bank, seed=3), small_env(bank, seed=3), small_env(bank, seed=4)
     assert torch.equal(a.texture_index, b.texture_index) and torch.equal(a.distance_m, b.distance_m)
     assert not (torch.equal(a.texture_index, c.texture_index) and torch.equal(a.distance_m, c.distance_m))
-    torch.testing.assert_close(a.stereo_observation(), b.stereo_observation())
+    torch.testing.assert_close(a.stereo_observation()["window"], b.stereo_observation()["window"])
 
 
 def test_env_torch_and_pyrender_observations_match(bank):
@@ -595,7 +602,7 @@ def test_env_ideal_q_is_what_a_perfect_trial_ends_with(bank):
     torch.testing.assert_close(env.ideal_q_deg(torch.tensor([1.0, 1.7, 3.0])), ideal)
     for _ in range(80):
         env.apply_pursuit((env.optimal_left_pan_deg() - env.left_pan_deg).clamp(-0.5, 0.5))
-        info = env.apply_vergence((env.optimal_right_pan_deg() - env.right_pan_deg).clamp(-0.5, 0.5))
+        info = vergence_step(env, (env.optimal_right_pan_deg() - env.right_pan_deg).clamp(-0.5, 0.5))
     assert info.trial_end
     torch.testing.assert_close(info.q_deg, ideal, atol=1e-9, rtol=0)
     # vergence falls and the pursuit pans shrink with distance; the two fixations mirror
@@ -752,6 +759,7 @@ def test_scale_observations_reuse_the_stereo_frame_exactly(bank):
             torch.testing.assert_close(s1[name], s2[name], rtol=0, atol=0)
         for e in (env, fresh):
             e.apply_vergence(torch.tensor([0.05, 0.0]))
+            e.end_iteration()
     assert reused >= 2  # the held shift with no pursuit reuses frames
 
 
@@ -767,7 +775,7 @@ def test_scale_observations_have_the_pyramids_smoothness(head):
     env.set_trial(torch.arange(6), torch.tensor([1.0, 1.4, 1.8, 2.2, 2.6, 3.0]))
     env.apply_pursuit(torch.linspace(-2, 2, 6))
     ours = env.stereo_observation(scales=scales)
-    crops = env.stereo_observation()
+    crops = env.stereo_observation()["window"]
     for s in scales:
         top = (128 - s.crop) // 2
         old = pyramid_down(crops[..., top:top + s.crop, top:top + s.crop].flatten(0, 1), s.levels, centred=True)
@@ -790,7 +798,7 @@ def test_both_renderers_satisfy_the_renderer_protocol_and_close_closes_both(bank
     scales = [as_scale("coarse"), as_scale("fine")]
     for name in ("torch", "pyrender"):
         with small_env(bank, renderer=name) as env:
-            env.stereo_observation()
+            env.stereo_observation()["window"]
             env.stereo_observation(scales=scales)  # builds the scale renderer
             assert isinstance(env.renderer, Renderer) and isinstance(env._scale_renderer, Renderer)
             renderers = (env.renderer, env._scale_renderer)

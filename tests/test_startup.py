@@ -115,7 +115,7 @@ def test_pyrender_trains_without_pyopengl_platform_in_the_environment(tmp_path, 
     # and a script's own `import aectorch` chooses the platform before pyrender needs it
     code = ("import os, aectorch; from aectorch.sim import ActiveDepthEnv; "
             "env = ActiveDepthEnv(1, textures=__import__('torch').rand(2, 16, 16), renderer='pyrender'); "
-            "print(os.environ['PYOPENGL_PLATFORM'], tuple(env.stereo_observation().shape))")
+            "print(os.environ['PYOPENGL_PLATFORM'], tuple(env.stereo_observation()['window'].shape))")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and out.stdout.split()[0] == "osmesa", out.stderr[-2000:]
     # the user's own value is respected: a platform pyrender cannot use here ends in one line

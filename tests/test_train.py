@@ -14,13 +14,14 @@ import torch
 from omegaconf import OmegaConf
 
 from aectorch.runtime.config import ExperimentConfig, PAPER_PRESET, to_experiment_config, validate_resources
-from aectorch.runtime import load_checkpoint, load_learner, run_experiment, save_checkpoint
+from aectorch.runtime import CHECKPOINT_FORMAT, load_checkpoint, load_learner, run_experiment, save_checkpoint
 from aectorch.sim import ActiveDepthEnv
+from aectorch.control import PAPER_ACTIONS_DEG
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = [
     "env.num_envs=5", "env.fixation_iterations=2", "env.distances_m=[1.0,2.0]",
-    "learner.num_atoms=16", "learner.depth_every_trials=10", "eval.distances_m=[1.0]",
+    "learner.cues.parallax.encoder.num_atoms=16", "learner.cues.stereo.encoder.num_atoms=16", "learner.depth_every_trials=10", "eval.distances_m=[1.0]",
     "eval.batch_size=8", "train.iterations=12", "train.log_every=2", "train.checkpoint_every=4",
     "train.progress=false",
 ]
@@ -58,23 +59,20 @@ def _without_time(lines: list[dict]) -> list[dict]:
     return [{k: v for k, v in line.items() if k != "elapsed_s"} for line in lines]
 
 
-def _assert_same_state(a: dict, b: dict) -> None:
-    assert a.keys() == b.keys()
-    for key in a:
-        x, y = a[key], b[key]
-        if isinstance(x, torch.Tensor):
-            assert torch.equal(x, y), key
-        elif key.endswith("_extra_state"):
-            assert torch.equal(x["generator"], y["generator"]), key
-            assert {k: v for k, v in x.items() if k not in ("generator", "previous")} == \
-                   {k: v for k, v in y.items() if k not in ("generator", "previous")}, key
-            for cue in ("m", "s"):
-                p, q = x["previous"][cue], y["previous"][cue]
-                assert (p is None) == (q is None), key
-                if p is not None:
-                    assert all(torch.equal(u, v) for u, v in zip(p, q)), key
-        else:
-            assert x == y, key
+def _assert_same_state(a, b, where: str = "state") -> None:
+    """Equal nested states: tensors exactly, dicts key by key, sequences item by item, else ==."""
+    if isinstance(a, torch.Tensor):
+        assert isinstance(b, torch.Tensor) and a.shape == b.shape and torch.equal(a, b), where
+    elif isinstance(a, dict):
+        assert isinstance(b, dict) and a.keys() == b.keys(), where
+        for key in a:
+            _assert_same_state(a[key], b[key], f"{where}/{key}")
+    elif isinstance(a, (list, tuple)):
+        assert type(a) is type(b) and len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            _assert_same_state(x, y, f"{where}[{i}]")
+    else:
+        assert a == b, where
 
 
 def test_train_py_writes_the_run_folder(tmp_path, textures):
@@ -148,7 +146,7 @@ def test_interruption_leaves_a_checkpoint_and_resume_completes(tmp_path, texture
                        load_checkpoint(run / "checkpoint.pt")["learner"])
     assert _without_time(_lines(straight)) == _without_time(_lines(run))
     cfg, learner = load_learner(run / "checkpoint.pt")
-    assert cfg.train.iterations == 12 and learner.parallax.dictionaries["coarse"].atoms.shape[1] == 16
+    assert cfg.train.iterations == 12 and learner.parallax.encoder.dictionaries["coarse"].atoms.shape[1] == 16
 
 
 def test_sigterm_checkpoints_the_last_completed_iteration(tmp_path, textures):
@@ -204,8 +202,11 @@ def test_checkpoint_errors_name_the_path(tmp_path):
     (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(ValueError, match="bad.pt"):
         load_checkpoint(tmp_path / "bad.pt")
-    save_checkpoint(tmp_path / "ok.pt", {"format": 1, "x": 1})
+    save_checkpoint(tmp_path / "ok.pt", {"format": CHECKPOINT_FORMAT, "config": {}, "x": 1})
     assert load_checkpoint(tmp_path / "ok.pt")["x"] == 1
+    save_checkpoint(tmp_path / "newer.pt", {"format": CHECKPOINT_FORMAT + 1, "config": {}})
+    with pytest.raises(ValueError, match=f"newer.pt.*format {CHECKPOINT_FORMAT + 1} is not one this aectorch reads"):
+        load_checkpoint(tmp_path / "newer.pt")
     assert not [p for p in os.listdir(tmp_path) if p.endswith(".tmp")]
 
 
@@ -248,6 +249,13 @@ def test_bad_override_exits_2_before_any_work(tmp_path):
         assert not (run / "checkpoint.pt").exists() and not (run / "metrics.jsonl").exists()
 
 
+def _value(cfg, dotted: str):
+    node = cfg
+    for part in dotted.split("."):
+        node = node[part] if isinstance(node, dict) else getattr(node, part)
+    return list(node) if isinstance(node, tuple) else node
+
+
 def test_preset_paper_and_perturbation_fractions():
     from hydra import compose, initialize
 
@@ -256,11 +264,15 @@ def test_preset_paper_and_perturbation_fractions():
     register_configs()
     with initialize(version_base=None, config_path=None):
         default = to_experiment_config(compose(config_name="train"))
-        paper = to_experiment_config(compose(config_name="train", overrides=["preset=paper", "learner.num_atoms=32"]))
+        paper = to_experiment_config(compose(config_name="train", overrides=["preset=paper", "learner.cues.parallax.encoder.num_atoms=32", "learner.cues.stereo.encoder.num_atoms=32"]))
         roll = to_experiment_config(compose(config_name="train", overrides=["+experiment=roll_perturbation"]))
-    assert list(paper.learner.actions_deg) == PAPER_PRESET["learner.actions_deg"]
-    assert paper.learner.num_atoms == 32 and paper.env.fixation_iterations == 30  # command line wins
-    assert paper.learner.symmetry == () and paper.learner.scales == ("coarse", "fine")
+    for name, cue in paper.learner.cues.items():
+        assert list(cue.actions_deg) == PAPER_PRESET[f"learner.cues.{name}.actions_deg"] == list(PAPER_ACTIONS_DEG)
+        assert cue.encoder.num_atoms == 32  # the command line wins
+        assert cue.symmetry is None and cue.scales == ("coarse", "fine")
+    assert paper.env.fixation_iterations == 30
+    # the preset lists only what differs from the defaults
+    assert all(_value(default, key) != value for key, value in PAPER_PRESET.items()), PAPER_PRESET
     assert paper.train.iterations == 6000 and paper.env.shift_iterations == default.env.shift_iterations
     assert default.train.iterations == ExperimentConfig().train.iterations
     assert roll.perturbation.roll_deg == 3.0 and default.perturbation.roll_deg == 0
@@ -303,18 +315,6 @@ def test_compile_gives_the_same_run_as_eager(tmp_path, textures):
             torch.testing.assert_close(compiled_state[key], value, rtol=1e-3, atol=1e-5, msg=key)
 
 
-def test_a_checkpoint_from_before_the_symmetries_loads_without_them():
-    from aectorch.runtime.config import to_container
-    from aectorch.runtime import checkpoint_config
-
-    stored = to_container(ExperimentConfig())
-    assert stored["learner"]["symmetry"] == ["parallax", "stereo"]
-    del stored["learner"]["symmetry"]  # what versions before `learner.symmetry` wrote
-    assert checkpoint_config({"config": stored}, "old.pt").learner.symmetry == ()
-    stored["learner"]["symmetry"] = ["stereo"]
-    assert checkpoint_config({"config": stored}, "new.pt").learner.symmetry == ("stereo",)
-
-
 def test_keep_best_writes_the_best_training_window_and_evaluates_it(tmp_path, textures):
     cfg = _cfg(textures, "train.metrics_window=10", "eval.enabled=true")
     summary = run_experiment(cfg, tmp_path)
@@ -355,7 +355,7 @@ def test_depth_calibration_refits_the_evaluated_mlp_on_greedy_training_trials(tm
     changed = {k for k, v in best["learner"].items()
                if isinstance(v, torch.Tensor) and not torch.equal(v, calibrated["learner"][k])}
     # Only the MLP moved (and its trained flag, when training had not fitted it yet).
-    assert changed and all(k.startswith("depth.") or k == "depth_trained" for k in changed), changed
+    assert changed and all(k.startswith("depth_learner.mlp.") or k == "depth_learner.trained" for k in changed), changed
     # Its depth MAE on the 15 calibration trials (texture i mod 3, distance i mod 5: every pair
     # once) is what the summary says.
     from aectorch.evaluate import evaluate, run_trials
@@ -406,33 +406,24 @@ def test_fork_continues_a_run_with_changed_settings(tmp_path, textures, capsys, 
     assert [line["iteration"] for line in _lines(tmp_path / "same")] == \
         [line["iteration"] for line in _lines(straight)]
     # With a frozen dictionary the dictionaries stay those of iteration 8, the policies move on.
-    assert fork_run.main([str(source / "checkpoint.pt"), str(tmp_path / "frozen"), "learner.dictionary_lr=0",
+    assert fork_run.main([str(source / "checkpoint.pt"), str(tmp_path / "frozen"), "learner.cues.parallax.encoder.lr=0", "learner.cues.stereo.encoder.lr=0",
                           "--iterations", "12", "--no-progress"]) == 0
     before = load_checkpoint(source / "checkpoint.pt")
     after = load_checkpoint(tmp_path / "frozen" / "checkpoint.pt")
-    assert after["iteration"] == 12 and after["config"]["learner"]["dictionary_lr"] == 0
+    assert after["iteration"] == 12 and after["config"]["learner"]["cues"]["stereo"]["encoder"]["lr"] == 0
     atoms = [k for k in before["learner"] if k.endswith("atoms")]
     assert atoms and all(torch.equal(before["learner"][k], after["learner"][k]) for k in atoms)
-    assert not torch.equal(before["learner"]["pursuit.actor_weight"], after["learner"]["pursuit.actor_weight"])
+    actor = "cues.parallax.agent.actor_weight"
+    assert not torch.equal(before["learner"][actor], after["learner"][actor])
     assert load_checkpoint(source / "checkpoint.pt")["iteration"] == 8  # the source is untouched
     # Bad arguments stop before anything is written, naming what is wrong.
-    for args, message in [(["learner.dictionary_lr=-1"], "dictionary_lr"), (["nosuch.key=1"], "nosuch"),
+    for args, message in [(["learner.cues.stereo.encoder.lr=-1"], "learner.cues.stereo.encoder.lr"), (["nosuch.key=1"], "nosuch"),
                           (["--iterations", "8"], "above the checkpoint's iteration 8")]:
         target = tmp_path / "bad"
         argv = [str(source / "checkpoint.pt"), str(target), *args]
         argv += [] if "--iterations" in args else ["--iterations", "12"]
         assert fork_run.main(argv) == 2
         assert message in capsys.readouterr().err and not target.exists()
-
-
-def test_a_checkpoint_from_before_scale_rendering_reduces_whole_crops():
-    from aectorch.runtime.config import to_container
-    from aectorch.runtime import checkpoint_config
-
-    stored = to_container(ExperimentConfig())
-    assert stored["learner"]["render_scales"] is True
-    del stored["learner"]["render_scales"]  # what versions before `learner.render_scales` wrote
-    assert checkpoint_config({"config": stored}, "old.pt").learner.render_scales is False
 
 
 def test_threads_zero_uses_every_core_shared_among_processes():
@@ -478,6 +469,6 @@ def test_a_resume_reads_its_checkpoint_and_validates_its_resources_once(tmp_path
     cfg, checkpoint = prepare_run(new, set())
     run_experiment(cfg, tmp_path / "new", checkpoint=checkpoint)
     assert checkpoint is None and calls == {"load": 0, "validate": 1}
-    with pytest.raises(ValueError, match="learner.num_atoms=32 contradicts the resumed run's"):
-        prepare_run(_cfg(textures, f"train.resume={half}", "learner.num_atoms=32"),
-                    {"train.resume", "learner.num_atoms"})
+    with pytest.raises(ValueError, match="learner.cues.stereo.encoder.num_atoms=32 contradicts the resumed run's"):
+        prepare_run(_cfg(textures, f"train.resume={half}", "learner.cues.stereo.encoder.num_atoms=32"),
+                    {"train.resume", "learner.cues.stereo.encoder.num_atoms"})

@@ -13,7 +13,8 @@ import pytest
 import torch
 
 from aectorch.evaluate import run_trials
-from aectorch.framework import JointLearner, LearnerConfig
+from aectorch.coding import EncoderConfig
+from aectorch.framework import JointLearner, LearnerConfig, default_cues
 from aectorch.sim import ActiveDepthEnv, TextureBank
 from aectorch.visualize import TrialFrames, animate_trial, record_trial
 from aectorch.visualize.__main__ import main
@@ -24,7 +25,7 @@ DISTANCE = 1.5
 
 
 def _learner(**config) -> JointLearner:
-    return JointLearner(LearnerConfig(num_atoms=16, **config), generator=torch.Generator().manual_seed(0))
+    return JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=16)), **config), generator=torch.Generator().manual_seed(0))
 
 
 def _texture() -> torch.Tensor:
@@ -59,16 +60,29 @@ def frames() -> TrialFrames:
 def test_the_watched_trial_is_the_evaluated_trial(policy, render_scales):
     learner, texture = _learner(render_scales=render_scales), _texture()
     got = record_trial(learner, texture, DISTANCE, **PROTOCOL, policy=policy)
-    assert len(got) == 6 and got.left.shape == got.right.shape == (6, 128, 128)
-    assert got.pursuit_error_deg.shape == got.vergence_error_deg.shape == (6,)
+    assert len(got) == 6 and got.first.shape == got.second.shape == (6, 128, 128)
+    assert got.cue == "stereo" and got.names == ("left", "right") and list(got.errors_deg) == ["pursuit", "vergence"]
+    assert got.errors_deg["pursuit"].shape == got.errors_deg["vergence"].shape == (6,)
     assert got.fixation_end.tolist() == [False, False, True] * 2 and got.fixation.tolist() == [0, 0, 0, 1, 1, 1]
-    assert 0 <= float(got.left.min()) and float(got.right.max()) <= 1 and not torch.equal(got.left, got.right)
+    assert 0 <= float(got.first.min()) and float(got.second.max()) <= 1 and not torch.equal(got.first, got.second)
     assert got.distance_m == DISTANCE and np.isnan(got.depth_prediction_m)  # the MLP was never fitted
     evaluated = run_trials(learner, texture[None], distances_m=[DISTANCE], seed=0, policy=policy, **PROTOCOL)
-    assert torch.equal(evaluated["pursuit_deg"][0], got.pursuit_error_deg[got.fixation_end])
-    assert torch.equal(evaluated["vergence_deg"][0], got.vergence_error_deg[got.fixation_end])
+    for movement, errors in got.errors_deg.items():
+        assert torch.equal(evaluated[f"{movement}_deg"][0], errors[got.fixation_end])
     pursuit, vergence = _unwatched_errors(learner, texture, policy)
-    assert torch.equal(pursuit, got.pursuit_error_deg) and torch.equal(vergence, got.vergence_error_deg)
+    assert torch.equal(pursuit, got.errors_deg["pursuit"]) and torch.equal(vergence, got.errors_deg["vergence"])
+
+
+def test_the_viewer_watches_any_learned_cue_and_a_vergence_only_learner():
+    learner = _learner(active_cues=["stereo"])
+    got = record_trial(learner, _texture(), DISTANCE, **PROTOCOL)
+    assert got.cue == "stereo" and float(got.errors_deg["pursuit"].abs().max()) < 1e-4
+    both = _learner()
+    parallax = record_trial(both, _texture(), DISTANCE, **PROTOCOL, cue="parallax")
+    assert parallax.names == ("left_before", "right")[:1] + ("left",)
+    assert torch.equal(parallax.first[0], parallax.first[1])  # the start image is taken once per fixation
+    with pytest.raises(ValueError, match="cue must be one of the learner's cues"):
+        record_trial(learner, _texture(), DISTANCE, **PROTOCOL, cue="parallax")
 
 
 def _same(a, b) -> bool:
@@ -114,7 +128,7 @@ def test_animate_trial_writes_one_gif_frame_per_iteration(frames, tmp_path):
 def checkpoint(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("visualize")
     done = subprocess.run(
-        [sys.executable, str(ROOT / "train.py"), "env.num_envs=2", "env.fixation_iterations=3", "learner.num_atoms=16",
+        [sys.executable, str(ROOT / "train.py"), "env.num_envs=2", "env.fixation_iterations=3", "learner.cues.parallax.encoder.num_atoms=16", "learner.cues.stereo.encoder.num_atoms=16",
          "train.iterations=6", "train.figures=false", "train.tensorboard=false", "train.progress=false",
          "eval.enabled=false", "hydra.run.dir=run"], cwd=folder, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]

@@ -6,9 +6,10 @@ from aectorch.coding.dictionary import (
     pooled_activity,
     reconstruction_error,
 )
-from aectorch.coding.encoder import BinocularEncoder, EncoderOutput
+from aectorch.coding.encoder import BinocularEncoder, EncoderConfig, EncoderOutput
 from aectorch.coding.patches import (
-    COARSE, FINE, FULL, WIDE, FovealPatches, Scale, extract_patches, patch_permutation, pyramid_down, reduced_patches,
+    COARSE, DEFAULT_SCALES, FINE, FULL, WIDE, WINDOW, FovealPatches, Scale, extract_patches, patch_permutation,
+    pyramid_down, reduced_patches, scale_patches, window_patches,
 )
 from aectorch.coding.pursuit import gram_matrix, matching_pursuit, omp, use_backend
 from aectorch.coding.sparse_code import SparseCode
@@ -16,7 +17,9 @@ from aectorch.coding.sparse_code import SparseCode
 __all__ = [
     "BinocularEncoder",
     "COARSE",
+    "DEFAULT_SCALES",
     "DictionaryOutput",
+    "EncoderConfig",
     "EncoderOutput",
     "FINE",
     "FovealPatches",
@@ -24,6 +27,7 @@ __all__ = [
     "SparseCode",
     "SparseDictionary",
     "WIDE",
+    "WINDOW",
     "FULL",
     "extract_patches",
     "gram_matrix",
@@ -34,5 +38,7 @@ __all__ = [
     "pyramid_down",
     "reconstruction_error",
     "reduced_patches",
+    "scale_patches",
     "use_backend",
+    "window_patches",
 ]

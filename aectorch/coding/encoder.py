@@ -1,27 +1,88 @@
 """`BinocularEncoder`: the sensory coding model of one depth cue (paper sec. 2.2-2.3).
 
 Two images (the two eyes for the stereo cue, or one eye before and after a body
-shift for the motion-parallax cue) are cut into foveal patches at a coarse and a
-fine scale, each scale coded by its own `SparseDictionary`. The pooled activities
-of both scales are the state features f = [f^C; f^F] (eq. 5), and minus the sum
-of the scales' mean reconstruction errors is the reward (eq. 6).
+shift for the motion-parallax cue) are cut into foveal patches at each scale (the
+paper's coarse and fine scale, by default also a wider one), each scale coded by its
+own `SparseDictionary`. The pooled activities of all scales are the state features
+f = [f^C; f^F] (eq. 5), and minus the sum of the scales' mean reconstruction errors is
+the reward (eq. 6). `EncoderConfig` holds the coder's hyperparameters.
 """
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple, Sequence
+import dataclasses
+from dataclasses import dataclass
+from typing import Callable, NamedTuple, Optional, Sequence
 
 import torch
-from torch import nn
+from torch import Tensor, nn
 
+from aectorch._checks import check_bool, check_choice, check_finite, check_int, check_real, is_real
+from aectorch.choices import Algorithm, Pooling
 from aectorch.coding.dictionary import DictionaryOutput, SparseDictionary
-from aectorch._checks import check_finite
-from aectorch.coding.patches import COARSE, FINE, Scale, as_scale, extract_patches, patch_permutation, reduced_patches
+from aectorch.coding.patches import (
+    DEFAULT_SCALES, WINDOW, Scale, as_scale, patch_permutation, scale_patches, window_patches,
+)
 
-__all__ = ["BinocularEncoder", "EncoderOutput", "SYMMETRIES"]
+__all__ = ["BinocularEncoder", "EncoderConfig", "EncoderOutput", "SYMMETRIES"]
 
 #: The symmetries a `BinocularEncoder` can keep (``None``: none; see `patch_permutation`).
 SYMMETRIES = (None, "mirror", "swap")
+
+
+@dataclass
+class EncoderConfig:
+    """Hyperparameters of `BinocularEncoder`: the sparse coder and its dictionary learning.
+
+    Attributes:
+        num_atoms: atoms per dictionary, N (paper: 288).
+        sparsity: non-zero coefficients per patch (paper: 10).
+        algorithm: ``"mp"`` (the paper's matching pursuit) or ``"omp"``.
+        pooling: ``"mean"`` over patches (the lineage; keeps the features' norm near 1, which the
+            critic's step size needs) or ``"sum"`` (eq. 3 literally).
+        lr: the dictionaries' learning rate per step (the lineage: 0.01-0.5; default 0.1; 0
+            freezes them).
+        decay: tau (> 0; default 500), or ``None`` for a constant rate (the lineage): the rate
+            after t learning steps is ``lr * (tau / (tau + t)) ** decay_power``, so the code settles
+            once the eye movements have shaped it (the lineage raised its rate over training;
+            online dictionary learning decays it).
+        decay_power: p of ``decay`` (> 0).
+        centred: mirror-centred sampling at every scale (`aectorch.coding.patches.Scale`'s
+            ``centred``): each pyramid level samples between pixel pairs and the fine scale's
+            patch grid sits in the middle of its crop, so the patches of mirrored images are the
+            mirrored patches and the parallax cue's symmetry holds exactly. ``False`` is the classic
+            reduce (``cv2.pyrDown``), whose samples drift 0.5-7.5 px left of the crop's centre:
+            measured on a trained learner, the features of a mirrored pair then differ from the
+            permuted features by 14-60 % (by scale), so the mirrored transitions the symmetry
+            learns from are not the real ones.
+    """
+
+    num_atoms: int = 288
+    sparsity: int = 10
+    algorithm: Algorithm = Algorithm.mp
+    pooling: Pooling = Pooling.mean
+    lr: float = 0.1
+    decay: Optional[float] = 500.0
+    decay_power: float = 1.0
+    centred: bool = True
+
+    def __post_init__(self) -> None:
+        owner = "encoder"
+        check_int(self.num_atoms, f"{owner}.num_atoms", 1)
+        check_int(self.sparsity, f"{owner}.sparsity", 1)
+        self.algorithm = check_choice(self.algorithm, f"{owner}.algorithm", Algorithm)
+        self.pooling = check_choice(self.pooling, f"{owner}.pooling", Pooling)
+        check_real(self.lr, f"{owner}.lr", minimum=0)
+        if self.decay is not None and not (is_real(self.decay) and self.decay > 0):
+            raise ValueError(f"{owner}.decay must be null or a number > 0, got {self.decay!r}")
+        check_real(self.decay_power, f"{owner}.decay_power", above=0)
+        check_bool(self.centred, f"{owner}.centred")
+
+    def rate(self, steps: int) -> float:
+        """The dictionaries' learning rate after ``steps`` learning steps (``decay``)."""
+        if self.decay is None:
+            return self.lr
+        return self.lr * (self.decay / (self.decay + steps)) ** self.decay_power
 
 
 class EncoderOutput(NamedTuple):
@@ -43,15 +104,12 @@ class EncoderOutput(NamedTuple):
 
 
 class BinocularEncoder(nn.Module):
-    """Two-scale sparse coder of an image pair, for one cue.
+    """Multi-scale sparse coder of an image pair, for one cue.
 
     Args:
-        num_atoms: atoms per scale N (the paper: 288).
-        sparsity: non-zero coefficients per patch k (the paper: 10).
-        algorithm: ``"mp"`` (the paper's matching pursuit, default) or ``"omp"``.
-        scales: the patch scales, coarse first (default: `COARSE`, `FINE`).
-        lr: default dictionary learning rate of `learn_`.
-        pooling: ``"sum"`` (eq. 3) or ``"mean"`` over patches for the features.
+        config: the coder's hyperparameters (default `EncoderConfig()`).
+        scales: the patch scales (default `DEFAULT_SCALES`: wide, coarse, fine; the paper's:
+            ``("coarse", "fine")``).
         symmetry: ``None`` (default), or a symmetry of the image pairs that every dictionary then
             keeps (atoms in pairs, `SparseDictionary`'s ``mirror``; `patch_permutation`):
             ``"mirror"`` mirrors both images left-right (the motion-parallax cue's symmetry: it
@@ -60,9 +118,11 @@ class BinocularEncoder(nn.Module):
             ``features[..., feature_permutation]`` (a buffer, ``None`` without a symmetry).
         generator: optional `torch.Generator` for the initial atoms.
         dtype, device: of the dictionaries.
+        **options: fields of `EncoderConfig` that override ``config``, e.g. ``num_atoms=32``.
 
     Attributes:
-        coarse, fine: the two `SparseDictionary` modules (also in `dictionaries`).
+        dictionaries: one `SparseDictionary` per scale, by name (also ``encoder.coarse``, ...).
+        steps: learning steps taken so far (the learning rate's decay, `EncoderConfig.rate`).
 
     Shape:
         first, second: `[B, H, W]` grey images in [0, 1] -> `EncoderOutput`.
@@ -75,45 +135,48 @@ class BinocularEncoder(nn.Module):
         >>> with torch.no_grad():
         ...     out = enc(left, right)
         >>> out.features.shape, out.reward.shape
-        (torch.Size([3, 576]), torch.Size([3]))
-        >>> _ = enc.learn_(out)   # one dictionary-learning step on both scales
+        (torch.Size([3, 864]), torch.Size([3]))
+        >>> _ = enc.learn_(out)   # one dictionary-learning step on every scale
     """
 
     def __init__(
         self,
-        num_atoms: int = 288,
-        sparsity: int = 10,
-        algorithm: str = "mp",
-        scales: Sequence[Scale | str] = (COARSE, FINE),
+        config: EncoderConfig | None = None,
+        scales: Sequence[Scale | str] = DEFAULT_SCALES,
         *,
-        lr: float = 0.05,
-        pooling: str = "sum",
         symmetry: str | None = None,
         generator: torch.Generator | None = None,
         dtype: torch.dtype | None = None,
         device: torch.device | str | None = None,
+        **options,
     ) -> None:
         super().__init__()
-        self.scales = tuple(as_scale(s) for s in scales)
+        config = EncoderConfig() if config is None else config
+        if not isinstance(config, EncoderConfig):
+            raise TypeError(f"config must be an EncoderConfig or None, got {type(config).__name__}")
+        unknown = sorted(set(options) - {f.name for f in dataclasses.fields(EncoderConfig)})
+        if unknown:
+            raise TypeError(f"unexpected keyword argument(s) {unknown}; options must be fields of EncoderConfig")
+        self.config = cfg = dataclasses.replace(config, **options) if options else config
+        scales = tuple(as_scale(s) for s in scales)
+        self.scales = tuple(dataclasses.replace(s, centred=True) if cfg.centred else s for s in scales)
         if len(self.scales) == 0:
             raise ValueError("scales must name at least one scale")
         names = [s.name for s in self.scales]
         if len(set(names)) != len(names):
             raise ValueError(f"scales must have distinct names, got {names}")
-        if pooling not in ("sum", "mean"):
-            raise ValueError(f"pooling must be 'sum' or 'mean', got {pooling!r}")
-        if not lr >= 0:
-            raise ValueError(f"lr must be a non-negative float, got {lr!r}")
         if symmetry not in SYMMETRIES:
             raise ValueError(f"symmetry must be one of {SYMMETRIES}, got {symmetry!r}")
-        self.lr = float(lr)
-        self.pooling = pooling
+        if symmetry is not None and cfg.num_atoms % 2:
+            raise ValueError(f"num_atoms must be even with a symmetry (atoms come in pairs), got {cfg.num_atoms}")
+        self.pooling = str(cfg.pooling)
         self.symmetry = symmetry
+        self.steps = 0
         self.dictionaries = nn.ModuleDict(
             {
                 s.name: SparseDictionary(
-                    num_atoms, s.dim, sparsity, algorithm, generator=generator, dtype=dtype, device=device,
-                    mirror=None if symmetry is None else patch_permutation(
+                    cfg.num_atoms, s.dim, cfg.sparsity, str(cfg.algorithm), generator=generator, dtype=dtype,
+                    device=device, mirror=None if symmetry is None else patch_permutation(
                         s.patch_size, flip=symmetry == "mirror", swap=symmetry == "swap"),
                 )
                 for s in self.scales
@@ -145,25 +208,53 @@ class BinocularEncoder(nn.Module):
         """Length of the feature vector, ``n_scales * N``."""
         return sum(d.num_atoms for d in self.dictionaries.values())
 
-    def forward(self, first, second, *, check: bool = True) -> EncoderOutput:
+    def forward(self, first, second=None, *, check: bool = True) -> EncoderOutput:
         """Encode an image pair; see the class docstring for shapes.
 
         ``first`` and ``second`` may also be dicts ``{scale name: [B, side, side]}`` of images
-        already at each scale's resolution (``ActiveDepthEnv``'s observations with ``scales``),
-        cut with `reduced_patches` instead of cropped and reduced.
+        already at each scale's resolution (and ``WINDOW``: whole images for the scales missing).
+        Without ``second``, ``first`` is an observation of pairs (:meth:`encode`).
         """
-        if check:  # once here, not once per scale inside extract_patches
-            for name, images in (("first", first), ("second", second)):
-                for part in (images.values() if isinstance(images, dict) else (images,)):
-                    if isinstance(part, torch.Tensor):  # other types: extract_patches says why
-                        check_finite(part, name)
+        if second is None:
+            return self._encode(first, check)
+        if isinstance(first, dict) != isinstance(second, dict):
+            raise TypeError("first and second must both be tensors or both dicts of tensors")
+        firsts, seconds = (first, second) if isinstance(first, dict) else ({WINDOW: first}, {WINDOW: second})
+        if set(firsts) != set(seconds):
+            raise ValueError(f"first and second must hold the same images, got {sorted(firsts)} and {sorted(seconds)}")
+        for name, images in (("first", firsts), ("second", seconds)):
+            for key, part in images.items():
+                if not isinstance(part, Tensor) or not part.is_floating_point():
+                    raise TypeError(f"{name} must be a floating-point tensor [B, H, W] in [0, 1], got "
+                                    f"{type(part).__name__} {getattr(part, 'dtype', '')}")
+                if part.ndim != 3:
+                    raise ValueError(f"{name} must have shape [B, H, W], got {tuple(part.shape)}")
+                if part.shape != seconds[key].shape:
+                    raise ValueError(f"first[{key!r}] and second[{key!r}] must have one shape, got "
+                                     f"{tuple(firsts[key].shape)} and {tuple(seconds[key].shape)}")
+                if check:
+                    check_finite(part, name)
+        return self._encode({key: torch.stack((firsts[key], seconds[key]), dim=1) for key in firsts}, check)
+
+    def encode(self, observation: dict[str, Tensor], *, check: bool = False) -> EncoderOutput:
+        """Encode an observation ``{scale name: [B, 2, side, side]}`` (pairs at each scale's
+        resolution) and/or ``{WINDOW: [B, 2, H, W]}`` (whole images, cropped and reduced for the
+        scales without an entry of their own): what `aectorch.sim.ActiveDepthEnv` observes.
+        ``check`` also checks the dictionaries' inputs. The same as ``encoder(observation)``
+        (through ``forward``, so that ``encoder.compile()`` applies)."""
+        return self(observation, check=check)
+
+    def _encode(self, observation: dict[str, Tensor], check: bool) -> EncoderOutput:
         patches, codes, features, errors = [], [], [], []
         for scale in self.scales:
             dictionary = self.dictionaries[scale.name]
-            if isinstance(first, dict):
-                x = reduced_patches(first[scale.name], second[scale.name], scale)
+            if scale.name in observation:
+                x = scale_patches(observation[scale.name], scale)
+            elif WINDOW in observation:
+                x = window_patches(observation[WINDOW], scale)
             else:
-                x = extract_patches(first, second, scale, check_finite=False)
+                raise ValueError(f"the observation holds neither scale {scale.name!r} nor {WINDOW!r}: "
+                                 f"{sorted(observation)}")
             out = dictionary(x, check=check)
             patches.append(x)
             codes.append(out)
@@ -174,18 +265,30 @@ class BinocularEncoder(nn.Module):
             torch.cat(features, -1), -errors_t.sum(-1), errors_t, tuple(patches), tuple(codes)
         )
 
+    def rate(self) -> float:
+        """The learning rate of the next `learn_` step (`EncoderConfig.rate` of `steps`)."""
+        return self.config.rate(self.steps)
+
     @torch.no_grad()
     def learn_(self, output: EncoderOutput, lr: float | None = None, *,
-               reduce: Callable[[torch.Tensor], torch.Tensor] | None = None) -> "BinocularEncoder":
-        """One dictionary-learning step on every scale, then renormalise.
+               reduce: Callable[[Tensor], Tensor] | None = None) -> "BinocularEncoder":
+        """One dictionary-learning step on every scale, then renormalise; counts a step.
 
         Gradient descent on ``-output.reward.mean()`` (closed form, no graph):
         with B environments this is the mean of the B per-environment updates.
         Equivalent to ``(-output.reward.mean()).backward()`` followed by an SGD
-        step of size `lr` and `SparseDictionary.renormalize_`. ``reduce`` sums over processes
-        that share the batch (`aectorch.runtime.distributed`), so the mean runs over all of them.
+        step of size ``lr`` (default: :meth:`rate`) and `SparseDictionary.renormalize_`.
+        ``reduce`` sums over processes that share the batch (`aectorch.runtime.distributed`), so
+        the mean runs over all of them.
         """
-        lr = self.lr if lr is None else lr
+        lr = self.rate() if lr is None else lr
         for scale, x, out in zip(self.scales, output.patches, output.codes):
             self.dictionaries[scale.name].learn_(x, out, lr, reduce=reduce)
+        self.steps += 1
         return self
+
+    def get_extra_state(self) -> dict:
+        return {"steps": self.steps}
+
+    def set_extra_state(self, state: dict) -> None:
+        self.steps = int(state["steps"])

@@ -28,11 +28,19 @@ __all__ = [
     "DEFAULT_SCALES",
     "as_scale",
     "pyramid_down",
+    "WINDOW",
     "extract_patches",
     "reduced_patches",
+    "scale_patches",
+    "window_patches",
     "patch_permutation",
     "FovealPatches",
 ]
+
+#: The key of an observation's whole rendered window, ``[B, 2, H, W]``, beside the scales' entries
+#: ``{scale name: [B, 2, side, side]}`` (`aectorch.sim.ActiveDepthEnv`'s observations): a scale
+#: whose entry is missing is cut from the window (crop and pyramid).
+WINDOW = "window"
 
 # Burt & Adelson's 5-tap binomial kernel, the one OpenCV's pyrDown uses. The taps are dyadic
 # rationals, so they are exact in every float dtype.
@@ -391,9 +399,21 @@ def extract_patches(
         _check_finite(first, "first")
         _check_finite(second, "second")
 
+    return window_patches(torch.stack((first, second), dim=1), scale, eps=eps)
+
+
+def window_patches(pair: Tensor, scale: Scale | str, *, eps: float = 1e-8) -> Tensor:
+    """:func:`extract_patches` of an image pair stacked as ``[B, 2, H, W]`` (``first`` at index 0),
+    without the checks: what `BinocularEncoder` calls on an environment's observation."""
+    scale = as_scale(scale)
+    b, _, h, w = pair.shape
+    crop = scale.crop
+    if h < crop or w < crop:
+        raise ValueError(f"images of shape {tuple(pair.shape)} are smaller than the {crop}x{crop} crop of "
+                         f"scale {scale.name!r}")
     top, left = (h - crop) // 2, (w - crop) // 2
     # One pyramid call for both eyes: [B, 2, crop, crop] viewed as 2B single-channel images.
-    pair = torch.stack((first, second), dim=1)[:, :, top : top + crop, left : left + crop]
+    pair = pair[:, :, top : top + crop, left : left + crop]
     reduced = _pyramid_down(pair.reshape(2 * b, 1, crop, crop), scale.levels, scale.centred)
     return _cut(reduced, scale, b, eps)
 
@@ -411,14 +431,20 @@ def reduced_patches(first: Tensor, second: Tensor, scale: Scale | str, *, eps: f
         >>> reduced_patches(torch.rand(3, 16, 16), torch.rand(3, 16, 16), "coarse").shape
         torch.Size([3, 49, 200])
     """
-    scale = as_scale(scale)
     _check_pair(first, second)
+    return scale_patches(torch.stack((first, second), dim=1), scale, eps=eps)
+
+
+def scale_patches(pair: Tensor, scale: Scale | str, *, eps: float = 1e-8) -> Tensor:
+    """:func:`reduced_patches` of an image pair at the scale's resolution stacked as
+    ``[B, 2, side, side]`` (``first`` at index 0), without the checks."""
+    scale = as_scale(scale)
     side = scale.side
-    if tuple(first.shape[-2:]) != (side, side):
-        raise ValueError(f"first and second must be [B, {side}, {side}] (scale {scale.name!r}: crop {scale.crop} / "
-                         f"downsample {scale.downsample}), got {tuple(first.shape)}")
-    b = first.shape[0]
-    return _cut(torch.stack((first, second), dim=1).reshape(2 * b, 1, side, side), scale, b, eps)
+    if tuple(pair.shape[-2:]) != (side, side):
+        raise ValueError(f"images at scale {scale.name!r} must be [B, {side}, {side}] (crop {scale.crop} / "
+                         f"downsample {scale.downsample}), got {tuple(pair.shape)}")
+    b = pair.shape[0]
+    return _cut(pair.reshape(2 * b, 1, side, side), scale, b, eps)
 
 
 def _cut(reduced: Tensor, scale: Scale, b: int, eps: float) -> Tensor:

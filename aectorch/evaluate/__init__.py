@@ -1,6 +1,6 @@
 """Evaluation of a trained :class:`~aectorch.framework.JointLearner`, separate from training.
 
-Learning is frozen and both policies are greedy (``policy="sampled"`` draws the actions as in
+Learning is frozen and the policies are greedy (``policy="sampled"`` draws the actions as in
 training instead, for analysis). Two tests:
 
 - **the paper's test**: every texture x distance runs one full trial (a leftward and a rightward
@@ -19,8 +19,8 @@ simulation; the command line, on a checkpoint written by ``train.py``, is `__mai
 """
 
 from aectorch.evaluate.evaluation import evaluate
-from aectorch.evaluate.summary import BEYOND_DEG, WITHIN_DEG, fractions, per_trial_rows, summarise
-from aectorch.evaluate.trials import EVAL_BATCH_SIZE, run_trials
+from aectorch.evaluate.summary import BEYOND_DEG, WITHIN_DEG, fractions, movements, per_trial_rows, summarise
+from aectorch.evaluate.trials import EVAL_BATCH_SIZE, frozen_iterations, run_trials
 
-__all__ = ["BEYOND_DEG", "EVAL_BATCH_SIZE", "WITHIN_DEG", "evaluate", "fractions", "per_trial_rows", "run_trials",
-           "summarise"]
+__all__ = ["BEYOND_DEG", "EVAL_BATCH_SIZE", "WITHIN_DEG", "evaluate", "fractions", "frozen_iterations", "movements",
+           "per_trial_rows", "run_trials", "summarise"]

@@ -8,15 +8,13 @@ import torch
 from torch import Tensor
 
 from aectorch.choices import Policy
-from aectorch.evaluate.summary import BEYOND_DEG, WITHIN_DEG, fractions, per_trial_rows, summarise
+from aectorch.evaluate.summary import BEYOND_DEG, WITHIN_DEG, fractions, movements, per_trial_rows, summarise
 from aectorch.evaluate.trials import (
-    EVAL_BATCH_SIZE, _all_conditions, _check_trial_arguments, _paper_trials, _trial_session,
+    EVAL_BATCH_SIZE, _all_conditions, _check_trial_arguments, _paper_trials, _trial_session, frozen_iterations,
 )
 from aectorch.sim import DEFAULT_DISTANCES_M, TextureBank, TrialProtocol, resolve_protocol
 
 __all__ = ["evaluate"]
-
-_NAMES = {"pursuit": "pursuit_mae_deg", "vergence": "vergence_mae_deg", "depth": "depth_mae_m"}
 
 
 def evaluate(
@@ -99,24 +97,25 @@ def evaluate(
 def _report(paper: dict[str, Tensor], names: Sequence[str], distances: list[float]) -> dict:
     """The paper's test's summaries: overall, per distance, per texture and per trial."""
     index, distance = paper["texture_index"], paper["distance_m"]
-    errors = {"pursuit": paper["pursuit_deg"], "vergence": paper["vergence_deg"], "depth": paper["depth_error_m"]}
+    eyes = {m: paper[f"{m}_deg"] for m in movements(paper)}
+    errors = {**{f"{m}_mae_deg": e for m, e in eyes.items()}, "depth_mae_m": paper["depth_error_m"]}
 
     def maes(mask: Tensor) -> dict:
-        """The three MAEs of the trials in ``mask`` (both fixations of each), and the fractions
-        of their fixation ends on target and failed."""
-        return {**{_NAMES[key]: summarise(x[mask])["mae"] for key, x in errors.items()},
-                "fractions": fractions(errors["pursuit"][mask], errors["vergence"][mask])}
+        """The MAEs of the trials in ``mask`` (both fixations of each), and the fractions of their
+        fixation ends on target and failed."""
+        return {**{key: summarise(x[mask])["mae"] for key, x in errors.items()},
+                "fractions": fractions({m: e[mask] for m, e in eyes.items()})}
 
     summaries = {key: summarise(x) for key, x in errors.items()}
     return {
-        **{_NAMES[key]: summary["mae"] for key, summary in summaries.items()},
-        **summaries,
+        **{key: summary["mae"] for key, summary in summaries.items()},
+        **{key.split("_mae_")[0]: summary for key, summary in summaries.items()},
         "trials": index.numel(),
         "textures": len(names),
         "distances_m": distances,
         "per_distance": [{"distance_m": d, **maes((distance - d).abs() < 1e-9)} for d in distances],
         "per_texture": [{"texture": name, **maes(index == i)} for i, name in enumerate(names)],
-        "fractions": fractions(errors["pursuit"], errors["vergence"]),
+        "fractions": fractions(eyes),
         "within_deg": WITHIN_DEG,
         "beyond_deg": BEYOND_DEG,
         "per_trial": per_trial_rows(paper, names),
@@ -133,19 +132,17 @@ def _vergence_test(learner, index: Tensor, distance: Tensor, env_for, batch_size
     total = index.numel()
     generator = torch.Generator().manual_seed(seed)
     finals = []
-    with torch.no_grad():
-        for start in range(0, total, batch_size):
-            stop = min(start + batch_size, total)
-            env = env_for(stop - start, steps, instant=True)
-            env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
-            left = env.optimal_left_pan_deg()
-            offsets = (torch.rand(stop - start, generator=generator, dtype=torch.float64) * 2 - 1) * offset_deg
-            right = env.optimal_right_pan_deg(left) + offsets.to(device=device, dtype=dtype)
-            env.set_pan_deg(torch.stack((left, right), -1))
-            learner.forget_transitions()
-            for _ in range(steps):
-                record = learner.iteration(env, learn=False, greedy=greedy)
-            finals.append(record.vergence_error_deg.cpu())
-            if bar is not None:
-                bar.update(stop - start)
+    for start in range(0, total, batch_size):
+        stop = min(start + batch_size, total)
+        env = env_for(stop - start, steps, instant=True)
+        env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
+        left = env.optimal_left_pan_deg()
+        offsets = (torch.rand(stop - start, generator=generator, dtype=torch.float64) * 2 - 1) * offset_deg
+        right = env.optimal_right_pan_deg(left) + offsets.to(device=device, dtype=dtype)
+        env.set_pan_deg(torch.stack((left, right), -1))
+        for record in frozen_iterations(learner, env, greedy=greedy, iterations=steps):
+            pass
+        finals.append(record.errors_deg["vergence"].cpu())
+        if bar is not None:
+            bar.update(stop - start)
     return torch.cat(finals), env.camera.degrees_per_pixel

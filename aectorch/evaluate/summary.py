@@ -8,7 +8,7 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
-__all__ = ["BEYOND_DEG", "WITHIN_DEG", "fractions", "per_trial_rows", "summarise"]
+__all__ = ["BEYOND_DEG", "WITHIN_DEG", "fractions", "movements", "per_trial_rows", "summarise"]
 
 #: An eye within this many degrees of its optimum counts as on target: one pixel (0.2226 deg/px).
 WITHIN_DEG = 0.22
@@ -16,45 +16,49 @@ WITHIN_DEG = 0.22
 BEYOND_DEG = 2.0
 
 
-def fractions(pursuit_deg: Tensor, vergence_deg: Tensor) -> dict:
+def fractions(errors_deg: dict[str, Tensor]) -> dict:
     """The fractions of fixation ends on target (``|error| <= WITHIN_DEG``) and failed
-    (``|error| > BEYOND_DEG``), for pursuit, vergence and both together.
+    (``|error| > BEYOND_DEG``), for each eye movement and for all of them together (``"both"``:
+    every movement on target, or any failed).
 
     Args:
-        pursuit_deg, vergence_deg: signed errors of the same fixation ends, any equal shape.
+        errors_deg: each movement's signed errors of the same fixation ends, any equal shape.
 
     Example:
-        >>> fractions(torch.tensor([0.1, 0.3, 3.0]), torch.tensor([0.0, 0.1, 0.1]))["both"]
+        >>> fractions({"pursuit": torch.tensor([0.1, 0.3, 3.0]), "vergence": torch.tensor([0.0, 0.1, 0.1])})["both"]
         {'within': 0.3333333333333333, 'beyond': 0.3333333333333333}
     """
-    p, v = pursuit_deg.detach().double().reshape(-1).cpu().abs(), vergence_deg.detach().double().reshape(-1).cpu().abs()
-    if p.numel() == 0:
-        return {key: {"within": math.nan, "beyond": math.nan} for key in ("pursuit", "vergence", "both")}
-    return {
-        "pursuit": {"within": float((p <= WITHIN_DEG).double().mean()), "beyond": float((p > BEYOND_DEG).double().mean())},
-        "vergence": {"within": float((v <= WITHIN_DEG).double().mean()), "beyond": float((v > BEYOND_DEG).double().mean())},
-        "both": {"within": float(((p <= WITHIN_DEG) & (v <= WITHIN_DEG)).double().mean()),
-                 "beyond": float(((p > BEYOND_DEG) | (v > BEYOND_DEG)).double().mean())},
-    }
+    errors = {m: e.detach().double().reshape(-1).cpu().abs() for m, e in errors_deg.items()}
+    if not errors or next(iter(errors.values())).numel() == 0:
+        return {key: {"within": math.nan, "beyond": math.nan} for key in (*errors_deg, "both")}
+    out = {m: {"within": float((e <= WITHIN_DEG).double().mean()), "beyond": float((e > BEYOND_DEG).double().mean())}
+           for m, e in errors.items()}
+    within = torch.stack([e <= WITHIN_DEG for e in errors.values()]).all(0)
+    beyond = torch.stack([e > BEYOND_DEG for e in errors.values()]).any(0)
+    out["both"] = {"within": float(within.double().mean()), "beyond": float(beyond.double().mean())}
+    return out
+
+
+def movements(trials: dict[str, Tensor]) -> list[str]:
+    """The eye movements of :func:`run_trials`' output (its ``<movement>_deg`` keys), in order."""
+    return [key[: -len("_deg")] for key in trials if key.endswith("_deg") and key != "q_deg"]
 
 
 def per_trial_rows(trials: dict[str, Tensor], names: Sequence[str]) -> list[dict]:
-    """One JSON row per trial of :func:`run_trials`' output: its texture's name, distance and the
-    signed errors of its final state (the end of its second, rightward fixation), plus both
-    fixation ends' pursuit and vergence errors as ``[leftward, rightward]``."""
+    """One JSON row per trial of :func:`run_trials`' output: its texture's name, distance and each
+    movement's signed error of its final state (the end of its second, rightward fixation,
+    ``<movement>_error_deg``), plus both fixation ends' errors as ``[leftward, rightward]``
+    (``<movement>_errors_deg``)."""
     rows = []
+    moves = movements(trials)
     for i in range(trials["distance_m"].numel()):
-        p, v = trials["pursuit_deg"][i].tolist(), trials["vergence_deg"][i].tolist()
         depth = float(trials["depth_error_m"][i])
-        rows.append({
-            "texture": names[int(trials["texture_index"][i])],
-            "distance_m": round(float(trials["distance_m"][i]), 6),
-            "pursuit_error_deg": p[-1],
-            "vergence_error_deg": v[-1],
-            "depth_error_m": depth if math.isfinite(depth) else None,
-            "pursuit_errors_deg": p,
-            "vergence_errors_deg": v,
-        })
+        row = {"texture": names[int(trials["texture_index"][i])], "distance_m": round(float(trials["distance_m"][i]), 6)}
+        ends = {m: trials[f"{m}_deg"][i].tolist() for m in moves}
+        row.update({f"{m}_error_deg": e[-1] for m, e in ends.items()})
+        row["depth_error_m"] = depth if math.isfinite(depth) else None
+        row.update({f"{m}_errors_deg": e for m, e in ends.items()})
+        rows.append(row)
     return rows
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import contextlib
-from typing import Sequence
+from typing import Iterator, Sequence
 
 import torch
 from torch import Tensor
@@ -12,7 +12,7 @@ from aectorch._checks import check_choice, check_distances, check_int
 from aectorch.choices import Policy
 from aectorch.sim import DEFAULT_DISTANCES_M, ActiveDepthEnv, TextureBank, TrialProtocol, resolve_protocol
 
-__all__ = ["EVAL_BATCH_SIZE", "run_trials"]
+__all__ = ["EVAL_BATCH_SIZE", "frozen_iterations", "run_trials"]
 
 #: Environments simulated at once by default.
 EVAL_BATCH_SIZE = 256
@@ -78,32 +78,48 @@ def _check_conditions(conditions, num_textures: int, distances: list[float]) -> 
     return index, distance
 
 
+def frozen_iterations(learner, env, *, greedy: bool = True, iterations: int | None = None,
+                      watch=None) -> Iterator:
+    """The one trial loop (the evaluation, the vergence test, the viewer): ``learner``'s frozen
+    iterations on ``env`` as it stands, each `IterationRecord` yielded, until the trial ends (or
+    ``iterations`` of them). No transition of the learner is pending before or after; ``watch``:
+    see `JointLearner.iteration`."""
+    learner.forget_transitions()
+    try:
+        for _ in range(iterations if iterations is not None else 2 * env.fixation_iterations):
+            with torch.no_grad():  # not around the yield: the caller's code keeps its grad mode
+                record = learner.iteration(env, learn=False, greedy=greedy, watch=watch)
+            yield record
+            if iterations is None and record.trial_end:
+                return
+        if iterations is None:
+            raise RuntimeError(f"the trial did not end after {2 * env.fixation_iterations} iterations")
+    finally:
+        learner.forget_transitions()
+
+
 def _paper_trials(learner, index: Tensor, distance: Tensor, env_for, batch_size: int,
                   fixation_iterations: int, greedy: bool, bar) -> dict[str, Tensor]:
-    """The paper's test: one full trial per (texture index, distance), learning frozen."""
+    """The paper's test: one full trial per (texture index, distance), learning frozen; each eye
+    movement's signed errors at the fixation ends as ``<movement>_deg`` ``[N, fixations]``."""
     device, dtype = next(learner.parameters()).device, next(learner.parameters()).dtype
     total = index.numel()
-    out: dict[str, list[Tensor]] = {"pursuit_deg": [], "vergence_deg": [], "q_deg": [], "depth_error_m": []}
-    with torch.no_grad():
-        for start in range(0, total, batch_size):
-            stop = min(start + batch_size, total)
-            env = env_for(stop - start, fixation_iterations)
-            env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
-            learner.forget_transitions()
-            finals_p, finals_v = [], []
-            while True:
-                record = learner.iteration(env, learn=False, greedy=greedy)
-                if record.fixation_end:
-                    finals_p.append(record.pursuit_error_deg)
-                    finals_v.append(record.vergence_error_deg)
-                if record.trial_end:
-                    break
-            out["pursuit_deg"].append(torch.stack(finals_p, 1))  # [b, 2 fixations]
-            out["vergence_deg"].append(torch.stack(finals_v, 1))
-            out["q_deg"].append(record.q_deg)
-            out["depth_error_m"].append(record.depth_prediction_m - record.distance_m)
-            if bar is not None:
-                bar.update(stop - start)
+    out: dict[str, list[Tensor]] = {"q_deg": [], "depth_error_m": []}
+    for start in range(0, total, batch_size):
+        stop = min(start + batch_size, total)
+        env = env_for(stop - start, fixation_iterations)
+        env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
+        finals: dict[str, list[Tensor]] = {}
+        for record in frozen_iterations(learner, env, greedy=greedy):
+            if record.fixation_end:
+                for movement, error in record.errors_deg.items():
+                    finals.setdefault(movement, []).append(error)
+        for movement, errors in finals.items():
+            out.setdefault(f"{movement}_deg", []).append(torch.stack(errors, 1))  # [b, 2 fixations]
+        out["q_deg"].append(record.q_deg)
+        out["depth_error_m"].append(record.depth_prediction_m - record.distance_m)
+        if bar is not None:
+            bar.update(stop - start)
     result = {key: torch.cat(value).cpu() for key, value in out.items()}
     result["texture_index"], result["distance_m"] = index, distance
     return result
@@ -150,15 +166,16 @@ def run_trials(
             ``distances_m``).
 
     Returns:
-        CPU tensors over the N = textures x distances trials (texture-major): ``pursuit_deg`` and
-        ``vergence_deg`` ``[N, 2]`` (signed errors at the end of each fixation), ``q_deg``
+        CPU tensors over the N = textures x distances trials (texture-major): ``<movement>_deg``
+        for each eye movement (``pursuit_deg``, ``vergence_deg``) ``[N, 2]`` (signed errors at
+        the end of each fixation), ``q_deg``
         ``[N, 4]`` (the MLP's inputs), ``depth_error_m`` ``[N]`` (NaN before the MLP's first fit),
         ``texture_index`` and ``distance_m`` ``[N]``.
 
     Example:
         >>> import torch
         >>> from aectorch.framework import JointLearner, LearnerConfig
-        >>> learner = JointLearner(LearnerConfig(num_atoms=16), generator=torch.Generator().manual_seed(0))
+        >>> learner = JointLearner(LearnerConfig(), generator=torch.Generator().manual_seed(0))
         >>> out = run_trials(learner, torch.rand(2, 64, 64), distances_m=[1.0, 2.0], fixation_iterations=2)
         >>> out["q_deg"].shape, out["distance_m"].tolist()
         (torch.Size([4, 4]), [1.0, 2.0, 1.0, 2.0])

@@ -1,10 +1,11 @@
-"""``CueLearner``: one depth cue's learner: its encoder, its actor-critic, the pending transition
-and the cue's symmetry.
+"""``CueLearner``: one depth cue's learner: its encoder, its agent, the pending transition and the
+cue's symmetry, built from the cue's `CueConfig`.
 
-`JointLearner` uses it twice: motion parallax drives pursuit, stereo drives vergence. One
-:meth:`CueLearner.step` encodes the cue's observation (features and reward), completes the
-previous transition with that reward (a critic/actor update, and with the cue's symmetry the
-transformed transition too), chooses the next action and takes one dictionary step.
+`JointLearner` holds one per cue (motion parallax drives pursuit, stereo drives vergence, by
+default). One :meth:`CueLearner.step` encodes the cue's observation (features and reward),
+completes the previous transition with that reward (the agent learns from it, and with the cue's
+symmetry from the transformed transition too), chooses the next action and takes one dictionary
+step.
 """
 
 from __future__ import annotations
@@ -16,8 +17,8 @@ from torch import Tensor, nn
 
 from aectorch.choices import Features, Reward
 from aectorch.coding import BinocularEncoder
-from aectorch.control import NaturalActorCritic
-from aectorch.framework.config import LearnerConfig
+from aectorch.control import Agent, Transitions, make_agent
+from aectorch.framework.config import CueConfig
 from aectorch.framework.shard import Shard
 from aectorch.profiling import stage
 
@@ -40,57 +41,62 @@ class CueLearner(nn.Module):
     """Sparse coding and eye-movement learning of one cue.
 
     Args:
-        encoder: the cue's `BinocularEncoder` (its ``symmetry``, if any, is the cue's).
-        agent: the `NaturalActorCritic` of the eye movement the cue drives.
-        config: the learner's hyperparameters (features, reward, dictionary rate).
+        config: the cue's `CueConfig` (its features, reward, symmetry, agent).
+        encoder: the cue's `BinocularEncoder` (:meth:`build_encoder`).
+        agent: the `Agent` of the eye movement the cue drives (:meth:`build_agent`).
         generator: draws the actions.
         shard: this process's part of the batch (`Shard.single` for one process).
+
+    Attributes:
+        previous: the pending transition ``(features, action, reward)`` of the last step, which
+            the next step's reward completes (``None`` after :meth:`forget`).
     """
 
-    def __init__(self, encoder: BinocularEncoder, agent: NaturalActorCritic, config: LearnerConfig, *,
+    def __init__(self, config: CueConfig, encoder: BinocularEncoder, agent: Agent, *,
                  generator: torch.Generator, shard: Shard) -> None:
         super().__init__()
-        self.encoder, self.agent, self.config = encoder, agent, config
+        self.config, self.encoder, self.agent = config, encoder, agent
         self.generator, self.shard = generator, shard
         # The index of each action's negation: a symmetric cue's transformed transition takes it
         # (the features take the encoder's `feature_permutation`). A buffer, so `.to()` moves it.
-        actions = torch.tensor(config.actions_deg, dtype=torch.float64)
-        negation = (actions[None, :] == -actions[:, None]).to(torch.int64).argmax(-1)
         symmetric = encoder.feature_permutation is not None
-        self.register_buffer("action_negation", negation.to(agent.actor_weight.device) if symmetric else None,
-                             persistent=False)
+        negation = None
         if symmetric:
-            with torch.no_grad():  # start the policy and the critic symmetric as well
-                fmap = encoder.feature_permutation
-                agent.actor_weight.copy_((agent.actor_weight + agent.actor_weight[self.action_negation][:, fmap]) * 0.5)
-                agent.critic_weight.copy_((agent.critic_weight + agent.critic_weight[fmap]) * 0.5)
+            actions = torch.tensor(config.actions_deg, dtype=torch.float64)
+            negation = (actions[None, :] == -actions[:, None]).to(torch.int64).argmax(-1)
+            negation = negation.to(agent.actions_deg.device)
+        self.register_buffer("action_negation", negation, persistent=False)
+        if symmetric:  # start the policy and the critic symmetric as well
+            agent.symmetrize_(encoder.feature_permutation, negation)
         self.previous: tuple[Tensor, Tensor, Tensor] | None = None  # (features, action, reward)
-        self.dictionary_steps = 0  # learning steps the dictionaries took
 
-    def dictionary_rate(self, steps: int) -> float:
-        """The dictionaries' learning rate after ``steps`` steps (``dictionary_decay``)."""
-        c = self.config
-        if c.dictionary_decay is None:
-            return c.dictionary_lr
-        return c.dictionary_lr * (c.dictionary_decay / (c.dictionary_decay + steps)) ** c.dictionary_decay_power
+    @staticmethod
+    def build_encoder(config: CueConfig, *, generator: torch.Generator, dtype=None, device=None) -> BinocularEncoder:
+        """The `BinocularEncoder` of ``config`` (its encoder settings, scales and symmetry)."""
+        symmetry = None if config.symmetry is None else str(config.symmetry)
+        return BinocularEncoder(config.encoder, config.scales, symmetry=symmetry, generator=generator,
+                                dtype=dtype, device=device)
 
-    def step(self, pair: Tensor | dict[str, Tensor], *, learn: bool, greedy: bool) -> CueRecord:
-        """Encode ``pair`` (``[B, 2, H, W]``, or ``{scale: [B, 2, side, side]}`` rendered at each
-        scale's resolution), learn from the pending transition, act, and take a dictionary step."""
+    @staticmethod
+    def build_agent(config: CueConfig, num_features: int, *, generator: torch.Generator, dtype=None,
+                    device=None) -> Agent:
+        """The agent of ``config`` (``config.agent`` with its settings) for ``num_features`` features."""
+        return make_agent(config.agent, num_features, config.actions_deg, config.agent_config,
+                          generator=generator, dtype=dtype, device=device)
+
+    def step(self, observation: dict[str, Tensor], *, learn: bool, greedy: bool, last: bool = False) -> CueRecord:
+        """Encode ``observation`` (the environment's ``{scale: [B, 2, side, side]}``, or its whole
+        window), learn from the pending transition (``last``: this observation ends the fixation),
+        act, and take a dictionary step."""
         with stage("encode"), torch.no_grad():
-            if isinstance(pair, dict):  # images at each scale's resolution
-                out = self.encoder({k: p[:, 0] for k, p in pair.items()}, {k: p[:, 1] for k, p in pair.items()},
-                                   check=False)
-            else:
-                out = self.encoder(pair[:, 0], pair[:, 1], check=False)
+            out = self.encoder.encode(observation)
         with stage("rl"):
             features = self._features(out.features)
-            td_error = self._learn(features, out.reward) if learn and self.previous is not None else None
+            td_error = self._learn(features, out.reward, last) if learn and self.previous is not None else None
             action = self._act(features, greedy)
-        if learn and self.config.dictionary_lr > 0:
+        if learn and self.encoder.config.lr > 0:
             with stage("dictionary"):
-                self.encoder.learn_(out, self.dictionary_rate(self.dictionary_steps), reduce=self.shard.reduce)
-                self.dictionary_steps += 1
+                self.encoder.learn_(out, reduce=self.shard.reduce)
         # Without learning there is no transition to complete on the next step.
         self.previous = (features, action.actions, out.reward) if learn else None
         with stage("metrics"):
@@ -106,9 +112,9 @@ class CueLearner(nn.Module):
             pooled = pooled / torch.linalg.vector_norm(pooled, dim=-1, keepdim=True).clamp_min(1e-12)
         return pooled * self.config.feature_scale
 
-    def _learn(self, features: Tensor, reward: Tensor) -> Tensor:
-        """The critic/actor update of the pending transition, whose reward is this observation's;
-        with the cue's symmetry the transformed transition is learned too. Returns the TD error."""
+    def _learn(self, features: Tensor, reward: Tensor, last: bool) -> Tensor:
+        """The agent learns the pending transition, whose reward is this observation's; with the
+        cue's symmetry the transformed transition too. Returns the TD errors ``[B]``."""
         f_prev, a_prev, r_prev = self.previous
         learned = reward - r_prev if self.config.reward == Reward.improvement else reward
         f_next = features
@@ -118,16 +124,24 @@ class CueLearner(nn.Module):
             a_prev = torch.cat((a_prev, self.action_negation[a_prev]))
             f_next = torch.cat((f_next, f_next[:, fmap]))
             learned = torch.cat((learned, learned))
-        update = self.agent.update(f_prev, a_prev, learned, f_next, reduce=self.shard.reduce)
-        return update.td_error[: features.shape[0]]
+        out = self.agent.learn(Transitions(f_prev, a_prev, learned, f_next, last=last), reduce=self.shard.reduce)
+        return out.td_error[: features.shape[0]]
 
     def _act(self, features: Tensor, greedy: bool):
         if greedy:
             return self.agent.act(features, greedy=True, generator=self.generator)
         # The numbers one process with the whole batch would draw; this process's rows.
-        u = torch.rand(self.shard.whole_batch(features.shape[0]), 1, generator=self.generator, dtype=features.dtype, device=features.device)
+        u = torch.rand(self.shard.whole_batch(features.shape[0]), 1, generator=self.generator, dtype=features.dtype,
+                       device=features.device)
         return self.agent.act(features, uniform=self.shard.draw(u)[:, 0])
 
     def forget(self) -> None:
         """No pending transition: the next step does not learn from the one before it."""
         self.previous = None
+
+    def get_extra_state(self) -> dict:
+        return {"previous": self.previous}
+
+    def set_extra_state(self, state: dict) -> None:
+        previous = state["previous"]
+        self.previous = None if previous is None else tuple(previous)

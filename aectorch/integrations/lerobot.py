@@ -6,8 +6,9 @@ which pins torch < 2.11, so it lives in its own virtual environment (``.venv-ler
 
 **Recording** (`LeRobotRecorder`, `record_trials`, ``python -m aectorch.record``): one episode
 per fixation (``env.fixation_iterations`` frames, 30 by default), so a trial is two episodes.
-Frame t of an episode is iteration t of that fixation, taken at step k2 (after the pursuit
-movement, before the vergence movement):
+Frame t of an episode is iteration t of that fixation, taken when the recorded cue (by default
+the learner's last: stereo, step k2, after the pursuit movement and before the vergence
+movement) observes; its image pair is the two cameras (`aectorch.sim.CueSpec.images`):
 
 ==============================  =========  ======================================================
 key                             shape      content
@@ -16,8 +17,9 @@ key                             shape      content
 ``observation.images.right``    H x W x 3  right eye
 ``observation.state``           5          body shift (m), left pan, right pan, left roll,
                                            right roll (degrees)
-``action``                      2          the iteration's pursuit and vergence increments (deg)
-``reward``                      2          the coding rewards R of the parallax and stereo cues
+``action``                      C          the iteration's increments of the C learned cues'
+                                           movements (deg; pursuit, vergence)
+``reward``                      C          the coding rewards R of the cues (parallax, stereo)
 ``distance_m``                  1          the true distance of the plane (the supervisor)
 ``trial_index``, ``fixation``   1, 1       which trial of the recording, and 0 (leftward shift)
                                            or 1 (rightward)
@@ -40,6 +42,7 @@ import numpy as np
 import torch
 
 from aectorch._checks import check_int, is_int
+from aectorch.sim import WINDOW
 
 __all__ = [
     "FEATURES_STATE",
@@ -68,41 +71,24 @@ def _lerobot():
     return LeRobotDataset
 
 
-def features(height: int, width: int) -> dict:
-    """The LeRobot ``features`` of an aectorch recording with ``height x width`` eye images."""
+def features(height: int, width: int, cues: dict[str, str] | None = None,
+             cameras: tuple[str, str] = ("left", "right")) -> dict:
+    """The LeRobot ``features`` of an aectorch recording with ``height x width`` images of the two
+    ``cameras`` and the learned ``cues`` (``{cue: the movement it drives}``; default the paper's
+    two, `ActiveDepthEnv.CUES`)."""
+    from aectorch.sim import ActiveDepthEnv
+
+    cues = {name: spec.movement for name, spec in ActiveDepthEnv.CUES.items()} if cues is None else cues
     image = {"dtype": "image", "shape": (height, width, 3), "names": ["height", "width", "channel"]}
     return {
-        "observation.images.left": image,
-        "observation.images.right": dict(image),
+        **{f"observation.images.{camera}": dict(image) for camera in cameras},
         "observation.state": {"dtype": "float32", "shape": (5,), "names": list(FEATURES_STATE)},
-        "action": {"dtype": "float32", "shape": (2,), "names": ["pursuit_increment_deg", "vergence_increment_deg"]},
-        "reward": {"dtype": "float32", "shape": (2,), "names": ["parallax", "stereo"]},
+        "action": {"dtype": "float32", "shape": (len(cues),), "names": [f"{m}_increment_deg" for m in cues.values()]},
+        "reward": {"dtype": "float32", "shape": (len(cues),), "names": list(cues)},
         "distance_m": {"dtype": "float32", "shape": (1,), "names": ["distance_m"]},
         "trial_index": {"dtype": "int64", "shape": (1,), "names": None},
         "fixation": {"dtype": "int64", "shape": (1,), "names": None},
     }
-
-
-class _Tap:
-    """Forwards everything to the environment and keeps what step k2 observed (images, state)."""
-
-    def __init__(self, env) -> None:
-        self._env = env
-        self.images = self.state = self.distance_m = None
-
-    def __getattr__(self, name):
-        return getattr(self._env, name)
-
-    def stereo_observation(self, scales=None):
-        # The dataset keeps the whole crops; a learner that reads the scales at their own
-        # resolution gets those too (one more render of the same state).
-        pair = self._env.stereo_observation()
-        env = self._env
-        self.images = pair.detach()
-        self.state = torch.cat((env.body_shift_m[:, None], env.pan_deg, env.roll_deg), dim=1).detach().clone()
-        self.distance_m = env.distance_m.detach().clone()
-        self.fixation, self.iteration = env.fixation, env.iteration
-        return pair if scales is None else self._env.stereo_observation(scales=scales)
 
 
 def _uint8_rgb(image: torch.Tensor) -> np.ndarray:
@@ -113,8 +99,9 @@ def _uint8_rgb(image: torch.Tensor) -> np.ndarray:
 class LeRobotRecorder:
     """Writes the fixations of some of an environment's B heads into a new LeRobotDataset.
 
-    Use `wrap` on the environment the learner runs in, and call `after_iteration` with each
-    `IterationRecord`; every finished fixation of a recorded environment becomes an episode
+    Give `watch` to the learner's iterations (``learner.iteration(env, watch=recorder.watch)``),
+    and call `after_iteration` with each `IterationRecord`; every finished fixation of a recorded
+    environment becomes an episode
     (`LeRobotDataset.add_frame` per iteration, `save_episode` at the fixation's end). Call
     `close` at the end (LeRobot's ``finalize``); fixations cut short are not saved.
 
@@ -122,51 +109,67 @@ class LeRobotRecorder:
         root: the dataset folder (must not exist yet).
         env: the `ActiveDepthEnv` (its image size sizes the features).
         envs: how many of the B environments to record (the first ones; >= 1).
+        cues: the learner's cues (default: all of the environment's, in its order); their
+            increments and rewards are the actions and rewards.
+        camera_cue: the cue whose observation gives the frame and its two cameras (default: the
+            last of ``cues``: the stereo pair).
         repo_id: the dataset's name for LeRobot (``owner/name``).
         fps: the frame rate written into the metadata (the simulation has no clock; nominal).
     """
 
     def __init__(self, root: str | Path, env, *, envs: int = 1, repo_id: str = "aectorch/hoap3-sim",
-                 fps: int = 10) -> None:
+                 fps: int = 10, cues=None, camera_cue: str | None = None) -> None:
         LeRobotDataset = _lerobot()
         root = Path(root)
         if root.exists():
             raise ValueError(f"the recording folder {str(root)!r} exists already; give a new one")
         if not (is_int(envs) and 1 <= envs <= env.num_envs):
             raise ValueError(f"envs must be an int in [1, num_envs={env.num_envs}], got {envs!r}")
-        self.envs = envs
+        self.cues = [c for c in env.CUES if cues is None or c in cues]
+        self.camera_cue = self.cues[-1] if camera_cue is None else camera_cue
+        self.cameras = env.cue(self.camera_cue).images
+        self.env, self.envs = env, envs
         h, w = env.window.height, env.window.width
-        self.dataset = LeRobotDataset.create(repo_id, fps, features(h, w), root=root, robot_type="hoap3-sim",
-                                             use_videos=False)
+        movements = {c: env.cue(c).movement for c in self.cues}
+        self.dataset = LeRobotDataset.create(repo_id, fps, features(h, w, movements, self.cameras), root=root,
+                                             robot_type="hoap3-sim", use_videos=False)
         self._frames: list[list[dict]] = [[] for _ in range(envs)]
         self._trial_of = list(range(envs))  # each recorded environment's current trial number
         self._next_trial = envs
         self.episodes = 0
-        self._tap: _Tap | None = None
+        self._seen = None  # what the camera cue observed this iteration
 
-    def wrap(self, env) -> _Tap:
-        """The environment to give the learner: the same environment, observed."""
-        self._tap = _Tap(env)
-        return self._tap
+    def watch(self, cue: str, observation: dict) -> None:
+        """`JointLearner.iteration`'s ``watch``: keeps the camera cue's images and the state then."""
+        if cue != self.camera_cue:
+            return
+        env = self.env
+        self._seen = {
+            "images": observation[WINDOW].detach(),
+            "state": torch.cat((env.body_shift_m[:, None], env.pan_deg, env.roll_deg), dim=1).detach().clone(),
+            "distance_m": env.distance_m.detach().clone(), "fixation": env.fixation, "iteration": env.iteration,
+        }
 
     def after_iteration(self, record) -> None:
         """Add this iteration's frames; save the episodes of fixations that ended."""
-        tap = self._tap
-        if tap is None or tap.images is None:
-            raise RuntimeError("LeRobotRecorder.after_iteration: run the learner on recorder.wrap(env) first")
-        action = torch.stack((record.parallax.increments_deg, record.stereo.increments_deg), dim=1)
-        reward = torch.stack((record.parallax.reward, record.stereo.reward), dim=1)
-        fixation = int(tap.fixation)
+        seen = self._seen
+        if seen is None:
+            raise RuntimeError("LeRobotRecorder.after_iteration: run the learner's iteration with "
+                               "watch=recorder.watch first")
+        self._seen = None
+        action = torch.stack([record.cues[c].increments_deg for c in self.cues], dim=1)
+        reward = torch.stack([record.cues[c].reward for c in self.cues], dim=1)
+        fixation = int(seen["fixation"])
         # Episodes are whole fixations: a recording started mid-fixation (a resumed run) waits.
-        recording = bool(self._frames[0]) or tap.iteration == 0
+        recording = bool(self._frames[0]) or seen["iteration"] == 0
+        images = seen["images"]
         for b in range(self.envs if recording else 0):
             self._frames[b].append({
-                "observation.images.left": _uint8_rgb(tap.images[b, 0]),
-                "observation.images.right": _uint8_rgb(tap.images[b, 1]),
-                "observation.state": tap.state[b].float().cpu().numpy(),
+                **{f"observation.images.{camera}": _uint8_rgb(images[b, i]) for i, camera in enumerate(self.cameras)},
+                "observation.state": seen["state"][b].float().cpu().numpy(),
                 "action": action[b].float().cpu().numpy(),
                 "reward": reward[b].float().cpu().numpy(),
-                "distance_m": tap.distance_m[b : b + 1].float().cpu().numpy(),
+                "distance_m": seen["distance_m"][b : b + 1].float().cpu().numpy(),
                 "trial_index": np.array([self._trial_of[b]], dtype=np.int64),
                 "fixation": np.array([fixation], dtype=np.int64),
                 "task": _TASKS[fixation],
@@ -201,10 +204,9 @@ def record_trials(learner, env, trials: int, root: str | Path, *, learn: bool = 
         The dataset folder.
     """
     check_int(trials, "trials")
-    recorder = LeRobotRecorder(root, env, envs=env.num_envs, repo_id=repo_id, fps=fps)
+    recorder = LeRobotRecorder(root, env, envs=env.num_envs, repo_id=repo_id, fps=fps, cues=list(learner.cues))
     env.reset()
     learner.forget_transitions()
-    tapped = recorder.wrap(env)
     iterations = trials * 2 * env.fixation_iterations
     bar = None
     if progress:
@@ -213,7 +215,7 @@ def record_trials(learner, env, trials: int, root: str | Path, *, learn: bool = 
         bar = tqdm(total=iterations, desc="recording", unit="it")
     try:
         for _ in range(iterations):
-            recorder.after_iteration(learner.iteration(tapped, learn=learn, greedy=greedy))
+            recorder.after_iteration(learner.iteration(env, learn=learn, greedy=greedy, watch=recorder.watch))
             if bar is not None:
                 bar.update(1)
     finally:

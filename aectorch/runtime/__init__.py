@@ -6,7 +6,9 @@ package holds, one idea per module:
 - `config.py`: the structured configs (`ExperimentConfig`, presets, `validate_resources`);
 - `builders.py`: textures, environments, learner and threads from a config;
 - `checkpoint.py`: the checkpoint format and the rules of a resume (`prepare_run`);
-- `loop.py`: the training loop (`TrainingRun`): log, keep the best state, checkpoint, interrupt;
+- `loop.py`: the training loop (`TrainingRun`) and its extras as `Callback` s: the perturbation, the
+  recording, the watchdog, the metrics log, the best state, checkpoints, the progress bar;
+- `migrations.py`: checkpoints of earlier formats, read as today's;
 - `outputs.py`: the run folder's files (`RunFolder`);
 - `finish.py`: the end of a run: figures, depth calibration, evaluation, ``summary.json``;
 - `metrics.py`, `watchdog.py`, `provenance.py`, `distributed.py`: what the loop reads and writes.
@@ -50,13 +52,13 @@ from aectorch.runtime.checkpoint import (
 )
 from aectorch.runtime.config import ExperimentConfig, to_container, to_experiment_config, validate_resources
 from aectorch.runtime.finish import calibrate_depth, calibration_conditions, finish
-from aectorch.runtime.loop import TrainingRun
+from aectorch.runtime.loop import Callback, TrainingRun, default_callbacks
 from aectorch.runtime.outputs import RunFolder, format_summary
 
 __all__ = [
-    "CHECKPOINT_FORMAT", "RESUME_KEYS", "ExperimentConfig", "RunFolder", "TrainingRun", "available_threads",
+    "CHECKPOINT_FORMAT", "RESUME_KEYS", "Callback", "ExperimentConfig", "RunFolder", "TrainingRun", "available_threads",
     "build_env", "build_learner", "build_textures", "calibrate_depth", "calibration_conditions",
-    "check_resume_overrides", "checkpoint_config", "compile_hot_path", "dictionaries", "format_summary",
+    "check_resume_overrides", "checkpoint_config", "compile_hot_path", "default_callbacks", "dictionaries", "format_summary",
     "load_checkpoint", "load_learner", "prepare_run", "restore", "resume_config", "run_experiment",
     "save_checkpoint", "set_threads", "to_container", "to_experiment_config", "trial_options", "trial_protocol",
     "validate_resources",
@@ -99,16 +101,12 @@ def run_experiment(
     shard = distributed.setup(cfg.env.num_envs, cfg.env.device)
     try:
         folder = RunFolder(cfg.train.resume if checkpoint is not None else run_dir, main=shard.is_main)
-        run = TrainingRun(cfg, folder, shard, checkpoint, callback)
+        run = TrainingRun(cfg, folder, shard, checkpoint, default_callbacks(cfg, folder.main, callback))
         try:
-            train_seconds = run.run()
-            if not folder.main:
-                return {}
-            return finish(cfg, folder, run.learner, run.env, run.initial, run.events, train_seconds,
-                          run.session, run.best)
+            run.run()
         finally:
             run.env.close()  # the renderers' OpenGL contexts, on every process and after an error
+        return finish(run) if folder.main else {}
     finally:
         distributed.teardown()
         torch.use_deterministic_algorithms(previous[0], warn_only=previous[1])  # as the caller had it
-

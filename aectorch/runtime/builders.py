@@ -8,7 +8,6 @@ import torch
 
 from aectorch.framework import JointLearner, Shard
 from aectorch.runtime.config import ExperimentConfig
-from aectorch.runtime.metrics import CUES
 from aectorch.sim import ActiveDepthEnv, TextureBank, TrialProtocol
 
 __all__ = ["available_threads", "build_env", "build_learner", "build_textures", "compile_hot_path",
@@ -92,17 +91,14 @@ def build_learner(cfg: ExperimentConfig, device: str | torch.device | None = Non
 
 def dictionaries(learner: JointLearner) -> dict[str, torch.Tensor]:
     """Copies of the learner's dictionaries ``{"parallax/coarse": atoms [P, N], ...}`` on the CPU."""
-    return {
-        f"{cue}/{name}": d.atoms.detach().cpu().clone()
-        for cue in CUES
-        for name, d in getattr(learner, cue).dictionaries.items()
-    }
+    return {name: atoms.detach().cpu().clone() for name, atoms in learner.dictionaries().items()}
 
 
 def compile_hot_path(learner: JointLearner, env: ActiveDepthEnv | None = None) -> None:
-    """``train.compile``: compile both encoders (patch extraction, pursuit, pooling, errors) and the
-    torch renderer (about 20 elementwise passes per pixel in eager mode, fused when compiled)."""
-    for cue in CUES:
-        getattr(learner, cue).compile()
+    """``train.compile``: compile every cue's encoder (patch extraction, pursuit, pooling, errors)
+    and the torch renderer (about 20 elementwise passes per pixel in eager mode, fused when
+    compiled)."""
+    for cue in learner.cues.values():
+        cue.encoder.compile()
     if env is not None and isinstance(env.renderer, torch.nn.Module):
         env.renderer.compile(dynamic=False)

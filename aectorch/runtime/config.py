@@ -25,7 +25,7 @@ import torch
 from aectorch._checks import check_bool, check_choice, check_device, check_distances, check_int, check_real
 from aectorch.choices import DType, Eye, RendererName
 from aectorch.evaluate import EVAL_BATCH_SIZE
-from aectorch.framework import PAPER_ACTIONS_DEG, LearnerConfig
+from aectorch.framework import PAPER_ACTIONS_DEG, LearnerConfig, default_cues
 from aectorch.runtime.watchdog import WatchdogConfig
 from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL
 
@@ -45,27 +45,18 @@ __all__ = [
     "validate_resources",
 ]
 
-#: The paper's values (Wong et al. 2017), applied by ``preset=paper``: dotted key -> value.
+#: The paper's values (Wong et al. 2017) where they differ from the defaults, applied by
+#: ``preset=paper``: dotted key -> value. What the paper states and the defaults change: its
+#: seven actions, its two scales and no symmetries of the cues (its matching pursuit with 288
+#: atoms and 10 coefficients, and its protocol's 30 iterations and 0.1 m, are the defaults). What
+#: it leaves unstated keeps the defaults (docs/paper-mapping.md): the step sizes and the critic,
+#: the z-scored features, the body movement spread over 20 iterations with yoked pursuit, the
+#: centred pyramid, the decaying rates, B = 32 robots. Its own length: within 20 minutes on two
+#: CPU cores.
 PAPER_PRESET: dict[str, Any] = {
-    # What the paper states: its seven actions, its two scales, matching pursuit with 288 atoms and
-    # 10 coefficients, the protocol's 30 iterations and 0.1 m, no symmetries of the cues.
-    "learner.actions_deg": list(PAPER_ACTIONS_DEG),
-    "learner.symmetry": [],
-    "learner.algorithm": "mp",
-    "learner.num_atoms": 288,
-    "learner.sparsity": 10,
-    "learner.scales": ["coarse", "fine"],
-    "env.fixation_iterations": 30,
-    "env.shift_m": 0.1,
-    "env.pursuit_start_deg": 0.0,
-    "env.vergence_start_deg": 0.0,
-    "env.pursuit_start_spread_deg": 0.0,
-    "env.vergence_start_spread_deg": 0.0,
-    # What it leaves unstated keeps the defaults (docs/paper-mapping.md): the step sizes and the
-    # critic (the lineage's discount, so the coding reward's improvement R(s') - R(s) is the same
-    # discounted problem as R(s')), the z-scored features, the body movement spread over 20
-    # iterations with yoked pursuit, the centred pyramid, the decaying rates, B = 32 robots.
-    # Its own length: within 20 minutes on two CPU cores.
+    **{f"learner.cues.{cue}.{key}": value for cue in default_cues()
+       for key, value in (("actions_deg", list(PAPER_ACTIONS_DEG)), ("symmetry", None),
+                          ("scales", ["coarse", "fine"]))},
     "train.iterations": 6000,
 }
 
@@ -368,7 +359,32 @@ def to_experiment_config(node) -> ExperimentConfig:
     container = node if isinstance(node, dict) else OmegaConf.to_container(node, resolve=True)
     container = {k: v for k, v in container.items() if k != "defaults"}
     merged = OmegaConf.merge(OmegaConf.structured(ExperimentConfig), container)
-    return OmegaConf.to_object(merged)
+    try:
+        return OmegaConf.to_object(merged)
+    except ValueError as err:
+        raise ValueError(_located(str(err), merged)) from err
+
+
+def _located(message: str, node, path: str = "") -> str:
+    """``message`` of a nested config's check (``"cue.actions_deg must ..."``) with the owner
+    replaced by the full path of the node that raised it (``"learner.cues.stereo.actions_deg
+    must ..."``)."""
+    from omegaconf import DictConfig, OmegaConf
+
+    for key in node:
+        child = node._get_node(key)
+        if not isinstance(child, DictConfig) or child._is_missing() or child._is_none():
+            continue
+        where = f"{path}.{key}" if path else str(key)
+        try:
+            OmegaConf.to_object(child)
+        except ValueError as err:
+            if str(err) == message:
+                return _located(message, child, where)
+    owner, dot, rest = message.partition(".")
+    if path and dot and owner.isidentifier() and " " not in owner:
+        return f"{path}.{rest}"
+    return message
 
 
 def to_container(cfg: ExperimentConfig) -> dict:

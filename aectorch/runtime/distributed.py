@@ -49,11 +49,13 @@ class ProcessGroupShard(Shard):
         return self.sum
 
     def gather_record(self, record):
-        """A (nested) NamedTuple of per-environment tensors ``[B, ...]`` (e.g.
+        """A (nested) NamedTuple or dict of per-environment tensors ``[B, ...]`` (e.g.
         `aectorch.framework.IterationRecord`) with every tensor gathered along the batch; fields
         named ``atom_counts`` (counts over the batch) are summed instead. Other values are kept."""
 
         def one(name, value):
+            if isinstance(value, dict):
+                return {key: one(key, item) for key, item in value.items()}
             if isinstance(value, tuple) and hasattr(value, "_fields"):
                 return type(value)(*(one(field, getattr(value, field)) for field in value._fields))
             if isinstance(value, torch.Tensor) and value.ndim > 0:

@@ -26,30 +26,35 @@ log = logging.getLogger("aectorch")
 _BOOKKEEPING = ("iteration", "env_iterations", "elapsed_s", "roll_left_deg", "roll_right_deg")
 
 
-def finish(cfg: ExperimentConfig, folder: RunFolder, learner: JointLearner, env, initial: dict, events: list,
-           train_seconds: float, session: dict, best: dict) -> dict:
-    """Draw the figures, evaluate (``best.pt``, calibrated when asked) and write ``summary.json``."""
+def _errors(record: dict) -> list[str]:
+    """The keys of ``record`` that are task errors (``<movement>_mae_deg``, ``depth_mae_m``)."""
+    return [k for k in record if k.endswith(("_mae_deg", "_mae_m"))]
+
+
+def finish(run) -> dict:
+    """The end of a run (a `TrainingRun` after `TrainingRun.run`): draw the figures, evaluate
+    (``best.pt``, calibrated when asked) and write ``summary.json``."""
+    cfg, folder = run.cfg, run.folder
     total = cfg.train.iterations
     records = read_lines(folder.metrics_path)
     # The last line (always written at the last iteration) holds the final interval's averages.
     final = {k: v for k, v in (records[-1] if records else {}).items() if k not in _BOOKKEEPING}
-    labels = [(when + 1, label) for when, _, label in events]
+    labels = [(when + 1, label) for when, _, label in run.events]
     summary: dict = {
         "iterations": total,
-        "env_iterations": total * cfg.env.num_envs * session.get("world_size", 1),
-        "train_seconds": train_seconds,
-        "iterations_per_s": total / max(train_seconds, 1e-9),
+        "env_iterations": total * cfg.env.num_envs * run.session.get("world_size", 1),
+        "train_seconds": run.train_seconds,
+        "iterations_per_s": total / max(run.train_seconds, 1e-9),
         "final": {k: json_value(v) for k, v in final.items()},
-        "provenance": session,
+        "provenance": run.session,
     }
-    figures = _figures(cfg, folder, initial, learner, labels)
-    if events:
+    figures = _figures(cfg, folder, run.initial, run.learner, labels)
+    if run.events:
         summary["perturbation"] = _recovery(cfg, folder, labels, figures)
-    env.close()
-    if best["iteration"] is not None:
-        summary["best"] = {k: json_value(v) for k, v in best.items()}
+    if run.best["iteration"] is not None:
+        summary["best"] = {k: json_value(v) for k, v in run.best.items()}
     if cfg.eval.enabled:
-        summary.update(_evaluate(cfg, folder, learner, env.textures, figures))
+        summary.update(_evaluate(cfg, folder, run.learner, run.env.textures, figures))
     folder.write_json("summary.json", summary)
     return summary
 
@@ -83,7 +88,8 @@ def _recovery(cfg: ExperimentConfig, folder: RunFolder, labels, figures) -> dict
     if recover is not None:
         records = figures.read_metrics(folder.metrics_path)
         for when, label in labels:
-            recovery[label] = {key: recover(records, key, when) for key in ("pursuit_mae_deg", "vergence_mae_deg")}
+            recovery[label] = {key: recover(records, key, when) for key in _errors(records[0])
+                               if key.endswith("_mae_deg")}
     return {"roll_deg": cfg.perturbation.roll_deg,
             "events": [{"iteration": w, "label": lab} for w, lab in labels],
             "recovery": recovery}
@@ -117,7 +123,7 @@ def _evaluate(cfg: ExperimentConfig, folder: RunFolder, learner: JointLearner, t
     folder.write_json("evaluation.json", result)
     if figures is not None:
         figures.plot_evaluation(result, folder / "figures" / "evaluation.png")
-    out["evaluation"] = {k: result[k] for k in ("pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m", "trials")}
+    out["evaluation"] = {k: result[k] for k in (*_errors(result), "trials")}
     out["evaluation"]["checkpoint"] = evaluated
     if "vergence_test" in result:
         out["evaluation"]["vergence_test_rmse_deg"] = result["vergence_test"]["degrees"]["rmse"]

@@ -1,9 +1,18 @@
-"""The training loop: iterate, log, keep the best state, checkpoint, and stop cleanly.
+"""The training loop and its extras as callbacks: log, keep the best state, checkpoint, stop cleanly.
 
 :class:`TrainingRun` holds one process's part of a run (its shard of the environments, the
-learner, the metrics and the watchdog) and the run folder. Every completed iteration's state is
-kept in memory (``last``), so an interruption (Ctrl-C, SIGTERM, the watchdog, an exception from a
-callback) writes a checkpoint of the last completed, healthy iteration before it propagates.
+learner, the metrics) and the run folder, and runs the loop: each iteration the callbacks'
+``before_iteration``, the learner's iteration (``watch``: what a callback wants to see of the
+observations), the metrics, then the callbacks' ``after_iteration``. What a run does besides
+learning is a :class:`Callback` each (:func:`default_callbacks`): the roll perturbation
+(:class:`Perturbation`), the LeRobot recording (:class:`Recording`), the caller's function
+(:class:`EveryIteration`), the watchdog (:class:`WatchdogCheck`), ``metrics.jsonl`` and
+TensorBoard (:class:`MetricsLog`), ``best.pt`` (:class:`BestState`), ``checkpoint.pt``
+(:class:`Checkpoints`) and the progress bar (:class:`Progress`).
+
+Every completed iteration's state is kept in memory (``TrainingRun.last``), so an interruption
+(Ctrl-C, SIGTERM, the watchdog, an exception from a callback) writes a checkpoint of the last
+completed, healthy iteration before it propagates.
 """
 
 from __future__ import annotations
@@ -13,7 +22,7 @@ import logging
 import signal
 import threading
 import time
-from typing import Callable
+from typing import Callable, Sequence
 
 import torch
 
@@ -26,7 +35,8 @@ from aectorch.runtime.outputs import RunFolder
 from aectorch.runtime.provenance import provenance
 from aectorch.runtime.watchdog import Watchdog, WatchdogError
 
-__all__ = ["TrainingRun"]
+__all__ = ["BestState", "Callback", "Checkpoints", "EveryIteration", "MetricsLog", "Perturbation", "Progress",
+           "Recording", "TrainingRun", "WatchdogCheck", "default_callbacks"]
 
 log = logging.getLogger("aectorch")
 
@@ -44,6 +54,173 @@ def _interrupt_on_sigterm():
     return signal.signal(signal.SIGTERM, _sigterm)
 
 
+class Callback:
+    """A part of the training loop besides learning; every hook does nothing unless overridden.
+
+    Attributes:
+        watch: ``None``, or ``watch(cue, observation)``, passed to `JointLearner.iteration` (the
+            observation then holds the whole window too).
+    """
+
+    watch = None
+
+    def on_start(self, run: "TrainingRun") -> None:
+        """Before the first iteration of this session."""
+
+    def before_iteration(self, run: "TrainingRun", iteration: int) -> None:
+        """Before learner iteration ``iteration`` (0-based) runs."""
+
+    def after_iteration(self, run: "TrainingRun", done: int, record: IterationRecord) -> None:
+        """After ``done`` iterations (1-based) and the metrics' update; ``record`` is the whole batch's."""
+
+    def on_interrupt(self, run: "TrainingRun", err: BaseException) -> None:
+        """The loop is left by ``err`` (which then propagates)."""
+
+    def on_end(self, run: "TrainingRun") -> None:
+        """After the loop, however it ended."""
+
+
+class Perturbation(Callback):
+    """The paper's roll perturbation (`PerturbationConfig.events`): the eyes' roll set before the
+    events' iterations."""
+
+    def before_iteration(self, run, iteration):
+        for when, roll, label in run.events:
+            if iteration == when:
+                run.env.set_roll(torch.tensor(roll))
+                log.info("iteration %d: %s by %s deg", iteration, label, run.cfg.perturbation.roll_deg)
+
+
+class Recording(Callback):
+    """``record.lerobot``: the training recorded as a LeRobotDataset (main process only)."""
+
+    def __init__(self, root: str, envs: int) -> None:
+        self.root, self.envs, self.recorder = root, envs, None
+
+    def on_start(self, run):
+        from aectorch.integrations.lerobot import LeRobotRecorder
+
+        self.recorder = LeRobotRecorder(self.root, run.env, envs=self.envs)
+        self.watch = self.recorder.watch
+
+    def after_iteration(self, run, done, record):
+        self.recorder.after_iteration(record)
+
+    def on_end(self, run):
+        if self.recorder is not None:
+            self.recorder.close()  # the episodes saved so far stay a valid dataset
+
+
+class EveryIteration(Callback):
+    """A function ``fn(done, record)`` called after every iteration (`run_experiment`'s ``callback``)."""
+
+    def __init__(self, fn: Callable[[int, IterationRecord], None]) -> None:
+        self.fn = fn
+
+    def after_iteration(self, run, done, record):
+        self.fn(done, record)
+
+
+class WatchdogCheck(Callback):
+    """The health checks after every iteration (`Watchdog`); in mode ``stop`` a problem raises, and
+    the checkpoint keeps the last healthy iteration."""
+
+    def after_iteration(self, run, done, record):
+        run.watchdog.check(done, record, run.learner)
+
+
+class MetricsLog(Callback):
+    """A line of ``metrics.jsonl`` (and TensorBoard) every ``train.log_every`` iterations and at
+    the last; the line is ``run.line`` for the callbacks after this one (``None`` otherwise)."""
+
+    def on_start(self, run):
+        self.file = run.folder.open_metrics()
+
+    def after_iteration(self, run, done, record):
+        run.line = None
+        if done % run.cfg.train.log_every == 0 or done == run.total:
+            roll = run.env.roll_deg[0].tolist()
+            run.line = {"iteration": done, "env_iterations": done * run.shard.total, "elapsed_s": run.elapsed(),
+                        "roll_left_deg": roll[0], "roll_right_deg": roll[1], **run.metrics.summary()}
+            run.folder.log_line(self.file, run.line)
+
+    def on_end(self, run):
+        self.file.close()
+        run.folder.close()
+
+
+class BestState(Callback):
+    """``train.keep_best``: ``best.pt`` holds the state whose full training window had the lowest
+    sum of the eye movements' errors; ``run.best`` is its record."""
+
+    def after_iteration(self, run, done, record):
+        if run.line is None or not (run.cfg.train.keep_best and run.metrics.window_full):
+            return
+        score = run.metrics.window_mae()
+        if run.best["score"] is None or score < run.best["score"]:
+            run.best.update(iteration=done, score=score,
+                            **{k: v for k, v in run.line.items() if k.endswith(("_mae_deg", "_mae_m"))})
+            if run.folder.main:
+                save_checkpoint(run.folder / "best.pt", run.payload(done, run.state(), run.elapsed()))
+
+
+class Checkpoints(Callback):
+    """``checkpoint.pt`` every ``train.checkpoint_every`` iterations and at the end; on an
+    interruption, the last completed (healthy) iteration's, and how to go on."""
+
+    def after_iteration(self, run, done, record):
+        if run.folder.main and (done % run.cfg.train.checkpoint_every == 0 or done == run.total):
+            save_checkpoint(run.folder / "checkpoint.pt", run.payload(done, run.state(), run.elapsed()))
+
+    def on_interrupt(self, run, err):
+        done, state = run.last
+        if not run.folder.main:
+            return
+        if done > run.start or not run.resumed:
+            save_checkpoint(run.folder / "checkpoint.pt", run.payload(done, state, run.elapsed()))
+        path, run_dir = run.folder / "checkpoint.pt", run.folder.path
+        if isinstance(err, WatchdogError):
+            log.error("\n%s\nstopped; %s holds iteration %d, the last healthy one. Resuming it repeats the same "
+                      "computation; watchdog.mode=warn continues past the check: python train.py "
+                      "train.resume=%s watchdog.mode=warn", err, path, done, run_dir)
+        else:
+            log.warning("\ninterrupted after iteration %d of %d; checkpoint written to %s\nresume with: "
+                        "python train.py train.resume=%s", done, run.total, path, run_dir)
+
+
+class Progress(Callback):
+    """The tqdm bar (``train.progress``, main process), with the training window's errors."""
+
+    def on_start(self, run):
+        from tqdm.auto import tqdm
+
+        self.bar = tqdm(total=run.total, initial=run.start, desc="training", unit="it", dynamic_ncols=True)
+
+    def after_iteration(self, run, done, record):
+        if run.line is not None:
+            self.bar.set_postfix({k.split("_mae_")[0]: f"{v:.3f}" for k, v in run.line.items()
+                                  if k.endswith(("_mae_deg", "_mae_m"))}, refresh=False)
+        self.bar.update(1)
+
+    def on_end(self, run):
+        self.bar.close()
+
+
+def default_callbacks(cfg: ExperimentConfig, main: bool,
+                      fn: Callable[[int, IterationRecord], None] | None = None) -> list[Callback]:
+    """The callbacks of a ``train.py`` run, in their order (``fn``: the caller's, after every
+    iteration, before the watchdog)."""
+    callbacks: list[Callback] = [Perturbation()]
+    if cfg.record.lerobot is not None and main:
+        callbacks.append(Recording(cfg.record.lerobot, cfg.record.envs))
+    if fn is not None:
+        callbacks.append(EveryIteration(fn))
+    callbacks += [WatchdogCheck(), MetricsLog(), BestState(), Checkpoints()]
+    if cfg.train.progress and main:
+        callbacks.append(Progress())
+    return callbacks
+
+
 class TrainingRun:
     """One process's part of a training run (see the module).
 
@@ -52,20 +229,28 @@ class TrainingRun:
         folder: the run folder.
         shard: this process's slice of the environments (`Shard.single` for one process).
         checkpoint: the state to resume from, or ``None``.
-        callback: called as ``callback(iteration, record)`` after every iteration.
+        callbacks: the loop's extras (default: :func:`default_callbacks`).
+
+    Attributes:
+        env, learner, metrics, watchdog: the run's parts.
+        best: the early-stopping record (``iteration``, ``score`` and the window's errors).
+        line: the metrics line of this iteration (``None`` when none was written).
+        last: ``(iteration, state)`` of the last completed iteration.
+        train_seconds: the training's seconds over all sessions, after :meth:`run`.
     """
 
     def __init__(self, cfg: ExperimentConfig, folder: RunFolder, shard: Shard, checkpoint: dict | None,
-                 callback: Callable[[int, IterationRecord], None] | None = None) -> None:
-        self.cfg, self.folder, self.shard, self.callback = cfg, folder, shard, callback
+                 callbacks: Sequence[Callback] | None = None) -> None:
+        self.cfg, self.folder, self.shard = cfg, folder, shard
+        self.callbacks = list(default_callbacks(cfg, folder.main) if callbacks is None else callbacks)
         self.total = cfg.train.iterations
         set_threads(cfg.train.threads, shard.world_size)
         self.env = build_env(cfg, shard)
         self.learner = build_learner(cfg, shard=shard)
-        self.metrics = TrainingMetrics(shard.total, scales=cfg.learner.scales, window_fixations=cfg.train.metrics_window,
-                                       window_trials=cfg.train.metrics_window)
+        self.metrics = TrainingMetrics.for_learner(
+            self.learner, shard.total, window_fixations=cfg.train.metrics_window, window_trials=cfg.train.metrics_window,
+            movements=[spec.movement for spec in self.env.CUES.values()])
         self.watchdog = Watchdog(cfg.watchdog)
-        # Early stopping by the training window (`train.keep_best`): the best score and its iteration.
         self.best: dict = {"iteration": None, "score": None}
         self.start, self.initial, self.elapsed_before = 0, None, 0.0
         self.resumed = checkpoint is not None
@@ -79,6 +264,8 @@ class TrainingRun:
                      tensorboard=cfg.train.tensorboard)
         self.events = cfg.perturbation.events(self.total)
         self.train_seconds = 0.0
+        self.line: dict | None = None
+        self._state: tuple[int, dict] | None = None
 
     def _restore(self, checkpoint: dict) -> None:
         path = self.folder / "checkpoint.pt"
@@ -104,15 +291,19 @@ class TrainingRun:
 
     # -- state -------------------------------------------------------------------------------------
     def state(self) -> dict:
-        """The state a checkpoint holds. The learners of all processes are identical; the
-        environments are each process's own (one process's checkpoint holds its state itself)."""
-        envs = self.shard.gather_objects(self.env.state_dict())
-        return {
-            "learner": copy.deepcopy(self.learner.state_dict()),
-            "env": envs[0] if len(envs) == 1 else envs,
-            "metrics": self.metrics.state_dict(),
-            "watchdog": self.watchdog.state_dict(),
-        }
+        """The state a checkpoint holds, of the iteration just completed (made once per iteration).
+        The learners of all processes are identical; the environments are each process's own (one
+        process's checkpoint holds its state itself)."""
+        done = self.iteration_done
+        if self._state is None or self._state[0] != done:
+            envs = self.shard.gather_objects(self.env.state_dict())
+            self._state = (done, {
+                "learner": copy.deepcopy(self.learner.state_dict()),
+                "env": envs[0] if len(envs) == 1 else envs,
+                "metrics": self.metrics.state_dict(),
+                "watchdog": self.watchdog.state_dict(),
+            })
+        return self._state[1]
 
     def payload(self, iteration: int, state: dict, elapsed: float) -> dict:
         return {"format": CHECKPOINT_FORMAT, "config": self.config_dict, "iteration": iteration,
@@ -121,100 +312,39 @@ class TrainingRun:
     # -- the loop ----------------------------------------------------------------------------------
     def run(self) -> float:
         """Train to ``train.iterations``; returns the training's seconds (all sessions)."""
-        cfg, main = self.cfg, self.folder.main
-        if cfg.train.compile:
+        if self.cfg.train.compile:
             compile_hot_path(self.learner, self.env)
-        recorder, stepped = None, self.env  # the environment the learner steps (observed when recording)
-        if cfg.record.lerobot is not None and main:
-            from aectorch.integrations.lerobot import LeRobotRecorder
-
-            recorder = LeRobotRecorder(cfg.record.lerobot, self.env, envs=cfg.record.envs)
-            stepped = recorder.wrap(self.env)
-        bar = None
-        if cfg.train.progress and main:
-            from tqdm.auto import tqdm
-
-            bar = tqdm(total=self.total, initial=self.start, desc="training", unit="it", dynamic_ncols=True)
         clock = time.perf_counter()
         self.elapsed = lambda: self.elapsed_before + time.perf_counter() - clock  # noqa: E731
+        self.iteration_done = self.start
         self.last = (self.start, self.state())  # the last completed (healthy) iteration
+        started: list[Callback] = []
         previous_sigterm = _interrupt_on_sigterm()
         try:
-            with self.folder.open_metrics() as file:
-                for it in range(self.start, self.total):
-                    self._iteration(it, stepped, recorder, file, bar)
+            for callback in self.callbacks:
+                callback.on_start(self)
+                started.append(callback)
+            watches = [c.watch for c in self.callbacks if c.watch is not None]
+            watch = None if not watches else (lambda cue, obs: [w(cue, obs) for w in watches])
+            for it in range(self.start, self.total):
+                for callback in self.callbacks:
+                    callback.before_iteration(self, it)
+                record = self.learner.iteration(self.env, watch=watch)
+                record = self.shard.gather_record(record)  # every process sees the whole batch's record
+                self.metrics.update(record)
+                self.iteration_done = done = it + 1
+                for callback in self.callbacks:
+                    callback.after_iteration(self, done, record)
+                self.last = (done, self.state())
         except BaseException as err:
-            self._interrupted(err)
+            for callback in started:
+                callback.on_interrupt(self, err)
             raise
         finally:
-            if recorder is not None:
-                recorder.close()  # the episodes saved so far stay a valid dataset
+            for callback in started:
+                callback.on_end(self)
             if previous_sigterm is not None:
                 signal.signal(signal.SIGTERM, previous_sigterm)
-            if bar is not None:
-                bar.close()
             self.folder.close()
-        return self.elapsed()
-
-    def _iteration(self, it: int, stepped, recorder, file, bar) -> None:
-        for when, roll, label in self.events:
-            if it == when:
-                self.env.set_roll(torch.tensor(roll))
-                log.info("iteration %d: %s by %s deg", it, label, self.cfg.perturbation.roll_deg)
-        record = self.learner.iteration(stepped)
-        if recorder is not None:
-            recorder.after_iteration(record)
-        record = self.shard.gather_record(record)  # every process sees the whole batch's record
-        self.metrics.update(record)
-        done = it + 1
-        if self.callback is not None:
-            self.callback(done, record)
-        self.watchdog.check(done, record, self.learner)  # raises in mode "stop": `last` is healthy
-        line = None
-        if done % self.cfg.train.log_every == 0 or done == self.total:
-            line = self._log(done, file, bar)
-        state = self.state()
-        if line is not None:
-            self._keep_best(done, line, state)
-        if self.folder.main and (done % self.cfg.train.checkpoint_every == 0 or done == self.total):
-            save_checkpoint(self.folder / "checkpoint.pt", self.payload(done, state, self.elapsed()))
-        self.last = (done, state)
-        if bar is not None:
-            bar.update(1)
-
-    def _log(self, done: int, file, bar) -> dict:
-        roll = self.env.roll_deg[0].tolist()
-        line = {"iteration": done, "env_iterations": done * self.shard.total, "elapsed_s": self.elapsed(),
-                "roll_left_deg": roll[0], "roll_right_deg": roll[1], **self.metrics.summary()}
-        self.folder.log_line(file, line)
-        if bar is not None:
-            bar.set_postfix(pursuit=f"{line['pursuit_mae_deg']:.3f}", vergence=f"{line['vergence_mae_deg']:.3f}",
-                            depth=f"{line['depth_mae_m']:.3f}", refresh=False)
-        return line
-
-    def _keep_best(self, done: int, line: dict, state: dict) -> None:
-        """``train.keep_best``: write best.pt when the full training window's score is the lowest."""
-        if not (self.cfg.train.keep_best and self.metrics.window_full):
-            return
-        score = line["pursuit_mae_deg"] + line["vergence_mae_deg"]
-        if self.best["score"] is None or score < self.best["score"]:
-            self.best.update(iteration=done, score=score, pursuit_mae_deg=line["pursuit_mae_deg"],
-                             vergence_mae_deg=line["vergence_mae_deg"], depth_mae_m=line["depth_mae_m"])
-            if self.folder.main:
-                save_checkpoint(self.folder / "best.pt", self.payload(done, state, self.elapsed()))
-
-    def _interrupted(self, err: BaseException) -> None:
-        """Checkpoint the last completed iteration and say how to go on."""
-        done, state = self.last
-        if not self.folder.main:
-            return
-        if done > self.start or not self.resumed:
-            save_checkpoint(self.folder / "checkpoint.pt", self.payload(done, state, self.elapsed()))
-        path, run_dir = self.folder / "checkpoint.pt", self.folder.path
-        if isinstance(err, WatchdogError):
-            log.error("\n%s\nstopped; %s holds iteration %d, the last healthy one. Resuming it repeats the same "
-                      "computation; watchdog.mode=warn continues past the check: python train.py "
-                      "train.resume=%s watchdog.mode=warn", err, path, done, run_dir)
-        else:
-            log.warning("\ninterrupted after iteration %d of %d; checkpoint written to %s\nresume with: "
-                        "python train.py train.resume=%s", done, self.total, path, run_dir)
+        self.train_seconds = self.elapsed()
+        return self.train_seconds

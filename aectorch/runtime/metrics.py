@@ -4,16 +4,18 @@
 JSON-ready numbers that ``metrics.jsonl``, TensorBoard and the figures use. Its keys are a
 contract with `aectorch.figures`:
 
-- ``pursuit_mae_deg``, ``vergence_mae_deg``: the paper's eq. (9), the mean absolute error of
-  the left (pursuit) and right (vergence) pan at the last iteration of each fixation, over the
-  last ``window_fixations`` fixation ends (each environment's fixation counts as one);
+- ``<movement>_mae_deg`` for each eye movement of the records (``pursuit_mae_deg``,
+  ``vergence_mae_deg``): the paper's eq. (9), the mean absolute error of the movement's eye (the
+  left eye's pan for pursuit, the right eye's for vergence) at the last iteration of each
+  fixation, over the last ``window_fixations`` fixation ends (each environment's fixation counts
+  as one);
 - ``depth_mae_m``: mean ``|depth_prediction_m - distance_m|`` over the last ``window_trials``
   trials with a prediction (not NaN): the depth MLP's estimate made before the trial joined its
   training data, so an honest online error (the paper's Fig. 3b moving average);
-- per cue ``c`` in ``parallax``, ``stereo``, averaged over the iterations since the previous
-  summary: ``c/reward`` (mean R), ``c/entropy`` (mean policy entropy, nats), ``c/td_error``
-  (mean |TD error| of the iterations that learned; NaN if none did), and per scale ``s``:
-  ``c/s/error`` (mean reconstruction error) and ``c/s/atom_usage`` (the perplexity
+- per learned cue ``c`` (``parallax``, ``stereo``), averaged over the iterations since the
+  previous summary: ``c/reward`` (mean R), ``c/entropy`` (mean policy entropy, nats),
+  ``c/td_error`` (mean |TD error| of the iterations that learned; NaN if none did), and per scale
+  ``s``: ``c/s/error`` (mean reconstruction error) and ``c/s/atom_usage`` (the perplexity
   ``exp(H(p))`` of the atom-selection distribution ``p`` accumulated since the previous summary,
   divided by the number of atoms: 1 = every atom chosen equally often, 1/N = one atom only).
 
@@ -23,19 +25,16 @@ Values not yet defined (no fixation ended, no iteration since the last summary) 
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import torch
 from torch import Tensor
 
 from aectorch._checks import check_int
-from aectorch.choices import Cue
-from aectorch.coding.patches import DEFAULT_SCALES
+from aectorch.framework import default_cues
+from aectorch.sim import ActiveDepthEnv
 
-__all__ = ["CUES", "TrainingMetrics"]
-
-#: The learner's cues, in the order the metrics report them.
-CUES = Cue.values()
+__all__ = ["TrainingMetrics"]
 
 
 def _mean(total: float, count: int) -> float:
@@ -47,18 +46,21 @@ class TrainingMetrics:
 
     Args:
         num_envs: environments B of the records (checked).
-        window_fixations: fixation ends the pursuit and vergence errors average over (>= 1).
+        window_fixations: fixation ends the eye movements' errors average over (>= 1).
         window_trials: predicted trials the depth error averages over (>= 1).
-        scales: the learner's scales, in the order of ``CueRecord.errors``' columns (default
-            ``JointLearner``'s, :data:`aectorch.coding.patches.DEFAULT_SCALES`).
+        cues: the learned cues' scales, ``{cue: scale names}`` in the order of ``CueRecord.errors``'
+            columns (default: `aectorch.framework.default_cues`' cues and scales; for a learner:
+            :meth:`for_learner`).
+        movements: the eye movements of the records' ``errors_deg`` (default: those of
+            `aectorch.sim.ActiveDepthEnv`'s cues, pursuit and vergence).
 
     Example:
         >>> import torch
         >>> from aectorch.framework import JointLearner, LearnerConfig
         >>> from aectorch.sim import ActiveDepthEnv
         >>> env = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64), fixation_iterations=1, seed=0)
-        >>> learner = JointLearner(LearnerConfig(num_atoms=16), generator=torch.Generator().manual_seed(0))
-        >>> metrics = TrainingMetrics(2)
+        >>> learner = JointLearner(LearnerConfig(), generator=torch.Generator().manual_seed(0))
+        >>> metrics = TrainingMetrics.for_learner(learner, 2)
         >>> metrics.update(learner.iteration(env))
         >>> summary = metrics.summary()
         >>> summary["pursuit_mae_deg"] >= 0, 0 < summary["stereo/fine/atom_usage"] <= 1
@@ -71,7 +73,8 @@ class TrainingMetrics:
         window_fixations: int = 1000,
         window_trials: int = 1000,
         *,
-        scales: Sequence[str] = DEFAULT_SCALES,
+        cues: Mapping[str, Sequence[str]] | None = None,
+        movements: Sequence[str] | None = None,
     ) -> None:
         for name, value in (("num_envs", num_envs), ("window_fixations", window_fixations),
                             ("window_trials", window_trials)):
@@ -79,20 +82,28 @@ class TrainingMetrics:
         self.num_envs = num_envs
         self.window_fixations = window_fixations
         self.window_trials = window_trials
-        self.scales = tuple(scales)
-        empty = torch.zeros(0, dtype=torch.float64)
-        self.pursuit = empty.clone()  # |error| at the last fixation ends, oldest first
-        self.vergence = empty.clone()
-        self.depth = empty.clone()  # |prediction - distance| of the last predicted trials
+        cues = {name: cue.scales for name, cue in default_cues().items()} if cues is None else cues
+        self.cues = {str(name): tuple(scales) for name, scales in cues.items()}
+        if movements is None:
+            movements = [spec.movement for spec in ActiveDepthEnv.CUES.values()]
+        # |error| at the last fixation ends per movement, oldest first
+        self.errors = {str(m): torch.zeros(0, dtype=torch.float64) for m in movements}
+        self.depth = torch.zeros(0, dtype=torch.float64)  # |prediction - distance| of the last predicted trials
         self._reset_interval()
 
+    @classmethod
+    def for_learner(cls, learner, num_envs: int, window_fixations: int = 1000, window_trials: int = 1000,
+                    movements: Sequence[str] | None = None) -> "TrainingMetrics":
+        """The metrics of ``learner``'s cues and scales (a `JointLearner`)."""
+        cues = {name: tuple(s.name for s in cue.encoder.scales) for name, cue in learner.cues.items()}
+        return cls(num_envs, window_fixations, window_trials, cues=cues, movements=movements)
+
     def _reset_interval(self) -> None:
-        n = len(self.scales)
         self.iterations = 0
-        self.sums = {cue: {"reward": 0.0, "entropy": 0.0, "td_error": 0.0} for cue in CUES}
-        self.td_count = {cue: 0 for cue in CUES}
-        self.error_sums = {cue: torch.zeros(n, dtype=torch.float64) for cue in CUES}
-        self.atom_counts: dict[str, Tensor | None] = {cue: None for cue in CUES}
+        self.sums = {cue: {"reward": 0.0, "entropy": 0.0, "td_error": 0.0} for cue in self.cues}
+        self.td_count = {cue: 0 for cue in self.cues}
+        self.error_sums = {cue: torch.zeros(len(scales), dtype=torch.float64) for cue, scales in self.cues.items()}
+        self.atom_counts: dict[str, Tensor | None] = {cue: None for cue in self.cues}
 
     @staticmethod
     def _append(window: Tensor, values: Tensor, size: int) -> Tensor:
@@ -100,22 +111,23 @@ class TrainingMetrics:
 
     def update(self, record) -> None:
         """Add one :class:`~aectorch.framework.IterationRecord`."""
-        if record.pursuit_error_deg.shape != (self.num_envs,):
-            raise ValueError(
-                f"record has {tuple(record.pursuit_error_deg.shape)} environments, "
-                f"the metrics expect [{self.num_envs}]"
-            )
-        if record.fixation_end:
-            self.pursuit = self._append(self.pursuit, record.pursuit_error_deg.abs(), self.window_fixations)
-            self.vergence = self._append(self.vergence, record.vergence_error_deg.abs(), self.window_fixations)
+        if set(record.errors_deg) != set(self.errors):
+            raise ValueError(f"record has the movements {list(record.errors_deg)}, the metrics expect {list(self.errors)}")
+        for movement, error in record.errors_deg.items():
+            if error.shape != (self.num_envs,):
+                raise ValueError(f"record has {tuple(error.shape)} environments, the metrics expect [{self.num_envs}]")
+            if record.fixation_end:
+                self.errors[movement] = self._append(self.errors[movement], error.abs(), self.window_fixations)
         if record.trial_end and record.depth_prediction_m is not None:
             error = (record.depth_prediction_m.double() - record.distance_m.double()).abs().cpu()
             self.depth = self._append(self.depth, error[~torch.isnan(error)], self.window_trials)
+        if set(record.cues) != set(self.cues):
+            raise ValueError(f"record has the cues {list(record.cues)}, the metrics expect {list(self.cues)}")
         self.iterations += 1
-        for cue in CUES:
-            c = getattr(record, cue)
-            if c.errors.shape[-1] != len(self.scales):
-                raise ValueError(f"record has {c.errors.shape[-1]} scales, the metrics expect {self.scales}")
+        for cue, scales in self.cues.items():
+            c = record.cues[cue]
+            if c.errors.shape[-1] != len(scales):
+                raise ValueError(f"record's {cue} has {c.errors.shape[-1]} scales, the metrics expect {scales}")
             sums = self.sums[cue]
             sums["reward"] += float(c.reward.double().mean())
             sums["entropy"] += float(c.entropy.double().mean())
@@ -129,28 +141,30 @@ class TrainingMetrics:
 
     @property
     def window_full(self) -> bool:
-        """Whether the pursuit and vergence windows hold ``window_fixations`` fixation ends."""
-        return self.pursuit.numel() >= self.window_fixations
+        """Whether every movement's window holds ``window_fixations`` fixation ends."""
+        return all(w.numel() >= self.window_fixations for w in self.errors.values())
 
     def summary(self, *, reset: bool = True) -> dict[str, float]:
         """The metrics as a flat dict of floats; ``reset`` starts a new averaging interval."""
-        out = {
-            "pursuit_mae_deg": float(self.pursuit.mean()) if self.pursuit.numel() else math.nan,
-            "vergence_mae_deg": float(self.vergence.mean()) if self.vergence.numel() else math.nan,
-            "depth_mae_m": float(self.depth.mean()) if self.depth.numel() else math.nan,
-        }
-        for cue in CUES:
+        out = {f"{movement}_mae_deg": float(w.mean()) if w.numel() else math.nan for movement, w in self.errors.items()}
+        out["depth_mae_m"] = float(self.depth.mean()) if self.depth.numel() else math.nan
+        for cue, scales in self.cues.items():
             sums = self.sums[cue]
             out[f"{cue}/reward"] = _mean(sums["reward"], self.iterations)
             out[f"{cue}/entropy"] = _mean(sums["entropy"], self.iterations)
             out[f"{cue}/td_error"] = _mean(sums["td_error"], self.td_count[cue])
             counts = self.atom_counts[cue]
-            for i, scale in enumerate(self.scales):
+            for i, scale in enumerate(scales):
                 out[f"{cue}/{scale}/error"] = _mean(float(self.error_sums[cue][i]), self.iterations)
                 out[f"{cue}/{scale}/atom_usage"] = math.nan if counts is None else _usage(counts[i])
         if reset:
             self._reset_interval()
         return out
+
+    def window_mae(self) -> float:
+        """The sum of the movements' windowed errors: what `train.keep_best` minimises (NaN when
+        no fixation ended yet)."""
+        return sum(float(w.mean()) if w.numel() else math.nan for w in self.errors.values())
 
     # -- checkpoints ---------------------------------------------------------------------------
     def state_dict(self) -> dict:
@@ -159,9 +173,8 @@ class TrainingMetrics:
             "num_envs": self.num_envs,
             "window_fixations": self.window_fixations,
             "window_trials": self.window_trials,
-            "scales": list(self.scales),
-            "pursuit": self.pursuit.clone(),
-            "vergence": self.vergence.clone(),
+            "cues": {cue: list(scales) for cue, scales in self.cues.items()},
+            "errors": {movement: w.clone() for movement, w in self.errors.items()},
             "depth": self.depth.clone(),
             "iterations": self.iterations,
             "sums": {cue: dict(v) for cue, v in self.sums.items()},
@@ -171,14 +184,15 @@ class TrainingMetrics:
         }
 
     def load_state_dict(self, state: dict) -> None:
-        """Restore a :meth:`state_dict` (the windows and scales must match this object's)."""
+        """Restore a :meth:`state_dict` (the windows and cues must match this object's)."""
         for key in ("num_envs", "window_fixations", "window_trials"):
             if state[key] != getattr(self, key):
                 raise ValueError(f"state was saved with {key}={state[key]!r}, these metrics have {getattr(self, key)!r}")
-        if tuple(state["scales"]) != self.scales:
-            raise ValueError(f"state was saved with scales={state['scales']!r}, these metrics have {self.scales!r}")
-        self.pursuit = state["pursuit"].clone()
-        self.vergence = state["vergence"].clone()
+        cues = {cue: tuple(scales) for cue, scales in state["cues"].items()}
+        if cues != self.cues or set(state["errors"]) != set(self.errors):
+            raise ValueError(f"state was saved with cues={cues!r} and movements {list(state['errors'])}, these "
+                             f"metrics have {self.cues!r} and {list(self.errors)}")
+        self.errors = {movement: w.clone() for movement, w in state["errors"].items()}
         self.depth = state["depth"].clone()
         self.iterations = int(state["iterations"])
         self.sums = {cue: dict(v) for cue, v in state["sums"].items()}

@@ -108,7 +108,7 @@ def format_summary(summary: dict, run_dir: Path) -> str:
 
     final, evaluation = summary["final"], summary.get("evaluation", {})
     rows = [("", "training (window)", "evaluation")]
-    for key in ("pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m"):
+    for key in [k for k in final if k.endswith(("_mae_deg", "_mae_m"))]:
         rows.append((key, fmt(final.get(key)), fmt(evaluation.get(key))))
     lines = [f"{a:<18}{b:>18}{c:>14}" for a, b, c in rows]
     rate = summary["iterations_per_s"]

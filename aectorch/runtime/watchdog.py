@@ -99,7 +99,7 @@ class Watchdog:
         >>> from aectorch.sim import ActiveDepthEnv, TextureBank
         >>> from aectorch.runtime.watchdog import Watchdog, WatchdogConfig
         >>> env = ActiveDepthEnv(2, textures=TextureBank.procedural(4, size=(64, 64), seed=0), seed=0)
-        >>> learner = JointLearner(LearnerConfig(num_atoms=16), generator=torch.Generator().manual_seed(0))
+        >>> learner = JointLearner(LearnerConfig(), generator=torch.Generator().manual_seed(0))
         >>> dog = Watchdog(WatchdogConfig())
         >>> dog.check(1, learner.iteration(env), learner)
         []
@@ -114,10 +114,9 @@ class Watchdog:
         self._entropy_start = 0
 
     def _state_tensors(self, learner: nn.Module) -> list[tuple[str, torch.Tensor]]:
-        # Named as the checkpoint names them (`JointLearner.state_name`), parameters first, then buffers.
-        rename = getattr(learner, "state_name", lambda name: name)
+        # Named as the checkpoint names them, parameters first, then buffers.
         named = list(learner.named_parameters()) + list(learner.named_buffers())
-        return [(rename(name), t) for name, t in named if t.is_floating_point() and t.numel() > 0]
+        return [(name, t) for name, t in named if t.is_floating_point() and t.numel() > 0]
 
     def check(self, iteration: int, record, learner: nn.Module) -> list[str]:
         """The problems after completed iteration ``iteration`` (1-based); raises in ``stop`` mode.
@@ -128,7 +127,7 @@ class Watchdog:
         cfg = self.config
         if cfg.mode == "off":
             return []
-        cues = {"parallax": record.parallax, "stereo": record.stereo}
+        cues = record.cues
         named: list[tuple[str, torch.Tensor]] = []
         for cue, c in cues.items():
             named += [(f"{cue} reward", c.reward), (f"{cue} reconstruction error", c.errors),

@@ -5,7 +5,9 @@ pyrender (and with it PyOpenGL) is imported only when a :class:`PyrenderRenderer
 """
 
 from aectorch.sim.camera import PinholeCamera, PixelWindow
-from aectorch.sim.env import DEFAULT_DISTANCES_M, RENDERERS, ActiveDepthEnv, IterationInfo, make_renderer
+from aectorch.sim.env import (
+    DEFAULT_DISTANCES_M, RENDERERS, WINDOW, ActiveDepthEnv, CueSpec, IterationInfo, make_renderer,
+)
 from aectorch.sim.hoap3 import HOAP3Head
 from aectorch.sim.protocol import DEFAULT_PROTOCOL, Renderer, TrialProtocol, resolve_protocol
 from aectorch.sim.render_torch import (
@@ -26,6 +28,8 @@ def __getattr__(name: str):
 
 __all__ = [
     "ActiveDepthEnv",
+    "CueSpec",
+    "WINDOW",
     "DEFAULT_PROTOCOL",
     "Renderer",
     "TrialProtocol",

@@ -14,7 +14,15 @@ position"). One **iteration** of one fixation is:
 3. :meth:`ActiveDepthEnv.stereo_observation`: both eyes' images at the shifted position
    (stereo, cue *s*);
 4. :meth:`ActiveDepthEnv.apply_vergence`: the vergence increment is added to the right eye's
-   pan; the iteration ends, and the returned :class:`IterationInfo` carries the ground truth.
+   pan;
+5. :meth:`ActiveDepthEnv.end_iteration`: the iteration ends, and the returned
+   :class:`IterationInfo` carries the ground truth.
+
+The cues are data (:attr:`ActiveDepthEnv.CUES`): ``observe(cue)``, ``act(cue, increments)`` and
+``hold(cue)`` (the cue's movement put at its optimum, for a learner without that cue) call a
+cue's methods by its name. Observations are dicts: ``{scale name: [B, 2, side, side]}`` for the
+foveal scales asked for, and ``{WINDOW: [B, 2, h, w]}``, the whole rendered window, when no scales
+are asked for or with ``window=True``.
 
 At each fixation's start the left eye looks straight ahead (pan ``pursuit_start_deg``, default
 0) and the right eye is parallel to it (vergence ``vergence_start_deg``, default 0), so the eye
@@ -38,14 +46,15 @@ from torch import Tensor
 
 from aectorch._checks import check_distances, check_int, is_real
 from aectorch.choices import RendererName
+from aectorch.coding.patches import WINDOW
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.hoap3 import HOAP3Head
 from aectorch.sim.scene import PlaneScene
 from aectorch.sim.protocol import DEFAULT_PROTOCOL, TrialProtocol
 from aectorch.sim.textures import TextureBank, pink_noise_images
 
-__all__ = ["ActiveDepthEnv", "IterationInfo", "RENDERERS", "DEFAULT_DISTANCES_M", "SCALE_FILTER", "make_renderer",
-           "pyramid_blur"]
+__all__ = ["ActiveDepthEnv", "CueSpec", "IterationInfo", "RENDERERS", "DEFAULT_DISTANCES_M", "SCALE_FILTER",
+           "WINDOW", "make_renderer", "pyramid_blur"]
 
 #: The paper's object distances: 1.0 to 3.0 m in 0.1 m steps.
 DEFAULT_DISTANCES_M = tuple(round(1.0 + 0.1 * i, 1) for i in range(21))
@@ -54,7 +63,7 @@ RENDERERS = RendererName.values()
 
 
 class IterationInfo(NamedTuple):
-    """What :meth:`ActiveDepthEnv.apply_vergence` reports at the end of every iteration.
+    """What :meth:`ActiveDepthEnv.end_iteration` reports at the end of every iteration.
 
     All angles in degrees, each tensor ``[B]`` unless noted. Errors are actual minus optimal.
     """
@@ -79,6 +88,32 @@ class IterationInfo(NamedTuple):
     q_deg: Tensor | None
     #: the true distance of the trial that just ended (``None`` when no trial ended).
     distance_m: Tensor | None
+
+    @property
+    def errors_deg(self) -> dict[str, Tensor]:
+        """Each eye movement's error ``[B]`` by the movement's name (`ActiveDepthEnv.CUES`)."""
+        return {"pursuit": self.pursuit_error_deg, "vergence": self.vergence_error_deg}
+
+
+class CueSpec(NamedTuple):
+    """What a depth cue is in the environment (`ActiveDepthEnv.CUES`): method names.
+
+    Attributes:
+        movement: the eye movement the cue's action drives (its error is
+            ``IterationInfo.errors_deg[movement]``).
+        observe: the method returning the cue's image pair (``scales=None, *, window=False``).
+        act: the method adding the cue's increments ``[B]`` (degrees).
+        to_optimum: the method returning the increments ``[B]`` that put the movement at its
+            optimum now (`ActiveDepthEnv.hold`).
+        images: names of the pair's two images (the eye, and ``_before`` for the image at the
+            fixation's start position): the viewer's titles, the LeRobot recording's cameras.
+    """
+
+    movement: str
+    observe: str
+    act: str
+    to_optimum: str
+    images: tuple[str, str]
 
 
 def _range_or_value(value, name: str) -> tuple[float, float]:
@@ -196,15 +231,26 @@ class ActiveDepthEnv:
 
     Example:
         >>> env = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64), fixation_iterations=2, seed=0)
-        >>> first, second = env.parallax_observation().unbind(1)
+        >>> first, second = env.parallax_observation()["window"].unbind(1)
         >>> first.shape
         torch.Size([2, 128, 128])
         >>> env.apply_pursuit(torch.tensor([-0.2, 0.1]))
-        >>> left, right = env.stereo_observation().unbind(1)
-        >>> info = env.apply_vergence(torch.zeros(2))
-        >>> info.iteration, info.fixation_end, info.pursuit_error_deg.shape
+        >>> left, right = env.stereo_observation()["window"].unbind(1)
+        >>> env.apply_vergence(torch.zeros(2))
+        >>> info = env.end_iteration()
+        >>> info.iteration, info.fixation_end, info.errors_deg["pursuit"].shape
         (0, False, torch.Size([2]))
     """
+
+    #: The depth cues this environment serves, in the paper's order (an iteration's steps k1, k2):
+    #: motion parallax (the dominant eye before and after the body shift) drives pursuit, stereo
+    #: (both eyes) drives vergence. `observe`, `act` and `hold` take a cue's name.
+    CUES = {
+        "parallax": CueSpec("pursuit", "parallax_observation", "apply_pursuit", "pursuit_to_optimum",
+                            ("left_before", "left")),
+        "stereo": CueSpec("vergence", "stereo_observation", "apply_vergence", "vergence_to_optimum",
+                          ("left", "right")),
+    }
 
     def __init__(
         self,
@@ -285,9 +331,6 @@ class ActiveDepthEnv:
         self._last_left = None  # (view version, scales, left image) of the last stereo frame
         self.seed = seed
         self.reset(seed)
-
-    #: :meth:`parallax_observation` and :meth:`stereo_observation` accept ``scales``.
-    renders_scales = True
 
     # -- state -------------------------------------------------------------------------------
     def reset(self, seed: int | None = None) -> None:
@@ -445,12 +488,15 @@ class ActiveDepthEnv:
 
     # -- observations ----------------------------------------------------------------------
     def _render(self, shift_m: Tensor, pans: Tensor, eyes: slice, roll_deg: Tensor | None = None,
-                scales=None):
+                scales=None, window: bool = False) -> dict[str, Tensor]:
         roll = self.roll_deg if roll_deg is None else roll_deg
         poses = self.head.camera_poses(shift_m, pans, roll, convention="opengl")[:, eyes]
+        out = {}
         # The indices were checked by set_trial: no host sync per frame.
+        if scales is None or window:
+            out[WINDOW] = self.renderer(poses, self.plane_x_m, self.texture_index, self.window, check=False).to(self.dtype)
         if scales is None:
-            return self.renderer(poses, self.plane_x_m, self.texture_index, self.window, check=False).to(self.dtype)
+            return out
         if self._scale_renderer is None:
             self._scale_renderer = make_renderer(self.renderer_name, self.scene, self.camera, device=self.device,
                                                  dtype=self.dtype, **{**self._renderer_options, **SCALE_FILTER})
@@ -459,55 +505,87 @@ class ActiveDepthEnv:
         windows = [(self.camera.central_window(s.crop + 2 * s.downsample), s.downsample // k)
                    for s, k in zip(scales, finer)]
         images = self._scale_renderer.render_windows(poses, self.plane_x_m, self.texture_index, windows, check=False)
-        return {s.name: pyramid_blur(_block_mean(image, k), s.levels).to(self.dtype)
-                for s, image, k in zip(scales, images, finer)}
+        for s, image, k in zip(scales, images, finer):
+            out[s.name] = pyramid_blur(_block_mean(image, k), s.levels).to(self.dtype)
+        return out
 
     @staticmethod
-    def _key(scales):
-        return None if scales is None else tuple(scales)
+    def _key(scales, window: bool):
+        return None if scales is None else tuple(scales), bool(window)
 
-    def parallax_observation(self, scales=None):
-        """The motion-parallax pair ``[B, 2, h, w]``: left eye before the shift, then after it.
+    def parallax_observation(self, scales=None, *, window: bool = False) -> dict[str, Tensor]:
+        """The motion-parallax pair: the left eye before the shift, then after it.
 
         The first image is the left eye at the starting position with the fixation's start pan,
         rendered once per fixation; the second is the left eye after the body shift with the
         current pan (the previous stereo frame's left image when nothing has moved since).
 
         Args:
-            scales: ``None`` (the crops of ``window``), or foveal scales
-                (:class:`aectorch.coding.Scale`): then a dict ``{scale.name: [B, 2, side, side]}``
-                of each scale's central ``crop`` rendered directly at its resolution
-                (``crop // downsample``, mipmapped: :data:`SCALE_FILTER`) and given the rest of
-                the pyramid's blur (:func:`pyramid_blur`), what
-                :class:`aectorch.coding.BinocularEncoder` reads in place of the pyramid's output.
+            scales: ``None`` (the whole window), or foveal scales (:class:`aectorch.coding.Scale`):
+                each scale's central ``crop`` rendered directly at its resolution
+                (``crop // downsample``, mipmapped: :data:`SCALE_FILTER`) and given the rest of the
+                pyramid's blur (:func:`pyramid_blur`), what :class:`aectorch.coding.BinocularEncoder`
+                reads in place of the pyramid's output.
+            window: with ``scales``, also render the whole window.
+
+        Returns:
+            ``{scale.name: [B, 2, side, side]}`` for each scale and ``{WINDOW: [B, 2, h, w]}`` (the
+            crops of ``window``) without scales or with ``window=True``.
         """
-        key = self._key(scales)
+        key = self._key(scales, window)
         first = self._first_image.get(key)
         if first is None:
             zero = torch.zeros_like(self.body_shift_m)
             if self._first_roll is None:  # the roll when the fixation's first image was taken
                 self._first_roll = self.roll_deg.clone()
-            first = self._render(zero, self._start_pans, slice(0, 1), self._first_roll, scales)
+            first = self._render(zero, self._start_pans, slice(0, 1), self._first_roll, scales, window)
             self._first_image[key] = first
         cached = self._last_left
         if cached is not None and cached[0] == self._left_view and cached[1] == key:
             second = cached[2]  # the left eye has not moved since the last stereo frame
         else:
-            second = self._render(self.body_shift_m, self.pan_deg, slice(0, 1), scales=scales)
-        if scales is None:
-            return torch.cat((first, second), dim=1)
+            second = self._render(self.body_shift_m, self.pan_deg, slice(0, 1), scales=scales, window=window)
         return {name: torch.cat((first[name], second[name]), dim=1) for name in first}
 
-    def stereo_observation(self, scales=None):
-        """The stereo pair ``[B, 2, h, w]``: left then right eye at the shifted position.
+    def stereo_observation(self, scales=None, *, window: bool = False) -> dict[str, Tensor]:
+        """The stereo pair: the left then the right eye at the shifted position.
 
         Args:
-            scales: as for :meth:`parallax_observation` (a dict of per-scale pairs).
+            scales, window: as for :meth:`parallax_observation`.
         """
-        pair = self._render(self.body_shift_m, self.pan_deg, slice(0, 2), scales=scales)
-        left = pair[:, :1] if scales is None else {name: p[:, :1] for name, p in pair.items()}
-        self._last_left = (self._left_view, self._key(scales), left)
+        pair = self._render(self.body_shift_m, self.pan_deg, slice(0, 2), scales=scales, window=window)
+        self._last_left = (self._left_view, self._key(scales, window), {name: p[:, :1] for name, p in pair.items()})
         return pair
+
+    # -- the cues ----------------------------------------------------------------------------
+    def cue(self, name: str) -> CueSpec:
+        """The :class:`CueSpec` of the cue ``name`` (``ValueError`` naming the cues otherwise)."""
+        spec = self.CUES.get(str(name))
+        if spec is None:
+            raise ValueError(f"cue must be one of {tuple(self.CUES)} (this environment's cues), got {name!r}")
+        return spec
+
+    def observe(self, cue: str, scales=None, *, window: bool = False) -> dict[str, Tensor]:
+        """The image pair of ``cue`` (its observation method, e.g. :meth:`stereo_observation`)."""
+        return getattr(self, self.cue(cue).observe)(scales, window=window)
+
+    def act(self, cue: str, delta_deg: Tensor) -> None:
+        """Add the increments ``[B]`` (degrees) of the eye movement ``cue`` drives."""
+        getattr(self, self.cue(cue).act)(delta_deg)
+
+    def hold(self, cue: str) -> None:
+        """Put the eye movement ``cue`` drives at its optimum (the increment that reaches it, within
+        the eyes' limits): a learner without that cue (e.g. the vergence-only model) has it held."""
+        spec = self.cue(cue)
+        getattr(self, spec.act)(getattr(self, spec.to_optimum)())
+
+    def pursuit_to_optimum(self) -> Tensor:
+        """The pursuit increments ``[B]`` that put the left eye at its optimal pan now."""
+        return self.optimal_left_pan_deg() - self.left_pan_deg
+
+    def vergence_to_optimum(self) -> Tensor:
+        """The vergence increments ``[B]`` that put the right eye at its optimal pan now."""
+        return self.optimal_right_pan_deg() - self.right_pan_deg
 
     # -- actions -----------------------------------------------------------------------------
     def _check_increment(self, delta_deg, name: str) -> Tensor:
@@ -530,11 +608,15 @@ class ActiveDepthEnv:
         self.pan_deg = self.head.clamp_pan_deg(self.pan_deg + step)
         self._moved()
 
-    def apply_vergence(self, delta_deg: Tensor) -> IterationInfo:
-        """Add the vergence increments ``[B]`` to the right eye's pan and end the iteration."""
+    def apply_vergence(self, delta_deg: Tensor) -> None:
+        """Add the vergence increments ``[B]`` (degrees) to the right eye's pan (within its limits)."""
         delta = self._check_increment(delta_deg, "delta_deg")
         step = torch.stack((torch.zeros_like(delta), delta), dim=-1)
         self.pan_deg = self.head.clamp_pan_deg(self.pan_deg + step)
+
+    def end_iteration(self) -> IterationInfo:
+        """End the iteration: the ground truth after its movements, and the next iteration, fixation
+        or trial begins."""
         optimal_left = self.optimal_left_pan_deg()
         optimal_right = self.optimal_right_pan_deg()
         iteration, fixation = self.iteration, self.fixation

@@ -3,10 +3,11 @@
 :func:`record_trial` runs one frozen trial (a leftward and a rightward fixation of ``h``
 iterations each, the protocol of :func:`aectorch.evaluate.run_trials`) of a
 :class:`~aectorch.framework.JointLearner` on one texture at one distance and keeps, per
-iteration, the stereo pair the vergence policy saw (left eye after the pursuit step, right eye
-before the vergence step, as 128 px crops) and the pursuit and vergence errors after the
-iteration. :func:`animate_trial` draws them as a GIF (or an MP4 when ffmpeg is installed), one
-frame per iteration: the left view, the right view, left - right, and the error curves so far.
+iteration, the image pair one cue's policy saw (by default the last cue's: the stereo pair the
+vergence policy saw, the left eye after the pursuit step and the right eye before the vergence
+step, as 128 px crops) and every eye movement's error after the iteration. :func:`animate_trial`
+draws them as a GIF (or an MP4 when ffmpeg is installed), one frame per iteration: the two views,
+their difference, and the error curves so far.
 
 From the command line, on a checkpoint written by ``train.py`` (see ``python -m aectorch.visualize --help``)::
 
@@ -26,7 +27,9 @@ from torch import Tensor
 
 from aectorch._checks import check_choice, check_int, check_real
 from aectorch.choices import Policy
-from aectorch.sim import ActiveDepthEnv, TextureBank, TrialProtocol, resolve_protocol
+from aectorch.evaluate import frozen_iterations
+from aectorch.figures import COLORS
+from aectorch.sim import WINDOW, ActiveDepthEnv, TextureBank, TrialProtocol, resolve_protocol
 
 __all__ = ["TrialFrames", "animate_trial", "check_output", "frame_steps", "record_trial"]
 
@@ -35,7 +38,6 @@ log = logging.getLogger("aectorch")
 #: Output formats of :func:`animate_trial`, by file suffix.
 FORMATS = (".gif", ".mp4")
 FIXATION_NAMES = ("leftward", "rightward")
-PURSUIT_COLOR, VERGENCE_COLOR = "tab:blue", "tab:red"  # as in aectorch.figures (the paper's Fig. 3)
 
 
 @dataclass(frozen=True)
@@ -43,51 +45,33 @@ class TrialFrames:
     """One trial as CPU tensors, ``T = 2 h`` iterations (``h`` per fixation).
 
     Attributes:
-        left, right: ``[T, H, W]`` the stereo pair the vergence policy saw at each iteration
-            (float32 in [0, 1]).
-        pursuit_error_deg, vergence_error_deg: ``[T]`` signed errors after each iteration (eq. 9).
+        first, second: ``[T, H, W]`` the image pair the watched cue's policy saw at each
+            iteration (float32 in [0, 1]; for the stereo cue the left and the right eye).
+        errors_deg: ``{movement: [T]}`` each eye movement's signed error after each iteration (eq. 9).
         fixation_end: ``[T]`` bool, True at the last iteration of each fixation.
         fixation: ``[T]`` 0 during the leftward fixation, 1 during the rightward one.
         depth_prediction_m: the depth MLP's estimate at the trial's end (NaN before its first fit).
         distance_m: the true distance.
         texture_name: the texture's name, for titles.
         degrees_per_pixel: the camera's angular pixel size (one pixel of error, for the plot).
+        cue: the cue whose pair ``first`` and ``second`` are.
+        names: the two images' names (`aectorch.sim.CueSpec.images`), for titles.
     """
 
-    left: Tensor
-    right: Tensor
-    pursuit_error_deg: Tensor
-    vergence_error_deg: Tensor
+    first: Tensor
+    second: Tensor
+    errors_deg: dict
     fixation_end: Tensor
     fixation: Tensor
     depth_prediction_m: float
     distance_m: float
     texture_name: str = ""
     degrees_per_pixel: float = math.nan
+    cue: str = ""
+    names: tuple = ("first", "second")
 
     def __len__(self) -> int:
-        return int(self.left.shape[0])
-
-
-class _Watched:
-    """The environment as the learner sees it, keeping each stereo pair it asks for as whole crops.
-
-    Like `aectorch.integrations.lerobot`'s recorder: a learner that reads the foveal scales at
-    their own resolution gets them from a second render of the same state, so the environment
-    ends every iteration in the state (and cache) it would have reached unwatched.
-    """
-
-    def __init__(self, env: ActiveDepthEnv) -> None:
-        self._env = env
-        self.pair: Tensor | None = None
-
-    def __getattr__(self, name: str):
-        return getattr(self._env, name)
-
-    def stereo_observation(self, scales=None):
-        pair = self._env.stereo_observation()
-        self.pair = pair[0].detach().to(device="cpu", dtype=torch.float32).clone()
-        return pair if scales is None else self._env.stereo_observation(scales=scales)
+        return int(self.first.shape[0])
 
 
 def _check_record_arguments(texture, distance_m, policy: str) -> float:
@@ -110,27 +94,25 @@ def _environment(texture: Tensor, name: str, distance: float, seed: int, device,
         raise
 
 
-def _run(learner, env: ActiveDepthEnv, distance: float, greedy: bool) -> tuple[list[Tensor], list]:
-    """One trial of ``env``'s single texture at ``distance``: the pairs seen and the records."""
-    watched = _Watched(env)
+def _run(learner, env: ActiveDepthEnv, distance: float, greedy: bool, cue: str) -> tuple[list[Tensor], list]:
+    """One trial of ``env``'s single texture at ``distance``: ``cue``'s pairs seen and the records."""
+    pairs: list[Tensor] = []
+
+    def watch(name: str, observation: dict) -> None:
+        if name == cue:
+            pairs.append(observation[WINDOW][0].detach().to(device="cpu", dtype=torch.float32).clone())
+
     env.set_trial(torch.zeros(1, dtype=torch.long, device=env.device),
                   torch.full((1,), distance, dtype=env.dtype, device=env.device))
-    learner.forget_transitions()
-    pairs, records = [], []
-    with torch.no_grad():
-        for _ in range(2 * env.fixation_iterations):
-            records.append(learner.iteration(watched, learn=False, greedy=greedy))
-            pairs.append(watched.pair)
-            if records[-1].trial_end:
-                return pairs, records
-    raise RuntimeError(f"the trial did not end after {len(records)} iterations")
+    records = list(frozen_iterations(learner, env, greedy=greedy, watch=watch))
+    return pairs, records
 
 
 def record_trial(learner, texture: Tensor, distance_m: float, *, protocol: TrialProtocol | None = None,
                  fixation_iterations: int | None = None, shift_m: float | None = None,
                  shift_iterations: int | None = None, yoked_pursuit: bool | None = None,
                  renderer: str | None = None, policy: str = "greedy", seed: int = 0,
-                 texture_name: str = "texture") -> TrialFrames:
+                 texture_name: str = "texture", cue: str | None = None) -> TrialFrames:
     """Run one frozen trial of ``learner`` on ``texture`` at ``distance_m`` and keep what it saw.
 
     The trial is the one :func:`aectorch.evaluate.run_trials` runs for this texture and distance
@@ -150,6 +132,8 @@ def record_trial(learner, texture: Tensor, distance_m: float, *, protocol: Trial
         policy: ``"greedy"`` (the argmax action) or ``"sampled"`` (as in training).
         seed: seeds the environment and, with ``policy="sampled"``, the actions.
         texture_name: a name for titles.
+        cue: the cue whose image pair is kept (default: the learner's last, in the environment's
+            order: the stereo pair of the vergence policy).
 
     Returns:
         :class:`TrialFrames` of ``2 * fixation_iterations`` iterations.
@@ -160,38 +144,45 @@ def record_trial(learner, texture: Tensor, distance_m: float, *, protocol: Trial
     parameter = next(learner.parameters())
     env = _environment(texture, texture_name, distance, seed, parameter.device, parameter.dtype,
                        **protocol.env_kwargs())
+    learned = [name for name in env.CUES if name in learner.cues]
+    if cue is None:
+        cue = learned[-1]
+    elif cue not in learned:
+        env.close()
+        raise ValueError(f"cue must be one of the learner's cues {learned}, got {cue!r}")
     saved_generator = learner.generator.get_state()
-    cues = (learner.parallax_cue, learner.stereo_cue)
-    saved_previous = [cue.previous for cue in cues]  # the pending transitions
+    saved_previous = {name: c.previous for name, c in learner.cues.items()}  # the pending transitions
     learner.generator.manual_seed(seed)
     try:
-        pairs, records = _run(learner, env, distance, policy == "greedy")
+        pairs, records = _run(learner, env, distance, policy == "greedy", cue)
     finally:
         learner.generator.set_state(saved_generator)
-        for cue, previous in zip(cues, saved_previous):
-            cue.previous = previous
+        for name, previous in saved_previous.items():
+            learner.cues[name].previous = previous
         env.close()
-    frames = _frames(pairs, records, texture_name, env.camera.degrees_per_pixel)
-    log.info("trial of %d iterations on %s at %.3f m: final pursuit error %+.4f deg, vergence %+.4f deg, "
-             "depth estimate %.4f m", len(frames), texture_name, distance, float(frames.pursuit_error_deg[-1]),
-             float(frames.vergence_error_deg[-1]), frames.depth_prediction_m)
+    frames = _frames(pairs, records, texture_name, env.camera.degrees_per_pixel, cue, env.cue(cue).images)
+    final = ", ".join(f"{m} {float(e[-1]):+.4f} deg" for m, e in frames.errors_deg.items())
+    log.info("trial of %d iterations on %s at %.3f m: final errors %s, depth estimate %.4f m", len(frames),
+             texture_name, distance, final, frames.depth_prediction_m)
     return frames
 
 
-def _frames(pairs: list[Tensor], records: list, name: str, degrees_per_pixel: float) -> TrialFrames:
+def _frames(pairs: list[Tensor], records: list, name: str, degrees_per_pixel: float, cue: str,
+            names: tuple[str, str]) -> TrialFrames:
     pair = torch.stack(pairs)  # [T, 2, H, W]
     fixation_end = torch.tensor([bool(r.fixation_end) for r in records])
     last = records[-1]
     return TrialFrames(
-        left=pair[:, 0], right=pair[:, 1],
-        pursuit_error_deg=torch.cat([r.pursuit_error_deg.detach().cpu() for r in records]),
-        vergence_error_deg=torch.cat([r.vergence_error_deg.detach().cpu() for r in records]),
+        first=pair[:, 0], second=pair[:, 1],
+        errors_deg={m: torch.cat([r.errors_deg[m].detach().cpu() for r in records]) for m in last.errors_deg},
         fixation_end=fixation_end,
         fixation=torch.cumsum(fixation_end.long(), 0) - fixation_end.long(),
         depth_prediction_m=float(last.depth_prediction_m[0]),
         distance_m=float(last.distance_m[0]),
         texture_name=name,
         degrees_per_pixel=float(degrees_per_pixel),
+        cue=cue,
+        names=tuple(names),
     )
 
 
@@ -228,13 +219,13 @@ def _limits(values: list, band: float) -> tuple[float, float]:
 
 def _error_axes(ax, frames: TrialFrames):
     """The error plot with the whole trial's limits, the fixation boundary and the one-pixel band;
-    returns the pursuit and vergence lines (empty) and the x values."""
+    returns the movements' lines (empty) and the x values."""
     import numpy as np
 
     x = np.arange(1, len(frames) + 1)
     band = frames.degrees_per_pixel if math.isfinite(frames.degrees_per_pixel) else 0.0
     ax.set_xlim(0.5, len(frames) + 0.5)
-    ax.set_ylim(*_limits([frames.pursuit_error_deg, frames.vergence_error_deg], band))
+    ax.set_ylim(*_limits(list(frames.errors_deg.values()), band))
     ax.axhline(0.0, color="grey", linewidth=0.8)
     if band > 0:
         ax.axhspan(-band, band, color="0.9", zorder=0, label="±1 pixel")
@@ -245,19 +236,18 @@ def _error_axes(ax, frames: TrialFrames):
             ax.axvline(start + 0.5, color="black", linestyle="--", linewidth=1.0)
         ax.text((start + end + 1) / 2, 0.96, f"{name} fixation", transform=ax.get_xaxis_transform(),
                 ha="center", va="top", fontsize=8, color="0.3")
-    pursuit, = ax.plot([], [], color=PURSUIT_COLOR, marker=".", markersize=3, linewidth=1.2, label="pursuit")
-    vergence, = ax.plot([], [], color=VERGENCE_COLOR, marker=".", markersize=3, linewidth=1.2, label="vergence")
+    lines = [ax.plot([], [], color=COLORS[i % len(COLORS)], marker=".", markersize=3, linewidth=1.2, label=m)[0]
+             for i, m in enumerate(frames.errors_deg)]
     ax.set_xlabel("iteration", fontsize=8)
     ax.set_ylabel("error (deg)", fontsize=8)
     ax.tick_params(labelsize=7)
     ax.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=3, fontsize=7, frameon=False)
-    return pursuit, vergence, x
+    return lines, x
 
 
 def _caption(frames: TrialFrames, t: int) -> str:
-    p, v = float(frames.pursuit_error_deg[t]), float(frames.vergence_error_deg[t])
-    line = (f"iteration {t + 1}/{len(frames)}, {FIXATION_NAMES[int(frames.fixation[t])]} fixation: "
-            f"pursuit {p:+.3f} deg, vergence {v:+.3f} deg")
+    errors = ", ".join(f"{m} {float(e[t]):+.3f} deg" for m, e in frames.errors_deg.items())
+    line = f"iteration {t + 1}/{len(frames)}, {FIXATION_NAMES[int(frames.fixation[t])]} fixation: {errors}"
     if t < len(frames) - 1:
         return line + "\n"
     depth = frames.depth_prediction_m
@@ -274,11 +264,12 @@ def _figure(frames: TrialFrames, figsize: tuple[float, float], dpi: int):
     FigureCanvasAgg(fig)
     grid = fig.add_gridspec(2, 3, height_ratios=(1.0, 0.8), left=0.1, right=0.97, top=0.9, bottom=0.17,
                             hspace=0.3, wspace=0.08)
-    difference = frames.left - frames.right
+    difference = frames.first - frames.second
     limit = max(float(difference.abs().max()), 1e-6)  # one symmetric colour range for the whole trial
     grey = {"cmap": "gray", "vmin": 0.0, "vmax": 1.0}
-    panels = (("left eye", frames.left, grey), ("right eye", frames.right, grey),
-              (f"left - right (±{limit:.2f})", difference, {"cmap": "RdBu_r", "vmin": -limit, "vmax": limit}))
+    first, second = (n.replace("_", " ") for n in frames.names)
+    panels = ((first, frames.first, grey), (second, frames.second, grey),
+              (f"{first} - {second} (±{limit:.2f})", difference, {"cmap": "RdBu_r", "vmin": -limit, "vmax": limit}))
     images = []
     for column, (title, data, style) in enumerate(panels):
         ax = fig.add_subplot(grid[0, column])
@@ -286,16 +277,16 @@ def _figure(frames: TrialFrames, figsize: tuple[float, float], dpi: int):
         ax.set_yticks([])
         ax.set_title(title, fontsize=9)
         images.append((ax.imshow(data[0].numpy(), interpolation="nearest", **style), data))
-    pursuit, vergence, x = _error_axes(fig.add_subplot(grid[1, :]), frames)
+    lines, x = _error_axes(fig.add_subplot(grid[1, :]), frames)
     fig.suptitle(f"{frames.texture_name} at {frames.distance_m:.2f} m", fontsize=10)
     caption = fig.text(0.5, 0.015, "", ha="center", va="bottom", fontsize=8)
-    p, v = frames.pursuit_error_deg.double().numpy(), frames.vergence_error_deg.double().numpy()
+    errors = [e.double().numpy() for e in frames.errors_deg.values()]
 
     def update(t: int) -> None:
         for image, data in images:
             image.set_data(data[t].numpy())
-        pursuit.set_data(x[: t + 1], p[: t + 1])
-        vergence.set_data(x[: t + 1], v[: t + 1])
+        for line, e in zip(lines, errors):
+            line.set_data(x[: t + 1], e[: t + 1])
         caption.set_text(_caption(frames, t))
 
     return fig, update
@@ -311,9 +302,9 @@ def frame_steps(iterations: int, every: int = 1) -> list[int]:
 
 def animate_trial(frames: TrialFrames, out: str | os.PathLike, fps: int = 8, *, every: int = 1,
                   figsize: tuple[float, float] = (7.2, 5.0), dpi: int = 100) -> Path:
-    """Write ``frames`` as an animation, one frame per iteration: the left and right views, their
-    difference (left - right, one symmetric colour range for the whole trial) and the pursuit and
-    vergence errors so far (the whole trial's axis limits, the fixation boundary dashed, the band
+    """Write ``frames`` as an animation, one frame per iteration: the two views (the left and the
+    right eye for the stereo cue), their difference (one symmetric colour range for the whole
+    trial) and the eye movements' errors so far (the whole trial's axis limits, the fixation boundary dashed, the band
     of one pixel's error grey), with a caption (iteration, fixation, errors; at the end the depth
     estimate against the true distance).
 

@@ -16,8 +16,8 @@ import torch
 lerobot_dataset = pytest.importorskip("lerobot.datasets.lerobot_dataset", reason="LeRobot runs in .venv-lerobot")
 LeRobotDataset = lerobot_dataset.LeRobotDataset
 
-from aectorch.coding import BinocularEncoder  # noqa: E402
-from aectorch.framework import JointLearner, LearnerConfig  # noqa: E402
+from aectorch.coding import BinocularEncoder, EncoderConfig  # noqa: E402
+from aectorch.framework import JointLearner, LearnerConfig, default_cues  # noqa: E402
 from aectorch.integrations.lerobot import (  # noqa: E402
     FEATURES_STATE, StereoFrames, pretrain_encoder, record_trials, stereo_batches,
 )
@@ -32,7 +32,7 @@ def _world(seed: int = 0):
     # state can be checked step by step.
     env = ActiveDepthEnv(1, textures=TextureBank.procedural(4, size=(128, 128), seed=0), seed=seed,
                          shift_iterations=1, yoked_pursuit=False)
-    learner = JointLearner(LearnerConfig(num_atoms=16), generator=torch.Generator().manual_seed(0))
+    learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=16))), generator=torch.Generator().manual_seed(0))
     return env, learner
 
 
@@ -140,7 +140,7 @@ def test_record_cli_and_recording_during_training(tmp_path):
     for i in range(3):
         Image.fromarray((rng.random((96, 96)) * 255).astype(np.uint8)).save(textures / f"t{i}.png")
     run, during = tmp_path / "run", tmp_path / "during"
-    tiny = ["env.num_envs=3", "env.fixation_iterations=4", "learner.num_atoms=16", "train.iterations=12",
+    tiny = ["env.num_envs=3", "env.fixation_iterations=4", "learner.cues.parallax.encoder.num_atoms=16", "learner.cues.stereo.encoder.num_atoms=16", "train.iterations=12",
             "train.progress=false", "train.figures=false", "train.tensorboard=false", "eval.enabled=false",
             f"env.textures={textures}"]
     done = _run(str(ROOT / "train.py"), *tiny, f"record.lerobot={during}", "record.envs=2",
