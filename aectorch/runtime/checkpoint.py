@@ -17,6 +17,8 @@ contradicts the stored config, and validates the resources once.
 from __future__ import annotations
 
 import os
+import pickle
+import re
 import tempfile
 from pathlib import Path
 
@@ -58,14 +60,29 @@ def save_checkpoint(path: str | os.PathLike, payload: dict) -> None:
 def load_checkpoint(path: str | os.PathLike) -> dict:
     """Read a checkpoint written by :func:`save_checkpoint` (of any format since the first release,
     in today's layout: `aectorch.runtime.migrations.migrate`); ``ValueError`` naming the path if
-    it is missing, unreadable or not an aectorch checkpoint."""
+    it is missing, unreadable or not an aectorch checkpoint.
+
+    Loading never runs code: the file is read with torch's restricted unpickler
+    (``torch.load(weights_only=True)``), which builds tensors, numbers, strings and plain
+    containers only, the whole of what a checkpoint holds (docs/security.md). A file that asks
+    for anything else (a class, a function: what a malicious pickle calls) is refused with a
+    ``ValueError`` before any of it is built.
+    """
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"no checkpoint at {str(path)!r}")
     try:
-        payload = torch.load(path, map_location="cpu", weights_only=False)
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as err:
+        refused = re.search(r"GLOBAL ([\w.]+)", str(err))  # a class or function: what a malicious pickle calls
+        if refused:
+            raise ValueError(f"refusing to load {str(path)!r}: it holds objects that are not data (GLOBAL "
+                             f"{refused.group(1)}); an aectorch checkpoint holds only tensors, numbers, strings "
+                             f"and plain containers, and loading one never runs code") from None
+        raise ValueError(f"cannot read the checkpoint {str(path)!r}: not a torch checkpoint file") from None
     except Exception as err:
-        raise ValueError(f"cannot read the checkpoint {str(path)!r}: {type(err).__name__}: {err}") from err
+        raise ValueError(f"cannot read the checkpoint {str(path)!r}: {type(err).__name__}: "
+                         f"{str(err).splitlines()[0] if str(err) else ''}") from err
     if not isinstance(payload, dict) or "format" not in payload or "config" not in payload:
         raise ValueError(f"{str(path)!r} is not an aectorch checkpoint")
     try:
