@@ -117,7 +117,7 @@ def _trials(learner, cfg, sets, calibration: int, cache: str | None, key: str) -
     from aectorch.runtime import build_textures, calibration_conditions, trial_options
 
     if cache and Path(cache).exists():
-        stored = torch.load(cache, weights_only=False)
+        stored = torch.load(cache, weights_only=True)  # tensors and plain containers: never runs code
         if stored["checkpoint"] == key and set(stored["sets"]) >= {n for n, *_ in sets} \
                 and stored["calibration"] >= calibration:
             return stored["sets"]

@@ -10,7 +10,7 @@ import torch
 from aectorch.coding import EncoderConfig
 from aectorch.control import PPO, ActorCriticConfig, NaturalActorCritic
 from aectorch.framework import CueConfig, JointLearner, LearnerConfig, default_cues
-from aectorch.sim import ActiveDepthEnv
+from aectorch.sim import ActiveDepthEnv, CueSpec
 
 torch.set_num_threads(1)
 
@@ -348,3 +348,60 @@ def test_a_learner_with_a_cue_the_environment_lacks_says_so():
     env, _ = make()
     with pytest.raises(ValueError, match=r"the environment has no cue \['accommodation'\]"):
         learner.iteration(env)
+
+
+# -- adding a cue: its config, its environment methods, its tests (docs/architecture.md) ------------
+class TorsionEnv(ActiveDepthEnv):
+    """An environment with a third, toy cue: a torsion of the right eye that brightens its image;
+    the cue's observation is the stereo pair so changed, its action turns the torsion, and its
+    optimum is 0."""
+
+    CUES = {**ActiveDepthEnv.CUES,
+            "torsion": CueSpec("torsion", "torsion_observation", "apply_torsion", "torsion_to_optimum", ("left", "right"))}
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.torsion_deg = torch.full((self.num_envs,), 1.0)
+
+    def torsion_observation(self, scales=None, *, window=False):
+        pair = self.stereo_observation(scales, window=window)
+        return {k: torch.cat((p[:, :1], p[:, 1:] + 0.05 * self.torsion_deg[:, None, None, None]), 1)
+                for k, p in pair.items()}
+
+    def apply_torsion(self, delta_deg):
+        self.torsion_deg = self.torsion_deg + delta_deg
+
+    def torsion_to_optimum(self):
+        return -self.torsion_deg
+
+    def end_iteration(self):
+        return super().end_iteration()._replace(extra_errors_deg={"torsion": self.torsion_deg.clone()})
+
+
+def test_a_cue_added_by_its_config_and_its_environment_runs_through_learner_metrics_watchdog_and_figures(tmp_path):
+    from aectorch.figures import plot_training
+    from aectorch.runtime.metrics import TrainingMetrics
+    from aectorch.runtime.watchdog import Watchdog, WatchdogConfig
+
+    env = TorsionEnv(2, textures=torch.rand(4, 64, 64, generator=torch.Generator().manual_seed(1)),
+                     fixation_iterations=3, seed=0)
+    small = EncoderConfig(num_atoms=16)
+    cues = {**default_cues(encoder=small), "torsion": CueConfig(encoder=small, agent="ppo")}
+    learner = JointLearner(LearnerConfig(cues=cues), generator=torch.Generator().manual_seed(0))
+    metrics = TrainingMetrics.for_learner(learner, 2, window_fixations=4, window_trials=4,
+                                          movements=[spec.movement for spec in env.CUES.values()])
+    dog, lines = Watchdog(WatchdogConfig()), []
+    for done in range(1, 13):
+        record = learner.iteration(env)
+        metrics.update(record)
+        assert dog.check(done, record, learner) == []
+        lines.append({"iteration": done, **metrics.summary()})
+    assert list(record.cues) == ["parallax", "stereo", "torsion"] and record.torsion.td_error is not None
+    assert {"torsion_mae_deg", "torsion/reward", "torsion/fine/atom_usage"} <= set(lines[-1])
+    assert not torch.equal(env.torsion_deg, torch.ones(2))  # the cue's agent moved it
+    assert any(key.startswith("cues.torsion.agent.policy") for key in learner.state_dict())
+    assert plot_training(lines, tmp_path / "training.png").stat().st_size > 0
+    # a learner without the new cue has the environment hold it at its optimum
+    held = JointLearner(LearnerConfig(cues=cues, active_cues=["parallax", "stereo"]),
+                        generator=torch.Generator().manual_seed(0))
+    assert float(held.iteration(env).errors_deg["torsion"].abs().max()) == 0.0

@@ -107,13 +107,14 @@ def _evaluate(argv: list[str]) -> int:
         f.write("\n")
     if args.get("figure"):
         plot_evaluation(result, args["figure"])
-    rows = [f"{'distance_m':>10} {'pursuit_mae_deg':>16} {'vergence_mae_deg':>17} {'depth_mae_m':>12}"]
+    keys = [k for k in result if k.endswith("_mae_deg")] + ["depth_mae_m"]  # every eye movement's, then depth
+    rows = [f"{'distance_m':>10} " + " ".join(f"{k:>{len(k) + 1}}" for k in keys)]
     for row in result["per_distance"] + [dict(result, distance_m="all")]:
         d = row["distance_m"]
-        rows.append(f"{d if isinstance(d, str) else f'{d:.2f}':>10} {row['pursuit_mae_deg']:>16.4f} "
-                    f"{row['vergence_mae_deg']:>17.4f} {row['depth_mae_m']:>12.4f}")
+        rows.append(f"{d if isinstance(d, str) else f'{d:.2f}':>10} "
+                    + " ".join(f"{row[k]:>{len(k) + 1}.4f}" for k in keys))
     both = result["fractions"]["both"]
-    rows.append(f"fixation ends with pursuit and vergence within {WITHIN_DEG} deg: {both['within']:.1%}; "
+    rows.append(f"fixation ends with every eye movement within {WITHIN_DEG} deg: {both['within']:.1%}; "
                 f"either beyond {BEYOND_DEG} deg: {both['beyond']:.1%}")
     if "vergence_test" in result:
         deg = result["vergence_test"]["degrees"]

@@ -88,11 +88,15 @@ class IterationInfo(NamedTuple):
     q_deg: Tensor | None
     #: the true distance of the trial that just ended (``None`` when no trial ended).
     distance_m: Tensor | None
+    #: the errors ``[B]`` of the eye movements an environment adds to pursuit and vergence (a
+    #: subclass with a cue of its own: docs/architecture.md, "Adding a cue"), by movement name.
+    extra_errors_deg: dict[str, Tensor] | None = None
 
     @property
     def errors_deg(self) -> dict[str, Tensor]:
         """Each eye movement's error ``[B]`` by the movement's name (`ActiveDepthEnv.CUES`)."""
-        return {"pursuit": self.pursuit_error_deg, "vergence": self.vergence_error_deg}
+        return {"pursuit": self.pursuit_error_deg, "vergence": self.vergence_error_deg,
+                **(self.extra_errors_deg or {})}
 
 
 class CueSpec(NamedTuple):
