@@ -26,8 +26,9 @@ from aectorch._checks import check_bool, check_choice, check_device, check_dista
 from aectorch.choices import DType, Eye, RendererName
 from aectorch.evaluate import EVAL_BATCH_SIZE
 from aectorch.framework import PAPER_ACTIONS_DEG, LearnerConfig, default_cues
+from aectorch.runtime.metrics import PAPER_WINDOW
 from aectorch.runtime.watchdog import WatchdogConfig
-from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL
+from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, START_PURSUIT_DEG, START_VERGENCE_DEG
 
 __all__ = [
     "EnvConfig",
@@ -116,8 +117,8 @@ class EnvConfig:
     shift_m: float = DEFAULT_PROTOCOL.shift_m
     shift_iterations: int = DEFAULT_PROTOCOL.shift_iterations
     yoked_pursuit: bool = DEFAULT_PROTOCOL.yoked_pursuit
-    pursuit_start_deg: float = 0.0
-    vergence_start_deg: float = 0.0
+    pursuit_start_deg: float = START_PURSUIT_DEG
+    vergence_start_deg: float = START_VERGENCE_DEG
     pursuit_start_spread_deg: float = 0.0
     vergence_start_spread_deg: float = 0.0
     device: str = "cpu"
@@ -203,7 +204,7 @@ class TrainConfig:
     tensorboard: bool = True
     deterministic: bool = True
     keep_best: bool = True
-    metrics_window: int = 1000
+    metrics_window: int = PAPER_WINDOW
     depth_calibration_trials: int = 0
 
     def __post_init__(self) -> None:

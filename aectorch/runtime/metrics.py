@@ -34,7 +34,11 @@ from aectorch._checks import check_int
 from aectorch.framework import default_cues
 from aectorch.sim import ActiveDepthEnv
 
-__all__ = ["TrainingMetrics"]
+__all__ = ["PAPER_WINDOW", "TrainingMetrics"]
+
+#: The training windows' length: the paper's eq. (9) averages the last 1000 fixation ends (and
+#: the depth MAE the last 1000 trials).
+PAPER_WINDOW = 1000
 
 
 def _mean(total: float, count: int) -> float:
@@ -70,8 +74,8 @@ class TrainingMetrics:
     def __init__(
         self,
         num_envs: int,
-        window_fixations: int = 1000,
-        window_trials: int = 1000,
+        window_fixations: int = PAPER_WINDOW,
+        window_trials: int = PAPER_WINDOW,
         *,
         cues: Mapping[str, Sequence[str]] | None = None,
         movements: Sequence[str] | None = None,
@@ -92,7 +96,7 @@ class TrainingMetrics:
         self._reset_interval()
 
     @classmethod
-    def for_learner(cls, learner, num_envs: int, window_fixations: int = 1000, window_trials: int = 1000,
+    def for_learner(cls, learner, num_envs: int, window_fixations: int = PAPER_WINDOW, window_trials: int = PAPER_WINDOW,
                     movements: Sequence[str] | None = None) -> "TrainingMetrics":
         """The metrics of ``learner``'s cues and scales (a `JointLearner`)."""
         cues = {name: tuple(s.name for s in cue.encoder.scales) for name, cue in learner.cues.items()}

@@ -9,7 +9,9 @@ from aectorch.sim.env import (
     DEFAULT_DISTANCES_M, RENDERERS, WINDOW, ActiveDepthEnv, CueSpec, IterationInfo, make_renderer,
 )
 from aectorch.sim.hoap3 import HOAP3Head
-from aectorch.sim.protocol import DEFAULT_PROTOCOL, Renderer, TrialProtocol, resolve_protocol
+from aectorch.sim.protocol import (
+    DEFAULT_PROTOCOL, START_PURSUIT_DEG, START_VERGENCE_DEG, Renderer, TrialProtocol, resolve_protocol,
+)
 from aectorch.sim.render_torch import (
     MipmapAtlas, TorchPlaneRenderer, mipmap_atlas, pixel_rays, render_planes, render_rays, sample_bilinear,
 )
@@ -31,6 +33,8 @@ __all__ = [
     "CueSpec",
     "WINDOW",
     "DEFAULT_PROTOCOL",
+    "START_PURSUIT_DEG",
+    "START_VERGENCE_DEG",
     "Renderer",
     "TrialProtocol",
     "resolve_protocol",

@@ -50,7 +50,7 @@ from aectorch.coding.patches import WINDOW
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.hoap3 import HOAP3Head
 from aectorch.sim.scene import PlaneScene
-from aectorch.sim.protocol import DEFAULT_PROTOCOL, TrialProtocol
+from aectorch.sim.protocol import DEFAULT_PROTOCOL, START_PURSUIT_DEG, START_VERGENCE_DEG, TrialProtocol
 from aectorch.sim.textures import TextureBank, pink_noise_images
 
 __all__ = ["ActiveDepthEnv", "CueSpec", "IterationInfo", "RENDERERS", "DEFAULT_DISTANCES_M", "SCALE_FILTER",
@@ -267,8 +267,8 @@ class ActiveDepthEnv:
         shift_m: float = DEFAULT_PROTOCOL.shift_m,
         shift_iterations: int = DEFAULT_PROTOCOL.shift_iterations,
         yoked_pursuit: bool = DEFAULT_PROTOCOL.yoked_pursuit,
-        pursuit_start_deg=0.0,
-        vergence_start_deg=0.0,
+        pursuit_start_deg=START_PURSUIT_DEG,
+        vergence_start_deg=START_VERGENCE_DEG,
         window: str | PixelWindow = "crops",
         camera: PinholeCamera | None = None,
         head: HOAP3Head | None = None,

@@ -20,7 +20,13 @@ from aectorch._checks import check_bool, check_choice, check_int, check_real
 from aectorch.choices import RendererName
 from aectorch.sim.camera import PixelWindow
 
-__all__ = ["DEFAULT_PROTOCOL", "Renderer", "TrialProtocol", "resolve_protocol"]
+__all__ = ["DEFAULT_PROTOCOL", "Renderer", "START_PURSUIT_DEG", "START_VERGENCE_DEG", "TrialProtocol",
+           "resolve_protocol"]
+
+#: The eyes at each fixation's start: the left eye straight ahead (pan 0) and the right eye
+#: parallel to it (vergence 0), as in the paper; the evaluation always starts there.
+START_PURSUIT_DEG = 0.0
+START_VERGENCE_DEG = 0.0
 
 
 @dataclass(frozen=True)
