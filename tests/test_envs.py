@@ -1,0 +1,145 @@
+"""The standard RL environments (aectorch.envs), checked by their own libraries' checkers.
+
+Gymnasium's ``check_env`` on every id (warnings as errors), ``make_vec`` across episode ends with
+the declared autoreset mode, TorchRL's ``check_env_specs``, Stable-Baselines3's PPO on the VecEnv,
+reproducibility under a seed, and one batched simulator (one render call per step).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+gym = pytest.importorskip("gymnasium")
+
+import aectorch.envs as envs  # noqa: E402
+from aectorch.sim import ActiveDepthEnv  # noqa: E402
+
+torch.set_num_threads(1)
+SMALL = dict(fixation_iterations=4, textures=torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0)),
+             encoder={"num_atoms": 16})
+
+
+@pytest.mark.parametrize("env_id", list(envs.IDS))
+@pytest.mark.parametrize("observation", ["features", "images"])
+def test_gymnasium_check_env_passes_without_a_warning(env_id, observation):
+    from gymnasium.utils.env_checker import check_env
+
+    env = gym.make(env_id, observation=observation, **SMALL)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(env.unwrapped)
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", list(envs.IDS))
+def test_make_vec_is_one_batched_env_across_episode_ends(env_id):
+    vec = gym.make_vec(env_id, num_envs=8, vectorization_mode="vector_entry_point", **SMALL)
+    assert isinstance(vec, envs.gym.EyeVectorEnv) and vec.metadata["autoreset_mode"] == gym.vector.AutoresetMode.SAME_STEP
+    obs, _ = vec.reset(seed=0)
+    vec.action_space.seed(0)
+    steps = 8 if env_id == "aectorch/ActiveDepth-v0" else 4  # an episode: a trial, or a fixation
+    ends = 0
+    for t in range(1, 71):
+        obs, rewards, terminated, truncated, infos = vec.step(vec.action_space.sample())
+        assert obs in vec.observation_space and rewards.shape == (8,) and not terminated.any()
+        assert truncated.all() == (t % steps == 0) and truncated.all() == truncated.any()
+        assert {"distance_m", "pursuit_error_deg", "vergence_error_deg", "left_pan_deg", "right_pan_deg"} <= set(infos)
+        if truncated.all():
+            ends += 1
+            assert infos["_final_obs"].all() and infos["final_obs"].shape == obs.shape
+            assert not np.array_equal(infos["final_obs"], obs)
+            # SAME_STEP: the returned observation is the next episode's first, as a fresh observation gives it
+            task = vec.task
+            assert task.env.iteration == 0 and task.steps == 0
+            fresh = torch.cat([task.encoders[cue].encode(task.env.observe(cue, task.scales)).features
+                               for cue in task.cues], -1) * task.config.feature_scale
+            np.testing.assert_allclose(obs, fresh.numpy(), rtol=1e-5, atol=1e-6)
+    assert ends == 70 // steps
+    vec.close()
+
+
+@pytest.mark.parametrize("env_id", list(envs.IDS))
+def test_torchrl_check_env_specs_passes(env_id):
+    from torchrl.envs.utils import check_env_specs
+
+    env = envs.make_torchrl_env(env_id, num_envs=8, seed=0, **SMALL)
+    assert tuple(env.batch_size) == (8,) and env.device == torch.device("cpu")
+    check_env_specs(env)
+    rollout = env.rollout(9, break_when_any_done=False)  # across an episode end
+    assert rollout["next", "truncated"].sum() == 8 * (9 // (8 if "Depth" in env_id else 4))
+    assert rollout["next", "observation"].dtype == torch.float32
+    env.close()
+
+
+def test_torchrl_images_keep_every_scale():
+    env = envs.make_torchrl_env("aectorch/Vergence-v0", num_envs=2, observation="images", seed=0, **SMALL)
+    td = env.reset()
+    assert {"stereo_wide", "stereo_coarse", "stereo_fine"} <= set(td.keys())
+    assert td["stereo_fine"].shape[:2] == (2, 2)
+    env.close()
+
+
+def test_the_same_seed_gives_the_same_episodes_and_another_seed_does_not():
+    def run(seed):
+        vec = gym.make_vec("aectorch/Vergence-v0", num_envs=4, vectorization_mode="vector_entry_point", **SMALL)
+        obs, _ = vec.reset(seed=seed)
+        out = [obs]
+        for t in range(6):
+            obs, rewards, *_ , infos = vec.step(np.arange(4) % 11)
+            out += [obs, rewards, infos["vergence_error_deg"]]
+        vec.close()
+        return out
+
+    first, again, other = run(3), run(3), run(4)
+    assert all(np.array_equal(a, b) for a, b in zip(first, again))
+    assert not all(np.array_equal(a, b) for a, b in zip(first, other))
+
+
+def test_one_render_call_per_step(monkeypatch):
+    calls = []
+    render = ActiveDepthEnv._render
+    monkeypatch.setattr(ActiveDepthEnv, "_render", lambda self, *a, **k: calls.append(1) or render(self, *a, **k))
+    vec = gym.make_vec("aectorch/Vergence-v0", num_envs=16, vectorization_mode="vector_entry_point", **SMALL)
+    vec.reset(seed=0)
+    counts = []
+    for _ in range(8):
+        calls.clear()
+        *_, truncated, _ = vec.step(np.zeros(16, dtype=np.int64))
+        counts.append((len(calls), bool(truncated.all())))
+    # one batched render for all 16 heads; at an episode's end also the next episode's first view
+    assert counts == [(1, False), (1, False), (1, False), (2, True)] * 2
+    vec.close()
+
+
+def test_stable_baselines3_ppo_learns_on_the_vec_env():
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    env = envs.make_sb3_vec_env("aectorch/Vergence-v0", num_envs=4, seed=0, reward="error", **SMALL)
+    obs = env.reset()
+    assert obs.shape == (4, 48)
+    for t in range(4):
+        obs, rewards, dones, infos = env.step(np.full(4, 5))
+    assert dones.all() and all(info["TimeLimit.truncated"] and info["terminal_observation"].shape == (48,)
+                               for info in infos)
+    model = PPO("MlpPolicy", VecMonitor(env), n_steps=8, batch_size=16, n_epochs=1, seed=0, device="cpu")
+    model.learn(64)
+    actions, _ = model.predict(obs, deterministic=True)
+    assert actions.shape == (4,)
+    env.close()
+
+
+def test_bad_options_are_named():
+    with pytest.raises(ValueError, match="observation must be one of"):
+        gym.make("aectorch/Vergence-v0", observation="pixels")
+    with pytest.raises(ValueError, match="env id must be one of"):
+        envs.make_torchrl_env("aectorch/Accommodation-v0")
+    env = gym.make("aectorch/ActiveDepth-v0", **SMALL)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"actions must be indices in \[0, 11\)"):
+        env.step(np.array([0, 11]))
+    env.close()
