@@ -61,6 +61,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--out", default=None, help="write the result as JSON")
     args = parser.parse_args(argv)
     torch.manual_seed(args.seed)
+    torch.set_num_threads(1)  # small networks: one thread (the simulator's kernels keep their own)
     textures = args.eval_textures
     if textures is None:
         from aectorch.sim import TextureBank
