@@ -101,12 +101,15 @@ def run_experiment(
     shard = distributed.setup(cfg.env.num_envs, cfg.env.device)
     try:
         folder = RunFolder(cfg.train.resume if checkpoint is not None else run_dir, main=shard.is_main)
-        run = TrainingRun(cfg, folder, shard, checkpoint, default_callbacks(cfg, folder.main, callback))
         try:
-            run.run()
+            run = TrainingRun(cfg, folder, shard, checkpoint, default_callbacks(cfg, folder.main, callback))
+            try:
+                run.run()
+            finally:
+                run.env.close()  # the renderers' OpenGL contexts, on every process and after an error
+            return finish(run) if folder.main else {}
         finally:
-            run.env.close()  # the renderers' OpenGL contexts, on every process and after an error
-        return finish(run) if folder.main else {}
+            folder.release()
     finally:
         distributed.teardown()
         torch.use_deterministic_algorithms(previous[0], warn_only=previous[1])  # as the caller had it

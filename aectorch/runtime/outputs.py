@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
+import fcntl
 import json
 import math
 import os
 from pathlib import Path
 
-__all__ = ["RunFolder", "format_summary", "json_value", "read_lines", "write_json"]
+__all__ = ["LOCK_NAME", "RunFolder", "RunFolderBusy", "format_summary", "json_value", "read_lines", "write_json"]
+
+#: The file in a run folder whose lock (``flock``) the training process holds.
+LOCK_NAME = ".lock"
+
+
+class RunFolderBusy(ValueError):
+    """Another process trains in this run folder."""
 
 
 def json_value(value):
@@ -36,10 +44,39 @@ class RunFolder:
 
     def __init__(self, path: str | Path, main: bool = True) -> None:
         self.path, self.main = Path(path), main
+        self._lock = None
         if main:
             self.path.mkdir(parents=True, exist_ok=True)
+            self._acquire()
         self.metrics_path = self.path / "metrics.jsonl"
         self._writer = None
+
+    def _acquire(self) -> None:
+        """Hold the folder's lock for this process: a second run into the same folder (a new run
+        or ``train.resume``) is refused at once, naming the process that trains there. The lock is
+        the kernel's (``flock``): it ends with its process, so a holder killed with -9 keeps
+        nothing locked."""
+        lock = (self.path / LOCK_NAME).open("a+")
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            lock.seek(0)
+            holder = lock.read().strip() or "unknown"
+            lock.close()
+            raise RunFolderBusy(f"run folder {str(self.path)!r} is in use by process {holder} (another train.py "
+                                f"trains there); wait for it to end, or choose another hydra.run.dir") from None
+        lock.seek(0)
+        lock.truncate()
+        lock.write(f"{os.getpid()}\n")
+        lock.flush()
+        self._lock = lock
+
+    def release(self) -> None:
+        """Let other runs into the folder (at the run's end; the process's end does it too)."""
+        if self._lock is not None:
+            fcntl.flock(self._lock, fcntl.LOCK_UN)
+            self._lock.close()
+            self._lock = None
 
     def __truediv__(self, name: str) -> Path:
         return self.path / name
