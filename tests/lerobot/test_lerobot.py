@@ -92,7 +92,7 @@ def test_recorded_images_are_the_rendered_eyes(recording):
     row = ds[0]
     shift, left_pan, right_pan = (float(v) for v in row["observation.state"][:3])
     env.apply_pursuit(torch.tensor([left_pan - float(env.left_pan_deg[0])]))
-    pair = env.stereo_observation()[0]
+    pair = env.stereo_observation()["window"][0]
     expected = (pair.clamp(0, 1) * 255).round() / 255
     for eye, key in enumerate(("observation.images.left", "observation.images.right")):
         got = row[key]
