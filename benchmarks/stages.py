@@ -99,7 +99,7 @@ def worker(batch: int, kernel_threads: int, iterations: int, warmup: int) -> dic
             torch.mm(a, b, out=out)
         times.append((time.perf_counter() - t) / 5)
     rate = 2 * a.shape[0] * 200 * 288 / statistics.median(times[2:])
-    scales = learner.parallax.scales
+    scales = learner.parallax.encoder.scales
     pixels = sum(((s.crop + 2 * s.downsample) * _finer(s.downsample) // s.downsample) ** 2 for s in scales)
     return {
         "B": batch, "kernel_threads": kernel_threads, "iterations": iterations,

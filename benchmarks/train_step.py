@@ -66,8 +66,8 @@ REFIT_EVERY_TRIALS = 256   # LearnerConfig.depth_every_trials
 _TWO_SCALE = {"scales": ("coarse", "fine"),
               "actions_deg": (-2.0, -1.0, -0.5, -0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0)}
 LEARNERS = {
-    "recorded": {**_TWO_SCALE, "symmetry": ()},  # the tables of 2026-12-01, before the symmetries
-    "two-scale": _TWO_SCALE,                      # the defaults until 2026-12-02 (with the symmetries)
+    "recorded": {**_TWO_SCALE, "symmetry": None},  # the tables of 2026-12-01, before the symmetries
+    "two-scale": _TWO_SCALE,                        # the defaults until 2026-12-02 (with the symmetries)
     "default": {},
 }
 _LEARNER_VARIABLE = "AECTORCH_BENCH_LEARNER"  # passes --learner on to the worker processes
@@ -79,9 +79,12 @@ def _learner_name() -> str:
 
 def learner_config():
     """The ``LearnerConfig`` of ``--learner`` (the workers read it from the environment)."""
-    from aectorch.framework import LearnerConfig
+    from aectorch.framework import LearnerConfig, default_cues
 
-    return LearnerConfig(**LEARNERS[_learner_name()])
+    # each cue's settings (CueConfig fields), the same for both cues
+    return LearnerConfig(cues=default_cues(**LEARNERS[_learner_name()]))
+
+
 TRIAL_ITERATIONS = 60      # 2 fixations x h = 30
 
 
@@ -227,12 +230,12 @@ def measure(renderer: str, batch: int, mode: str, iterations: int, warmup: int, 
     stages = {name: per_iteration.get(name, 0.0) for name in ("render", "encode", "rl", "dictionary", "env", "metrics")}
     if mode == "eager":
         # Split "encode" into patches and sparse coding (+ pooling, errors) on the same images.
-        scaled = learner._render_scales(env)
-        pair = env.stereo_observation() if scaled is None else env.stereo_observation(scales=scaled)
+        scaled = learner.stereo.encoder.scales if learner.config.render_scales else None
+        pair = env.stereo_observation()["window"] if scaled is None else env.stereo_observation(scales=scaled)
         patch_times = []
         for _ in range(max(3, min(iterations, 10))):
             start = time.perf_counter()
-            for scale in learner.stereo.scales:
+            for scale in learner.stereo.encoder.scales:
                 if scaled is None:
                     extract_patches(pair[:, 0], pair[:, 1], scale, check_finite=False)
                 else:
