@@ -143,3 +143,20 @@ def test_bad_options_are_named():
     with pytest.raises(ValueError, match=r"actions must be indices in \[0, 11\)"):
         env.step(np.array([0, 11]))
     env.close()
+
+
+@pytest.mark.parametrize("example", ["sb3_vergence", "torchrl_vergence"])
+def test_the_rl_examples_train_and_evaluate(example, tmp_path):
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "examples" / f"{example}.py"
+    spec = importlib.util.spec_from_file_location(example, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    out = tmp_path / "result.json"
+    result = module.main(["--steps", "480", "--num-envs", "4", "--eval-episodes", "1", "--out", str(out)])
+    assert json.loads(out.read_text()) == json.loads(json.dumps(result))
+    for policy in ("trained", "random"):
+        assert result[policy]["fixations"] == 4 and np.isfinite(result[policy]["vergence_mae_deg"])
