@@ -29,8 +29,7 @@ def evaluate(model, train_env, textures, episodes: int, seed: int, num_envs: int
     greedy fixations on ``textures`` (``model=None``: uniformly random actions)."""
     eval_env = envs.make_sb3_vec_env("aectorch/Vergence-v0", num_envs=num_envs, seed=seed + 1000,
                                      textures=textures, reward=train_env.task.config.reward, learn_encoder=False)
-    for cue, encoder in train_env.task.encoders.items():  # the features the policy learned on
-        eval_env.task.encoders[cue].load_state_dict(encoder.state_dict())
+    eval_env.task.load_encoders(train_env.task.encoders)  # the features the policy learned on, frozen
     rng = np.random.default_rng(seed)
     obs, errors = eval_env.reset(), []
     while len(errors) < episodes * num_envs:

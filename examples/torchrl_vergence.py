@@ -31,8 +31,7 @@ def evaluate(policy, train_env, textures, episodes: int, seed: int, num_envs: in
     (``policy=None``: uniformly random actions), with the trained encoder's features (frozen)."""
     env = envs.make_torchrl_env("aectorch/Vergence-v0", num_envs=num_envs, seed=seed + 1000, textures=textures,
                                 reward=train_env.task.config.reward, learn_encoder=False)
-    for cue, encoder in train_env.task.encoders.items():
-        env.task.encoders[cue].load_state_dict(encoder.state_dict())
+    env.task.load_encoders(train_env.task.encoders)  # the features the policy learned on, frozen
     generator = torch.Generator().manual_seed(seed)
     td, errors = env.reset(), []
     with torch.no_grad():

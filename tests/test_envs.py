@@ -160,3 +160,17 @@ def test_the_rl_examples_train_and_evaluate(example, tmp_path):
     assert json.loads(out.read_text()) == json.loads(json.dumps(result))
     for policy in ("trained", "random"):
         assert result[policy]["fixations"] == 4 and np.isfinite(result[policy]["vergence_mae_deg"])
+
+
+def test_loaded_encoders_stay_across_seeded_resets_and_give_the_trained_features():
+    trained = envs.EyeTask(2, envs.TaskConfig(**SMALL), seed=0)
+    trained.reset(seed=0)
+    for _ in range(3):
+        trained.step(torch.full((2,), 7))
+    other = envs.EyeTask(2, envs.TaskConfig(**SMALL, learn_encoder=False), seed=5)
+    other.load_encoders(trained.encoders)
+    obs = other.reset(seed=5)  # a seeded reset keeps the loaded encoders
+    expected = trained.encoders["stereo"].encode(other.env.observe("stereo", other.scales)).features * 10
+    torch.testing.assert_close(obs["features"], expected)
+    with pytest.raises(ValueError, match=r"encoders must hold the cues \['stereo'\]"):
+        other.load_encoders({})

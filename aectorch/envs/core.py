@@ -174,6 +174,7 @@ class EyeTask:
         self.actions_deg = torch.tensor(config.actions_deg, dtype=self.env.dtype, device=self.device)
         self.needs_encoder = config.observation == Observation.features or config.reward == Reward.coding
         self.encoders: dict[str, BinocularEncoder] = {}
+        self._loaded = False  # encoders given by load_encoders stay across seeded resets
         self._seed_encoders(0 if seed is None else seed)
         per_fixation = config.fixation_iterations
         self.episode_steps = 2 * per_fixation if config.task == Task.active_depth else per_fixation
@@ -191,12 +192,24 @@ class EyeTask:
         self.encoders = {cue: BinocularEncoder(self.config.encoder, self.scales, generator=generator,
                                                dtype=self.env.dtype, device=self.device) for cue in self.cues}
 
+    def load_encoders(self, encoders: dict) -> None:
+        """Take over the internal encoders' states (``{cue: BinocularEncoder or its state dict}``,
+        e.g. another task's ``encoders``: to evaluate a policy on the features it learned with).
+        Loaded encoders stay across seeded resets; with ``learn_encoder=False`` they stay frozen."""
+        missing = [cue for cue in self.encoders if cue not in encoders]
+        if missing or not self.encoders:
+            raise ValueError(f"encoders must hold the cues {list(self.encoders)} (this task's), got {list(encoders)}")
+        for cue, encoder in self.encoders.items():
+            given = encoders[cue]
+            encoder.load_state_dict(given.state_dict() if hasattr(given, "state_dict") else given)
+        self._loaded = True
+
     # -- the episode ------------------------------------------------------------------------------
     def reset(self, seed: int | None = None, *, keep_encoders: bool = False) -> dict[str, Tensor]:
         """Start a new trial in every environment (``seed``: its textures and distances, and the
         internal encoders start anew from it unless ``keep_encoders``; without a seed they keep
         what they learned)."""
-        if seed is not None and not keep_encoders:
+        if seed is not None and not keep_encoders and not self._loaded:
             self._seed_encoders(seed)
         self.env.reset(seed)
         self.steps = 0
