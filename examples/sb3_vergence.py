@@ -1,7 +1,7 @@
 """Stable-Baselines3's PPO, unchanged, learns vergence on ``aectorch/Vergence-v0``.
 
-Eight simulated heads (one batched simulator) train SB3's ``PPO("MlpPolicy")`` on the procedural
-training textures; the policy is then evaluated greedily on another set of images (a folder of
+Eight simulated heads (one batched simulator) train SB3's ``PPO("MlpPolicy")``, with the
+observations normalised by SB3's ``VecNormalize``, on the procedural training textures; the policy is then evaluated greedily on another set of images (a folder of
 photographs, or the 40 procedural test textures) against a random policy: the mean |vergence
 error| at the end of each fixation. With ``reward="coding"`` the agent learns from the internal
 encoder's coding reward alone (active efficient coding: no ground truth), with ``reward="error"``
@@ -31,12 +31,13 @@ def evaluate(model, train_env, textures, episodes: int, seed: int, num_envs: int
                                      textures=textures, reward=train_env.task.config.reward, learn_encoder=False)
     eval_env.task.load_encoders(train_env.task.encoders)  # the features the policy learned on, frozen
     rng = np.random.default_rng(seed)
+    normalize = model.get_vec_normalize_env().normalize_obs if model is not None else None
     obs, errors = eval_env.reset(), []
     while len(errors) < episodes * num_envs:
         if model is None:
             actions = rng.integers(0, eval_env.action_space.n, num_envs)
         else:
-            actions, _ = model.predict(obs, deterministic=True)
+            actions, _ = model.predict(normalize(obs), deterministic=True)
         obs, _, dones, infos = eval_env.step(actions)
         if dones.any():
             errors += [abs(info["vergence_error_deg"]) for info in infos]
@@ -48,7 +49,7 @@ def evaluate(model, train_env, textures, episodes: int, seed: int, num_envs: int
 
 def main(argv=None) -> dict:
     from stable_baselines3 import PPO
-    from stable_baselines3.common.vec_env import VecMonitor
+    from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--reward", choices=["error", "coding"], default="error")
@@ -66,8 +67,10 @@ def main(argv=None) -> dict:
         from aectorch.sim import TextureBank
         textures = TextureBank.default("test")
     env = envs.make_sb3_vec_env("aectorch/Vergence-v0", num_envs=args.num_envs, seed=args.seed, reward=args.reward)
-    # SB3's defaults but for the rollout: four fixations (120 steps) of every environment per update.
-    model = PPO("MlpPolicy", VecMonitor(env), n_steps=120, batch_size=240, seed=args.seed, device="cpu", verbose=0)
+    # SB3's defaults but for the rollout, four fixations (120 steps) of every environment per update,
+    # and the observations normalised by SB3's running statistics (VecNormalize), as SB3 advises for PPO.
+    venv = VecNormalize(VecMonitor(env), norm_obs=True, norm_reward=False)
+    model = PPO("MlpPolicy", venv, n_steps=120, batch_size=240, seed=args.seed, device="cpu", verbose=0)
     clock = time.perf_counter()
     model.learn(args.steps)
     seconds = time.perf_counter() - clock

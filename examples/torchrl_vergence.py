@@ -2,8 +2,9 @@
 
 The environment is one batched TorchRL ``EnvBase`` of 8 heads (`aectorch.envs.make_torchrl_env`);
 a ``Collector`` (``SyncDataCollector`` before TorchRL 0.12) gathers four fixations of every head per batch, TorchRL's ``GAE`` and
-``ClipPPOLoss`` train an MLP policy and value function (64 tanh units, as SB3's ``MlpPolicy``)
-for 10 epochs of minibatches. The greedy policy is then evaluated as in
+``ClipPPOLoss`` train an MLP policy and value function (64 tanh units, as SB3's ``MlpPolicy``, on
+observations z-scored by running statistics, as SB3's ``VecNormalize``) for 10 epochs of
+minibatches. The greedy policy is then evaluated as in
 ``examples/sb3_vergence.py``: the mean |vergence error| at each fixation's end, on another set of
 images, beside a random policy.
 
@@ -22,8 +23,30 @@ from torch import nn
 import aectorch.envs as envs
 
 
-def _mlp(inputs: int, outputs: int) -> nn.Module:
-    return nn.Sequential(nn.Linear(inputs, 64), nn.Tanh(), nn.Linear(64, 64), nn.Tanh(), nn.Linear(64, outputs))
+class RunningNorm(nn.Module):
+    """Observations z-scored by running statistics of what the collector saw (as SB3's
+    VecNormalize: updated in training mode, clipped to +-10)."""
+
+    def __init__(self, size: int) -> None:
+        super().__init__()
+        self.register_buffer("count", torch.tensor(1e-4))
+        self.register_buffer("mean", torch.zeros(size))
+        self.register_buffer("var", torch.ones(size))
+
+    def forward(self, x):
+        if self.training:
+            with torch.no_grad():
+                flat = x.reshape(-1, x.shape[-1])
+                n, mean, var = flat.shape[0], flat.mean(0), flat.var(0, unbiased=False)
+                delta, total = mean - self.mean, self.count + n
+                self.var.copy_((self.var * self.count + var * n + delta.square() * self.count * n / total) / total)
+                self.mean.add_(delta * n / total)
+                self.count.copy_(total)
+        return ((x - self.mean) / torch.sqrt(self.var + 1e-8)).clamp(-10, 10)
+
+
+def _mlp(norm: nn.Module, inputs: int, outputs: int) -> nn.Module:
+    return nn.Sequential(norm, nn.Linear(inputs, 64), nn.Tanh(), nn.Linear(64, 64), nn.Tanh(), nn.Linear(64, outputs))
 
 
 def evaluate(policy, train_env, textures, episodes: int, seed: int, num_envs: int = 8) -> dict:
@@ -39,7 +62,7 @@ def evaluate(policy, train_env, textures, episodes: int, seed: int, num_envs: in
             if policy is None:
                 td["action"] = torch.randint(len(env.task.actions_deg), (num_envs,), generator=generator)
             else:
-                td["action"] = policy(td["observation"]).argmax(-1)
+                td["action"] = policy.eval()(td["observation"]).argmax(-1)
             td = env.step(td)
             if td["next", "truncated"].all():
                 errors += td["next", "vergence_error_deg"].abs().tolist()
@@ -79,11 +102,12 @@ def main(argv=None) -> dict:
         textures = TextureBank.default("test")
     env = envs.make_torchrl_env("aectorch/Vergence-v0", num_envs=args.num_envs, seed=args.seed, reward=args.reward)
     features, actions = env.observation_spec["observation"].shape[-1], len(env.task.actions_deg)
-    logits = _mlp(features, actions)
+    norm = RunningNorm(features)  # shared by the policy and the value function
+    logits = _mlp(norm, features, actions)
     actor = ProbabilisticActor(TensorDictModule(logits, in_keys=["observation"], out_keys=["logits"]),
                                in_keys=["logits"], distribution_class=torch.distributions.Categorical,
                                return_log_prob=True, spec=env.action_spec)
-    critic = ValueOperator(_mlp(features, 1), in_keys=["observation"])
+    critic = ValueOperator(_mlp(norm, features, 1), in_keys=["observation"])
     frames = 120 * args.num_envs  # four fixations of every head
     collector = Collector(env, actor, frames_per_batch=frames, total_frames=args.steps)
     advantage = GAE(gamma=0.99, lmbda=0.95, value_network=critic)
@@ -91,6 +115,7 @@ def main(argv=None) -> dict:
     optimizer = torch.optim.Adam(loss.parameters(), lr=3e-4)
     clock = time.perf_counter()
     for batch in collector:
+        norm.eval()  # the statistics follow the collected observations only
         with torch.no_grad():
             advantage(batch)
         flat = batch.reshape(-1)
@@ -102,6 +127,7 @@ def main(argv=None) -> dict:
                 total.backward()
                 nn.utils.clip_grad_norm_(loss.parameters(), 0.5)
                 optimizer.step()
+        norm.train()
     seconds = time.perf_counter() - clock
     collector.shutdown()
     result = {"reward": args.reward, "steps": args.steps, "seed": args.seed, "train_s": seconds,
