@@ -56,16 +56,18 @@ def main(argv=None) -> dict:
     parser.add_argument("--steps", type=int, default=40_000, help="environment steps (all 8 environments)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--num-envs", type=int, default=8)
-    parser.add_argument("--eval-textures", default=None, help="a folder of images (default: the 40 test textures)")
-    parser.add_argument("--eval-episodes", type=int, default=50, help="batches of fixations evaluated")
+    parser.add_argument("--eval-textures", default=None,
+                        help="also evaluate on this folder of images (the 40 test textures always)")
+    parser.add_argument("--eval-episodes", type=int, default=30, help="batches of fixations evaluated per set")
     parser.add_argument("--out", default=None, help="write the result as JSON")
     args = parser.parse_args(argv)
     torch.manual_seed(args.seed)
     torch.set_num_threads(1)  # small networks: one thread (the simulator's kernels keep their own)
-    textures = args.eval_textures
-    if textures is None:
-        from aectorch.sim import TextureBank
-        textures = TextureBank.default("test")
+    from aectorch.sim import TextureBank
+
+    sets = {"test textures": TextureBank.default("test")}
+    if args.eval_textures:
+        sets[args.eval_textures] = args.eval_textures
     env = envs.make_sb3_vec_env("aectorch/Vergence-v0", num_envs=args.num_envs, seed=args.seed, reward=args.reward)
     # SB3's defaults but for the rollout, four fixations (120 steps) of every environment per update,
     # and the observations normalised by SB3's running statistics (VecNormalize), as SB3 advises for PPO.
@@ -75,8 +77,9 @@ def main(argv=None) -> dict:
     model.learn(args.steps)
     seconds = time.perf_counter() - clock
     result = {"reward": args.reward, "steps": args.steps, "seed": args.seed, "train_s": seconds,
-              "trained": evaluate(model, env, textures, args.eval_episodes, args.seed, args.num_envs),
-              "random": evaluate(None, env, textures, args.eval_episodes, args.seed, args.num_envs)}
+              "eval": {name: {"trained": evaluate(model, env, textures, args.eval_episodes, args.seed, args.num_envs),
+                              "random": evaluate(None, env, textures, args.eval_episodes, args.seed, args.num_envs)}
+                       for name, textures in sets.items()}}
     env.close()
     print(json.dumps(result, indent=1))
     if args.out:

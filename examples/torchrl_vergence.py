@@ -90,16 +90,18 @@ def main(argv=None) -> dict:
     parser.add_argument("--steps", type=int, default=40_000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--num-envs", type=int, default=8)
-    parser.add_argument("--eval-textures", default=None)
-    parser.add_argument("--eval-episodes", type=int, default=50)
+    parser.add_argument("--eval-textures", default=None,
+                        help="also evaluate on this folder of images (the 40 test textures always)")
+    parser.add_argument("--eval-episodes", type=int, default=30)
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
     torch.manual_seed(args.seed)
     torch.set_num_threads(1)  # small networks: one thread (the simulator's kernels keep their own)
-    textures = args.eval_textures
-    if textures is None:
-        from aectorch.sim import TextureBank
-        textures = TextureBank.default("test")
+    from aectorch.sim import TextureBank
+
+    sets = {"test textures": TextureBank.default("test")}
+    if args.eval_textures:
+        sets[args.eval_textures] = args.eval_textures
     env = envs.make_torchrl_env("aectorch/Vergence-v0", num_envs=args.num_envs, seed=args.seed, reward=args.reward)
     features, actions = env.observation_spec["observation"].shape[-1], len(env.task.actions_deg)
     norm = RunningNorm(features)  # shared by the policy and the value function
@@ -131,8 +133,9 @@ def main(argv=None) -> dict:
     seconds = time.perf_counter() - clock
     collector.shutdown()
     result = {"reward": args.reward, "steps": args.steps, "seed": args.seed, "train_s": seconds,
-              "trained": evaluate(logits, env, textures, args.eval_episodes, args.seed, args.num_envs),
-              "random": evaluate(None, env, textures, args.eval_episodes, args.seed, args.num_envs)}
+              "eval": {name: {"trained": evaluate(logits, env, textures, args.eval_episodes, args.seed, args.num_envs),
+                              "random": evaluate(None, env, textures, args.eval_episodes, args.seed, args.num_envs)}
+                       for name, textures in sets.items()}}
     env.close()
     print(json.dumps(result, indent=1))
     if args.out:

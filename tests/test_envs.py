@@ -159,7 +159,8 @@ def test_the_rl_examples_train_and_evaluate(example, tmp_path):
     result = module.main(["--steps", "480", "--num-envs", "4", "--eval-episodes", "1", "--out", str(out)])
     assert json.loads(out.read_text()) == json.loads(json.dumps(result))
     for policy in ("trained", "random"):
-        assert result[policy]["fixations"] == 4 and np.isfinite(result[policy]["vergence_mae_deg"])
+        row = result["eval"]["test textures"][policy]
+        assert row["fixations"] == 4 and np.isfinite(row["vergence_mae_deg"])
 
 
 def test_loaded_encoders_stay_across_seeded_resets_and_give_the_trained_features():
