@@ -185,6 +185,15 @@ class EyeTask:
             self.observation_shapes = {f"{cue}/{s.name}": (2, s.crop // s.downsample, s.crop // s.downsample)
                                        for cue in self.cues for s in self.scales}
 
+    @property
+    def features_high(self) -> float:
+        """The largest feature value: a binocular patch has norm^2 2 (each half unit norm) and
+        matching pursuit's coefficients never hold more energy than the patch; OMP's may
+        (then the largest float32)."""
+        if str(self.config.encoder.algorithm) == "mp":
+            return 2.0 * self.config.feature_scale
+        return float(torch.finfo(torch.float32).max)
+
     def _seed_encoders(self, seed: int) -> None:
         if not self.needs_encoder:
             return
@@ -228,7 +237,7 @@ class EyeTask:
         if truncated:  # the ended episode's last state, before the environment moves on
             final, coding = self._observe(learn=True)
         info = self.env.end_iteration()
-        errors = {"pursuit": info.pursuit_error_deg, "vergence": info.vergence_error_deg}
+        errors = info.errors_deg
         details = {"distance_m": self.env.distance_m.clone() if info.distance_m is None else info.distance_m,
                    "pursuit_error_deg": info.pursuit_error_deg, "vergence_error_deg": info.vergence_error_deg,
                    "left_pan_deg": info.left_pan_deg, "right_pan_deg": info.right_pan_deg}

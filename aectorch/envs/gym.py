@@ -32,10 +32,7 @@ __all__ = ["EyeEnv", "EyeVectorEnv", "observation_space", "action_space"]
 def observation_space(task: EyeTask) -> spaces.Space:
     """The space of one environment's observation."""
     if task.config.observation == Observation.features:
-        # Pooled squared coefficients: a binocular patch has norm^2 2 (each half unit norm) and
-        # matching pursuit's coefficients never hold more energy than the patch; OMP's may.
-        high = 2.0 * task.config.feature_scale if str(task.config.encoder.algorithm) == "mp" else np.finfo(np.float32).max
-        return spaces.Box(0.0, high, task.observation_shapes["features"], np.float32)
+        return spaces.Box(0.0, task.features_high, task.observation_shapes["features"], np.float32)
     return spaces.Dict({key: spaces.Box(0.0, 1.0, shape, np.float32) for key, shape in task.observation_shapes.items()})
 
 
@@ -48,6 +45,11 @@ def action_space(task: EyeTask) -> spaces.Space:
 def _numpy(observation: dict[str, torch.Tensor], features: bool):
     out = {k: v.detach().to("cpu", torch.float32).numpy() for k, v in observation.items()}
     return out["features"] if features else out
+
+
+def _row(observation, features: bool, i: int = 0):
+    """Environment ``i``'s entry of a batched NumPy observation."""
+    return observation[i] if features else {k: v[i] for k, v in observation.items()}
 
 
 def _info(info: dict[str, torch.Tensor]) -> dict[str, np.ndarray]:
@@ -89,15 +91,13 @@ class EyeEnv(gym.Env):
         # Without a seed: a new trial drawn from np_random; the encoders keep what they learned.
         observation = self.task.reset(seed if seed is not None else _seed_from(self.np_random),
                                       keep_encoders=seed is None)
-        return _numpy(observation, self._features)[0] if self._features else \
-            {k: v[0] for k, v in _numpy(observation, False).items()}, {}
+        return _row(_numpy(observation, self._features), self._features), {}
 
     def step(self, action):
         actions = torch.as_tensor(np.asarray(action, dtype=np.int64))[None]
         out = self.task.step(actions)
         observation = out.final_observation if out.truncated else out.observation
-        obs = _numpy(observation, self._features)
-        obs = obs[0] if self._features else {k: v[0] for k, v in obs.items()}
+        obs = _row(_numpy(observation, self._features), self._features)
         info = {k: float(v[0]) for k, v in _info(out.info).items()}
         return obs, float(out.reward[0]), False, bool(out.truncated), info
 

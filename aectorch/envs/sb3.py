@@ -16,7 +16,7 @@ import torch
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
 
 from aectorch.envs.core import EyeTask, Observation
-from aectorch.envs.gym import _numpy, action_space, observation_space
+from aectorch.envs.gym import _numpy, _row, action_space, observation_space
 
 __all__ = ["EyeSB3VecEnv"]
 
@@ -56,16 +56,13 @@ class EyeSB3VecEnv(VecEnv):
         if out.truncated:
             final = _numpy(out.final_observation, self._features)
             for i, info in enumerate(infos):
-                info["terminal_observation"] = final[i] if self._features else {k: v[i] for k, v in final.items()}
+                info["terminal_observation"] = _row(final, self._features, i)
                 info["TimeLimit.truncated"] = True
         dones = np.full(n, bool(out.truncated))
         return _numpy(out.observation, self._features), out.reward.detach().cpu().numpy().astype(np.float32), dones, infos
 
     def close(self) -> None:
         self.task.close()
-
-    def seed(self, seed: int | None = None):
-        return super().seed(seed)
 
     # SB3's per-environment attribute access: one simulator serves them all.
     def get_attr(self, attr_name: str, indices=None) -> list[Any]:

@@ -43,7 +43,7 @@ class EyeTorchRLEnv(EnvBase):
         self.task, self._seed_value, self._next_first = task, seed, None
         n, dtype = task.num_envs, torch.float32
         if task.config.observation == Observation.features:
-            observation = {"observation": Bounded(0.0, 2.0 * task.config.feature_scale,
+            observation = {"observation": Bounded(0.0, task.features_high,
                                                   (n, *task.observation_shapes["features"]), dtype=dtype, device=self.device)}
         else:
             observation = {_key(k): Bounded(0.0, 1.0, (n, *shape), dtype=dtype, device=self.device)
