@@ -176,3 +176,48 @@ def test_evaluate_follows_the_training_protocol():
     assert not torch.allclose(instant["vergence_deg"], spread["vergence_deg"])
     with pytest.raises(ValueError, match="shift_iterations"):
         run_trials(learner, bank, shift_iterations=0, **kwargs)
+
+
+def test_last5_is_the_mean_of_each_fixations_last_five_iterations():
+    # An independent record of the same frozen trials: every iteration's errors, by hand.
+    from aectorch.evaluate import frozen_iterations
+
+    bank, learner = _trained_learner()
+    out = run_trials(learner, bank, distances_m=[1.5], batch_size=3, fixation_iterations=7)
+    env = ActiveDepthEnv(3, textures=bank, distances_m=[1.5], fixation_iterations=7, seed=0)
+    env.set_trial(torch.arange(3), torch.full((3,), 1.5))
+    errors = [r.errors_deg["vergence"] for r in frozen_iterations(learner, env)]
+    assert len(errors) == 14
+    by_hand = torch.stack([torch.stack(errors[2:7]).mean(0), torch.stack(errors[9:14]).mean(0)], 1)
+    torch.testing.assert_close(out["vergence_last5_deg"], by_hand.cpu())
+    torch.testing.assert_close(out["vergence_deg"], torch.stack([errors[6], errors[13]], 1).cpu())
+    result = evaluate(learner, bank, distances_m=[1.5], batch_size=3, fixation_iterations=7, vergence_test=False)
+    row = result["per_trial"][1]
+    assert row["vergence_error_last5_deg"] == pytest.approx(by_hand[1, 1].item())
+    assert row["vergence_errors_last5_deg"] == pytest.approx(by_hand[1].tolist())
+    assert result["last5"]["vergence_mae_deg"] == pytest.approx(by_hand.abs().mean().item())
+    assert set(result["last5"]["fractions"]) == {"pursuit", "vergence", "both"}
+
+
+def test_offset_sweep_reads_the_cues_reward_and_greedy_increment_off_the_optimum():
+    from aectorch.evaluate.offsets import limit_cycle, offset_summary, offset_sweep
+
+    bank, learner = _trained_learner()
+    sweep = offset_sweep(learner, bank, cue="stereo", offsets_deg=[-0.5, 0.0, 0.5], distances_m=[2.0], batch_size=2)
+    assert sweep["reward"].shape == sweep["increment_deg"].shape == (3, 3)
+    # The same view by hand: the body shifted, the left eye at its optimum, the right 0.5 deg past it.
+    env = ActiveDepthEnv(3, textures=bank, distances_m=[2.0], shift_iterations=1, seed=0)
+    env.set_trial(torch.arange(3), torch.full((3,), 2.0))
+    left = env.optimal_left_pan_deg()
+    env.set_pan_deg(torch.stack((left, env.optimal_right_pan_deg(left) + 0.5), -1))
+    with torch.no_grad():
+        coded = learner.stereo.encoder.encode(env.observe("stereo", learner.stereo.encoder.scales))
+    torch.testing.assert_close(sweep["reward"][:, 2], coded.reward.double())
+    summary = offset_summary(sweep)
+    assert summary["trials"] == 3 and 0 <= summary["reward_peak_within_px"] <= 1
+    with pytest.raises(ValueError, match="cue must be one the learner learns"):
+        offset_sweep(learner, bank, cue="torsion")
+    # A bang-bang map (+0.2 at or below the optimum, -0.2 above it) cycles between 0 and 0.2.
+    x = torch.linspace(-1, 1, 101, dtype=torch.float64)
+    bang = torch.where(x <= 0, 0.2, -0.2)[None].repeat(2, 1)
+    assert limit_cycle(x, bang).tolist() == pytest.approx([0.1, 0.1], abs=0.01)

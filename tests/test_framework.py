@@ -175,6 +175,22 @@ def test_the_actor_critics_learn_from_the_configured_reward(reward):
         torch.testing.assert_close(cue_second.td_error, (1 - control.xi) * learned)
 
 
+@pytest.mark.parametrize("reward", ["coding", "improvement"])
+def test_the_motor_cost_charges_the_increment_that_led_to_the_reward(reward):
+    # As above, the first TD error is (1 - xi) times what is learned from: now minus cost * |a|.
+    control = ActorCriticConfig(critic_init=0.0, critic_discount=0.5)
+    env, learner = make(h=3, cue=dict(reward=reward, nac=control, motor_cost=0.25))
+    first = learner.iteration(env)
+    second = learner.iteration(env)
+    assert bool((first.stereo.increments_deg != 0).any())
+    for cue_first, cue_second in ((first.parallax, second.parallax), (first.stereo, second.stereo)):
+        learned = cue_second.reward - (cue_first.reward if reward == "improvement" else 0.0)
+        learned = learned - 0.25 * cue_first.increments_deg.abs()
+        torch.testing.assert_close(cue_second.td_error, (1 - control.xi) * learned)
+    with pytest.raises(ValueError, match="cue.motor_cost must be a finite number >= 0"):
+        CueConfig(motor_cost=-0.1)
+
+
 def test_unit_features_reach_the_actor_critics_normalised():
     control = ActorCriticConfig(normalize_features=True)
     env, learner = make(h=3, cue=dict(features="unit", feature_scale=2.0, nac=control, symmetry=None))

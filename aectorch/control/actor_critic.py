@@ -427,6 +427,11 @@ class NaturalActorCritic(nn.Module):
         x = self.normalize(self._features(features, "features", check=False))
         return self._log_policy(x, self._temperature(temperature)).exp()
 
+    def log_policy(self, features: torch.Tensor) -> torch.Tensor:
+        """log pi(.|s) at the learning temperature (what `act` samples from), `[B, F]` -> `[B, A]`."""
+        x = self.normalize(self._features(features, "features", check=False))
+        return self._log_policy(x, self.config.temperature)
+
     @torch.no_grad()
     def value(self, features: torch.Tensor) -> torch.Tensor:
         """The critic's value ``v.f(s)``, `[B, F]` -> `[B]`."""

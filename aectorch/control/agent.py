@@ -103,6 +103,10 @@ class Agent(Protocol):
         (`[B]` in [0, 1); drawn from ``generator`` when not given). Changes no state."""
         ...
 
+    def log_policy(self, features: Tensor) -> Tensor:
+        """log pi(.|s) of the policy that `act` samples from, `[B, F]` -> `[B, A]`."""
+        ...
+
     def learn(self, transitions: Transitions, *, reduce: Reduce | None = None) -> LearnOutput:
         """Learn from one transition per environment; ``reduce`` sums over processes."""
         ...

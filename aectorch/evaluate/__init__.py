@@ -12,6 +12,14 @@ training instead, for analysis). Two tests:
   iterations run; the vergence error at the last step is summarised as RMSE, median and 4 x IQR
   in degrees and in pixels (at the camera's degrees per pixel).
 
+Each fixation's last 5 iterations' mean errors are reported beside its final state's (``last5``):
+a fixation that ends in a limit cycle of one small action is a coin toss at its last iteration.
+
+:func:`offset_sweep` is a diagnostic: a cue's coding reward and greedy increment against the
+offset of its eye movement from the optimum (where the code stops telling offsets apart, and
+whether the policy stops at the target). `aectorch.baselines.Matcher`, a classical
+cross-correlation matcher, runs through the same trials as the accuracy anchor.
+
 The library (`summary.py`, `trials.py`, `evaluation.py`) needs only the framework and the
 simulation; the command line, on a checkpoint written by ``train.py``, is `__main__.py`::
 
@@ -19,8 +27,12 @@ simulation; the command line, on a checkpoint written by ``train.py``, is `__mai
 """
 
 from aectorch.evaluate.evaluation import evaluate
-from aectorch.evaluate.summary import BEYOND_DEG, WITHIN_DEG, fractions, movements, per_trial_rows, summarise
+from aectorch.evaluate.offsets import limit_cycle, offset_summary, offset_sweep
+from aectorch.evaluate.summary import (
+    BEYOND_DEG, LAST_ITERATIONS, WITHIN_DEG, fractions, movements, per_trial_rows, summarise,
+)
 from aectorch.evaluate.trials import EVAL_BATCH_SIZE, frozen_iterations, run_trials
 
-__all__ = ["BEYOND_DEG", "EVAL_BATCH_SIZE", "WITHIN_DEG", "evaluate", "fractions", "frozen_iterations", "movements",
-           "per_trial_rows", "run_trials", "summarise"]
+__all__ = ["BEYOND_DEG", "EVAL_BATCH_SIZE", "LAST_ITERATIONS", "WITHIN_DEG", "evaluate", "fractions",
+           "frozen_iterations", "limit_cycle", "movements", "offset_summary", "offset_sweep", "per_trial_rows",
+           "run_trials", "summarise"]

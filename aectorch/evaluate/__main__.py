@@ -116,6 +116,10 @@ def _evaluate(argv: list[str]) -> int:
     both = result["fractions"]["both"]
     rows.append(f"fixation ends with every eye movement within {WITHIN_DEG} deg: {both['within']:.1%}; "
                 f"either beyond {BEYOND_DEG} deg: {both['beyond']:.1%}")
+    last = result["last5"]
+    rows.append("mean of each fixation's last 5 iterations: "
+                + ", ".join(f"{k} {v:.4f}" for k, v in last.items() if k.endswith("_mae_deg"))
+                + f"; every eye movement within {WITHIN_DEG} deg: {last['fractions']['both']['within']:.1%}")
     if "vergence_test" in result:
         deg = result["vergence_test"]["degrees"]
         rows.append(f"vergence test: RMSE {deg['rmse']:.4f} deg, median {deg['median']:.4f} deg, n {deg['n']}")

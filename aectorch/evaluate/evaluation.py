@@ -8,9 +8,12 @@ import torch
 from torch import Tensor
 
 from aectorch.choices import Policy
-from aectorch.evaluate.summary import BEYOND_DEG, WITHIN_DEG, fractions, movements, per_trial_rows, summarise
+from aectorch.evaluate.summary import (
+    BEYOND_DEG, LAST_SUFFIX, WITHIN_DEG, fractions, movements, per_trial_rows, summarise,
+)
 from aectorch.evaluate.trials import (
     EVAL_BATCH_SIZE, _all_conditions, _check_trial_arguments, _paper_trials, _trial_session, frozen_iterations,
+    placement,
 )
 from aectorch.sim import DEFAULT_DISTANCES_M, TextureBank, TrialProtocol, resolve_protocol
 
@@ -61,6 +64,7 @@ def evaluate(
         ``pursuit_mae_deg``, ``vergence_mae_deg``, ``depth_mae_m`` and full summaries
         (:func:`summarise`) under ``pursuit``, ``vergence``, ``depth``; ``fractions`` (of the
         fixation ends within ``WITHIN_DEG`` and beyond ``BEYOND_DEG``, :func:`fractions`);
+        ``last5``: the same MAEs and fractions for the mean of each fixation's last 5 iterations;
         per-distance and per-texture breakdowns (``per_distance``, ``per_texture``); one row per
         trial (``per_trial``, :func:`per_trial_rows`); ``trials``; and ``vergence_test`` when asked.
     """
@@ -107,7 +111,9 @@ def _report(paper: dict[str, Tensor], names: Sequence[str], distances: list[floa
                 "fractions": fractions({m: e[mask] for m, e in eyes.items()})}
 
     summaries = {key: summarise(x) for key, x in errors.items()}
+    lasts = {m: paper[f"{m}{LAST_SUFFIX}"] for m in eyes if f"{m}{LAST_SUFFIX}" in paper}
     return {
+        "last5": {**{f"{m}_mae_deg": summarise(e)["mae"] for m, e in lasts.items()}, "fractions": fractions(lasts)},
         **{key: summary["mae"] for key, summary in summaries.items()},
         **{key.split("_mae_")[0]: summary for key, summary in summaries.items()},
         "trials": index.numel(),
@@ -127,8 +133,7 @@ def _vergence_test(learner, index: Tensor, distance: Tensor, env_for, batch_size
     """The earlier models' vergence test: the left eye at its optimal pan, the right one off by a
     uniform offset in +-``offset_deg``, then ``steps`` frozen iterations. Returns the final
     vergence errors and the camera's degrees per pixel."""
-    parameter = next(learner.parameters())
-    device, dtype = parameter.device, parameter.dtype
+    device, dtype = placement(learner)
     total = index.numel()
     generator = torch.Generator().manual_seed(seed)
     finals = []

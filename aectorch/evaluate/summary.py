@@ -8,12 +8,19 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
-__all__ = ["BEYOND_DEG", "WITHIN_DEG", "fractions", "movements", "per_trial_rows", "summarise"]
+__all__ = ["BEYOND_DEG", "LAST_ITERATIONS", "LAST_SUFFIX", "WITHIN_DEG", "fractions", "movements", "per_trial_rows",
+           "summarise"]
 
 #: An eye within this many degrees of its optimum counts as on target: one pixel (0.2226 deg/px).
 WITHIN_DEG = 0.22
 #: An eye farther than this from its optimum counts as failed.
 BEYOND_DEG = 2.0
+#: Each fixation's last this many iterations' errors are averaged as well as its final state's
+#: (``<movement>_last5_deg``): a fixation that ends in a limit cycle of one small action is a coin
+#: toss between two states at its last iteration, and the mean is where it holds.
+LAST_ITERATIONS = 5
+#: The key suffix of those means in `aectorch.evaluate.run_trials`' output.
+LAST_SUFFIX = f"_last{LAST_ITERATIONS}_deg"
 
 
 def fractions(errors_deg: dict[str, Tensor]) -> dict:
@@ -41,14 +48,16 @@ def fractions(errors_deg: dict[str, Tensor]) -> dict:
 
 def movements(trials: dict[str, Tensor]) -> list[str]:
     """The eye movements of :func:`run_trials`' output (its ``<movement>_deg`` keys), in order."""
-    return [key[: -len("_deg")] for key in trials if key.endswith("_deg") and key != "q_deg"]
+    return [key[: -len("_deg")] for key in trials
+            if key.endswith("_deg") and key != "q_deg" and not key.endswith(LAST_SUFFIX)]
 
 
 def per_trial_rows(trials: dict[str, Tensor], names: Sequence[str]) -> list[dict]:
     """One JSON row per trial of :func:`run_trials`' output: its texture's name, distance and each
     movement's signed error of its final state (the end of its second, rightward fixation,
     ``<movement>_error_deg``), plus both fixation ends' errors as ``[leftward, rightward]``
-    (``<movement>_errors_deg``)."""
+    (``<movement>_errors_deg``); and the same for the mean of each fixation's last 5 iterations
+    (``<movement>_error_last5_deg``, ``<movement>_errors_last5_deg``) where the trials have it."""
     rows = []
     moves = movements(trials)
     for i in range(trials["distance_m"].numel()):
@@ -56,8 +65,11 @@ def per_trial_rows(trials: dict[str, Tensor], names: Sequence[str]) -> list[dict
         row = {"texture": names[int(trials["texture_index"][i])], "distance_m": round(float(trials["distance_m"][i]), 6)}
         ends = {m: trials[f"{m}_deg"][i].tolist() for m in moves}
         row.update({f"{m}_error_deg": e[-1] for m, e in ends.items()})
+        lasts = {m: trials[m + LAST_SUFFIX][i].tolist() for m in moves if m + LAST_SUFFIX in trials}
+        row.update({f"{m}_error{LAST_SUFFIX}": e[-1] for m, e in lasts.items()})
         row["depth_error_m"] = depth if math.isfinite(depth) else None
         row.update({f"{m}_errors_deg": e for m, e in ends.items()})
+        row.update({f"{m}_errors{LAST_SUFFIX}": e for m, e in lasts.items()})
         rows.append(row)
     return rows
 

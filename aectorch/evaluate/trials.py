@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import itertools
 from typing import Iterator, Sequence
 
 import torch
@@ -10,9 +11,10 @@ from torch import Tensor
 
 from aectorch._checks import check_choice, check_distances, check_int
 from aectorch.choices import Policy
+from aectorch.evaluate.summary import LAST_ITERATIONS, LAST_SUFFIX
 from aectorch.sim import DEFAULT_DISTANCES_M, ActiveDepthEnv, TextureBank, TrialProtocol, resolve_protocol
 
-__all__ = ["EVAL_BATCH_SIZE", "frozen_iterations", "run_trials"]
+__all__ = ["EVAL_BATCH_SIZE", "LAST_ITERATIONS", "LAST_SUFFIX", "frozen_iterations", "run_trials"]
 
 #: Environments simulated at once by default.
 EVAL_BATCH_SIZE = 256
@@ -24,6 +26,15 @@ def _all_conditions(num_textures: int, distances: Sequence[float]) -> tuple[Tens
     return index, distance
 
 
+def placement(learner) -> tuple[torch.device, torch.dtype]:
+    """The device and float type of ``learner``'s first parameter (or buffer, for a controller
+    without parameters such as `aectorch.baselines.Matcher`): where its environments live."""
+    for tensor in itertools.chain(learner.parameters(), learner.buffers()):
+        if tensor.is_floating_point():
+            return tensor.device, tensor.dtype
+    return torch.device("cpu"), torch.float32
+
+
 @contextlib.contextmanager
 def _trial_session(learner, bank: TextureBank, distances: list[float], protocol: TrialProtocol, seed: int, bar=None):
     """``env_for(size, h, instant=False)``: environments of ``bank`` under ``protocol`` made once per
@@ -33,7 +44,7 @@ def _trial_session(learner, bank: TextureBank, distances: list[float], protocol:
     For the session the learner's generator (sampled actions) is seeded from ``seed``; it gets
     its own state back afterwards, and the progress bar ``bar`` is closed.
     """
-    parameter = next(learner.parameters())
+    device, dtype = placement(learner)
     envs: dict[tuple[int, int, bool], ActiveDepthEnv] = {}
 
     def env_for(size: int, h: int, instant: bool = False) -> ActiveDepthEnv:
@@ -41,7 +52,7 @@ def _trial_session(learner, bank: TextureBank, distances: list[float], protocol:
             options = protocol.env_kwargs()
             options.update(fixation_iterations=h, shift_iterations=1 if instant else protocol.shift_iterations)
             envs[size, h, instant] = ActiveDepthEnv(size, textures=bank, distances_m=distances, **options,
-                                                    seed=seed, device=parameter.device, dtype=parameter.dtype)
+                                                    seed=seed, device=device, dtype=dtype)
         return envs[size, h, instant]
 
     saved_generator = learner.generator.get_state()
@@ -102,7 +113,7 @@ def _paper_trials(learner, index: Tensor, distance: Tensor, env_for, batch_size:
                   fixation_iterations: int, greedy: bool, bar) -> dict[str, Tensor]:
     """The paper's test: one full trial per (texture index, distance), learning frozen; each eye
     movement's signed errors at the fixation ends as ``<movement>_deg`` ``[N, fixations]``."""
-    device, dtype = next(learner.parameters()).device, next(learner.parameters()).dtype
+    device, dtype = placement(learner)
     total = index.numel()
     out: dict[str, list[Tensor]] = {"q_deg": [], "depth_error_m": []}
     for start in range(0, total, batch_size):
@@ -110,12 +121,19 @@ def _paper_trials(learner, index: Tensor, distance: Tensor, env_for, batch_size:
         env = env_for(stop - start, fixation_iterations)
         env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
         finals: dict[str, list[Tensor]] = {}
+        lasts: dict[str, list[Tensor]] = {}
+        recent: dict[str, list[Tensor]] = {}
         for record in frozen_iterations(learner, env, greedy=greedy):
+            for movement, error in record.errors_deg.items():
+                recent.setdefault(movement, []).append(error)
+                del recent[movement][:-LAST_ITERATIONS]
             if record.fixation_end:
                 for movement, error in record.errors_deg.items():
                     finals.setdefault(movement, []).append(error)
+                    lasts.setdefault(movement, []).append(torch.stack(recent.pop(movement)).mean(0))
         for movement, errors in finals.items():
             out.setdefault(f"{movement}_deg", []).append(torch.stack(errors, 1))  # [b, 2 fixations]
+            out.setdefault(f"{movement}{LAST_SUFFIX}", []).append(torch.stack(lasts[movement], 1))
         out["q_deg"].append(record.q_deg)
         out["depth_error_m"].append(record.depth_prediction_m - record.distance_m)
         if bar is not None:
@@ -168,7 +186,8 @@ def run_trials(
     Returns:
         CPU tensors over the N = textures x distances trials (texture-major): ``<movement>_deg``
         for each eye movement (``pursuit_deg``, ``vergence_deg``) ``[N, 2]`` (signed errors at
-        the end of each fixation), ``q_deg``
+        the end of each fixation), ``<movement>_last5_deg`` ``[N, 2]`` (the mean signed error of
+        each fixation's last `LAST_ITERATIONS` iterations), ``q_deg``
         ``[N, 4]`` (the MLP's inputs), ``depth_error_m`` ``[N]`` (NaN before the MLP's first fit),
         ``texture_index`` and ``distance_m`` ``[N]``.
 

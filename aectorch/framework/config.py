@@ -73,6 +73,7 @@ class CueConfig:
     features: Features = Features.pooled
     feature_scale: float = 10.0
     reward: Reward = Reward.improvement
+    motor_cost: float = 0.0
 
     def __post_init__(self) -> None:
         # Messages name the field as "cue.<field>"; `aectorch.runtime.config.to_experiment_config`
@@ -95,6 +96,7 @@ class CueConfig:
         if len(set(self.scales)) != len(self.scales):
             raise ValueError(f"{owner}.scales must be distinct, got {list(self.scales)!r}")
         check_real(self.feature_scale, f"{owner}.feature_scale", above=0)
+        check_real(self.motor_cost, f"{owner}.motor_cost", minimum=0)
         for name, cls in (("encoder", EncoderConfig), ("nac", ActorCriticConfig), ("ppo", PPOConfig)):
             if isinstance(getattr(self, name), dict):
                 setattr(self, name, cls(**getattr(self, name)))

@@ -117,6 +117,8 @@ class CueLearner(nn.Module):
         cue's symmetry the transformed transition too. Returns the TD errors ``[B]``."""
         f_prev, a_prev, r_prev = self.previous
         learned = reward - r_prev if self.config.reward == Reward.improvement else reward
+        if self.config.motor_cost:
+            learned = learned - self.config.motor_cost * self.agent.actions_deg[a_prev].abs().to(learned.dtype)
         f_next = features
         fmap = self.encoder.feature_permutation
         if fmap is not None:  # also learn from the transformed transition

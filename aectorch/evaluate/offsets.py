@@ -1,0 +1,165 @@
+"""Where a learner loses its precision: its coding reward and its greedy increment against the
+offset of an eye from its optimum.
+
+For every trial condition (texture x distance) and every offset, the body is put at the end of its
+shift, every eye movement at its optimum, then the one movement a cue drives is moved ``offset``
+degrees off it; the cue's observation is encoded (its reward R = -(e^C + e^F)) and its greedy
+policy read (the increment it would take). A code that can tell a small offset from none has its
+reward peak at 0; a policy that can stop at the target answers 0 there and steps back toward it
+on both sides. :func:`limit_cycle` iterates each trial's greedy map from the optimum to find where
+a frozen fixation settles.
+
+    sweep = offset_sweep(learner, TextureBank.default("test"), cue="stereo")
+    offset_summary(sweep)   # the reward's peak, its drop 0.1 deg off, the map's zero crossing, the cycle
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import torch
+from torch import Tensor
+
+from aectorch._checks import check_int
+from aectorch.evaluate.trials import EVAL_BATCH_SIZE, placement, _all_conditions, _check_trial_arguments, _trial_session
+from aectorch.sim import TextureBank, TrialProtocol, resolve_protocol
+
+__all__ = ["DEFAULT_OFFSETS_DEG", "limit_cycle", "offset_summary", "offset_sweep"]
+
+#: -1 to +1 degree in 0.02 degree steps (about a tenth of a pixel).
+DEFAULT_OFFSETS_DEG = tuple(round(-1.0 + 0.02 * i, 2) for i in range(101))
+
+
+def _pans_at(env, movement: str, offset: Tensor) -> Tensor:
+    """Both eyes' pans ``[b, 2]``: every movement at its optimum, ``movement`` ``offset`` off it."""
+    left = env.optimal_left_pan_deg()
+    if movement == "pursuit":
+        left = left + offset  # the right eye at its optimum for this left pan
+        return torch.stack((left, env.optimal_right_pan_deg(left)), -1)
+    if movement == "vergence":
+        return torch.stack((left, env.optimal_right_pan_deg(left) + offset), -1)
+    raise ValueError(f"offset_sweep knows the movements 'pursuit' and 'vergence', got {movement!r}")
+
+
+def offset_sweep(
+    learner,
+    textures: TextureBank | Tensor,
+    *,
+    cue: str,
+    offsets_deg: Sequence[float] = DEFAULT_OFFSETS_DEG,
+    distances_m: Sequence[float] = (1.0, 1.5, 2.0, 2.5, 3.0),
+    protocol: TrialProtocol | None = None,
+    batch_size: int = EVAL_BATCH_SIZE,
+    progress: bool = False,
+) -> dict[str, Tensor]:
+    """The cue's reward and greedy increment at each offset of its eye movement from the optimum.
+
+    Args:
+        learner: a `JointLearner` that learns ``cue`` (frozen here: nothing is learned).
+        textures: the conditions' textures; every texture is tried at every distance.
+        cue: the cue whose movement is offset (``"parallax"``: pursuit; ``"stereo"``: vergence).
+        offsets_deg: the offsets, degrees.
+        distances_m, protocol, batch_size: as for `aectorch.evaluate.run_trials`; the body is at
+            the end of the protocol's shift.
+        progress: show a progress bar.
+
+    Returns:
+        CPU tensors: ``offsets_deg`` ``[K]``; over the N = textures x distances conditions
+        ``reward`` and ``increment_deg`` (the greedy action's increment) ``[N, K]``, and
+        ``expected_increment_deg`` (the policy's mean increment) ``[N, K]``; ``texture_index`` and
+        ``distance_m`` ``[N]``.
+    """
+    distances, _ = _check_trial_arguments(distances_m, batch_size, "greedy")
+    if cue not in learner.cues:
+        raise ValueError(f"cue must be one the learner learns, {list(learner.cues)}, got {cue!r}")
+    offsets = torch.as_tensor(list(offsets_deg), dtype=torch.float64)
+    if offsets.dim() != 1 or offsets.numel() == 0 or not bool(torch.isfinite(offsets).all()):
+        raise ValueError(f"offsets_deg must be a non-empty list of finite degrees, got {list(offsets_deg)!r}")
+    check_int(batch_size, "batch_size", 1)
+    protocol = resolve_protocol(protocol)
+    bank = textures if isinstance(textures, TextureBank) else TextureBank(textures)
+    index, distance = _all_conditions(len(bank), distances)
+    cue_learner = learner.cues[cue]
+    device, dtype = placement(learner)
+    out: dict[str, list[Tensor]] = {"reward": [], "increment_deg": [], "expected_increment_deg": []}
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=index.numel() * offsets.numel(), desc=f"{cue} offsets", unit="view")
+    actions = cue_learner.agent.actions_deg
+    scales = cue_learner.encoder.scales if learner.config.render_scales else None
+    with _trial_session(learner, bank, distances, protocol, 0, bar) as env_for, torch.no_grad():
+        for start in range(0, index.numel(), batch_size):
+            stop = min(start + batch_size, index.numel())
+            env = env_for(stop - start, protocol.fixation_iterations, instant=True)
+            movement = env.cue(cue).movement
+            rows = {key: [] for key in out}
+            for offset in offsets.tolist():
+                env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
+                shifted = torch.full((stop - start,), offset, dtype=dtype, device=device)
+                env.set_pan_deg(_pans_at(env, movement, shifted))
+                coded = cue_learner.encoder.encode(env.observe(cue, scales))
+                features = cue_learner._features(coded.features)
+                greedy = cue_learner.agent.act(features, greedy=True, generator=learner.generator)
+                probabilities = cue_learner.agent.log_policy(features).exp()
+                rows["reward"].append(coded.reward)
+                rows["increment_deg"].append(greedy.increments_deg)
+                rows["expected_increment_deg"].append(probabilities @ actions.to(probabilities.dtype))
+                if bar is not None:
+                    bar.update(stop - start)
+            for key, values in rows.items():
+                out[key].append(torch.stack(values, 1).double().cpu())
+    result = {key: torch.cat(values) for key, values in out.items()}
+    result.update(offsets_deg=offsets, texture_index=index, distance_m=distance)
+    return result
+
+
+def limit_cycle(offsets_deg: Tensor, increment_deg: Tensor, *, steps: int = 30, last: int = 10) -> Tensor:
+    """Where each trial's greedy map settles: from the optimum (offset 0), ``steps`` times
+    ``offset += increment(offset)`` (the map interpolated linearly between the sweep's offsets,
+    held at its ends); returns each trial's mean |offset| over the last ``last`` steps ``[N]``."""
+    check_int(steps, "steps", 1)
+    check_int(last, "last", 1)
+    x = offsets_deg.double()
+    n = increment_deg.shape[0]
+    position = torch.zeros(n, dtype=torch.float64)
+    seen = []
+    for _ in range(steps):
+        clamped = position.clamp(float(x[0]), float(x[-1]))
+        hi = torch.searchsorted(x, clamped).clamp(1, x.numel() - 1)
+        lo = hi - 1
+        w = ((clamped - x[lo]) / (x[hi] - x[lo])).clamp(0, 1)
+        rows = torch.arange(n)
+        step = (1 - w) * increment_deg[rows, lo] + w * increment_deg[rows, hi]
+        position = position + step
+        seen.append(position.abs())
+    return torch.stack(seen[-last:], 1).mean(1)
+
+
+def offset_summary(sweep: dict[str, Tensor], *, probe_deg: float = 0.1, pixel_deg: float = 0.22) -> dict:
+    """The sweep's numbers: where the reward peaks (mean |offset| of each trial's peak, and the
+    fraction within ``pixel_deg``), how much lower it is ``probe_deg`` off the optimum (mean of
+    both sides' drop, per trial, averaged), the greedy map's mean zero crossing, the share of
+    trials whose greedy increment at the optimum is 0, and the limit cycle's mean |offset|."""
+    x, reward, increment = sweep["offsets_deg"], sweep["reward"], sweep["increment_deg"]
+    peak = x[reward.argmax(1)]
+    zero = int((x.abs()).argmin())
+    sides = [int((x - s).abs().argmin()) for s in (-probe_deg, probe_deg)]
+    drop = reward[:, zero] - reward[:, sides].mean(1)
+    mean_map = sweep["expected_increment_deg"].mean(0)
+    sign = torch.sign(mean_map)
+    crossing = float("nan")
+    for i in range(x.numel() - 1):  # the mean expected map's first + to - crossing
+        if sign[i] > 0 and sign[i + 1] <= 0:
+            crossing = float(x[i] + (x[i + 1] - x[i]) * mean_map[i] / (mean_map[i] - mean_map[i + 1]))
+            break
+    return {
+        "reward_peak_abs_deg": float(peak.abs().mean()),
+        "reward_peak_within_px": float((peak.abs() <= pixel_deg).double().mean()),
+        f"reward_drop_at_{probe_deg}_deg": float(drop.mean()),
+        "expected_map_zero_crossing_deg": crossing,
+        "greedy_zero_at_optimum": float((increment[:, zero] == 0).double().mean()),
+        "limit_cycle_abs_deg": float(limit_cycle(x, increment).mean()),
+        "trials": int(reward.shape[0]),
+    }
