@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from enum import Enum
 
-__all__ = ["AgentName", "Algorithm", "Choice", "DType", "Eye", "Features", "Policy", "Pooling", "RendererName", "Reward",
+__all__ = ["AgentName", "Algorithm", "Choice", "DictionaryStart", "DType", "Eye", "Features", "Policy", "Pooling", "Readout", "RendererName", "Reward",
            "Symmetry", "WatchdogMode"]
 
 
@@ -90,6 +90,20 @@ class Symmetry(Choice):
 class Eye(Choice):
     left = "left"
     right = "right"
+
+
+class DictionaryStart(Choice):
+    """A dictionary's first atoms: Gaussian random, or random with both eyes' halves equal."""
+
+    random = "random"
+    binocular = "binocular"
+
+
+class Readout(Choice):
+    """The greedy policy's increment: the most probable action's, or the policy's mean increment."""
+
+    argmax = "argmax"
+    mean = "mean"
 
 
 class Policy(Choice):

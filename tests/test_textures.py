@@ -489,3 +489,22 @@ def test_every_public_callable_has_an_example():
     for obj in public:
         assert ">>>" in (obj.__doc__ or ""), obj.__name__
     assert not list(itertools.filterfalse(str.isidentifier, textures_module.__all__))
+
+
+def test_dead_leaves_have_flat_regions_sharp_edges_and_a_falling_spectrum():
+    from aectorch.sim import dead_leaves_image
+
+    g = torch.Generator().manual_seed(0)
+    flat = dead_leaves_image(256, 256, generator=g, inner_contrast=0.0, dtype=torch.float64)
+    assert float(flat.amin()) == 0.0 and float(flat.amax()) == 1.0
+    steps = (flat[:, 1:] - flat[:, :-1]).abs()
+    assert float((steps == 0).double().mean()) > 0.6  # inside a disc nothing changes ...
+    assert float((steps > 0.1).double().mean()) > 0.05  # ... and its edge is a jump
+    power = torch.fft.rfft2(flat - flat.mean()).abs().square()
+    low, high = power[1:4, 1:4].mean(), power[60:64, 60:64].mean()
+    assert float(low / high) > 100
+    bank = TextureBank.dead_leaves(3, 64, seed=5)
+    assert torch.equal(bank.textures[:2], TextureBank.dead_leaves(2, 64, seed=5).textures)
+    assert TextureBank.from_spec("dead-leaves", split="test", size=32).names[0] == "leaves-2018-0"
+    with pytest.raises(ValueError, match="radius_px"):
+        dead_leaves_image(8, 8, generator=g, radius_px=(3, 1))

@@ -18,7 +18,7 @@ import torch
 from torch import Tensor, nn
 
 from aectorch._checks import check_bool, check_choice, check_finite, check_int, check_real, is_real
-from aectorch.choices import Algorithm, Pooling
+from aectorch.choices import Algorithm, DictionaryStart, Pooling
 from aectorch.coding.dictionary import DictionaryOutput, SparseDictionary
 from aectorch.coding.patches import (
     DEFAULT_SCALES, WINDOW, Scale, as_scale, patch_permutation, scale_patches, window_patches,
@@ -55,6 +55,11 @@ class EncoderConfig:
             measured on a trained learner, the features of a mirrored pair then differ from the
             permuted features by 14-60 % (by scale), so the mirrored transitions the symmetry
             learns from are not the real ones.
+        start: the dictionaries' first atoms: ``"random"`` (Gaussian, the default) or
+            ``"binocular"`` (Gaussian, each atom's second image half a copy of its first: every
+            atom starts tuned to zero disparity, so the first code is best where the two images
+            agree). The paper does not state its start; without the swap symmetry, a random
+            start can let stereo settle on a disparity of its own (docs/paper-mapping.md).
     """
 
     num_atoms: int = 288
@@ -65,6 +70,7 @@ class EncoderConfig:
     decay: Optional[float] = 500.0
     decay_power: float = 1.0
     centred: bool = True
+    start: DictionaryStart = DictionaryStart.random
 
     def __post_init__(self) -> None:
         owner = "encoder"
@@ -77,6 +83,7 @@ class EncoderConfig:
             raise ValueError(f"{owner}.decay must be null or a number > 0, got {self.decay!r}")
         check_real(self.decay_power, f"{owner}.decay_power", above=0)
         check_bool(self.centred, f"{owner}.centred")
+        self.start = check_choice(self.start, f"{owner}.start", DictionaryStart)
 
     def rate(self, steps: int) -> float:
         """The dictionaries' learning rate after ``steps`` learning steps (``decay``)."""
@@ -192,6 +199,16 @@ class BinocularEncoder(nn.Module):
                 offset += d.num_atoms
             permutation = torch.cat(parts)
         self.register_buffer("feature_permutation", permutation, persistent=False)
+        if cfg.start == DictionaryStart.binocular:
+            if symmetry == "swap":
+                raise ValueError("encoder.start=binocular gives atoms that the swap symmetry pairs with "
+                                 "themselves (duplicate atoms); use it with symmetry null or mirror")
+            with torch.no_grad():
+                for d in self.dictionaries.values():
+                    half = d.dim // 2
+                    d.atoms[half:] = d.atoms[:half]
+                    d.symmetrize_()
+                    d.renormalize_()
 
     def __getattr__(self, name: str):
         # `encoder.coarse` / `encoder.fine` reach the per-scale dictionaries.

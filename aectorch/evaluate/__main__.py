@@ -13,7 +13,7 @@ from typing import Sequence
 
 from aectorch._checks import is_int, is_real
 from aectorch._cli import UsageError, parse_key_values, run_main
-from aectorch.choices import Policy
+from aectorch.choices import Policy, Readout
 from aectorch.evaluate import BEYOND_DEG, EVAL_BATCH_SIZE, WITHIN_DEG, evaluate
 from aectorch.figures import plot_evaluation
 from aectorch.runtime.builders import trial_protocol
@@ -40,12 +40,14 @@ keys:
   progress=true|false    show a progress bar (default: true)
   policy=greedy|sampled  argmax actions (the protocol; default) or actions sampled from the
                          policies as in training, to see what greediness costs
+  readout=argmax|mean    the greedy increment of every cue: the most probable action's, or
+                         the policy's mean increment (default: the run's, learner.cues.<cue>.readout)
 
 Errors print one "error: ..." line and exit with status 2.
 """
 
 _KEYS = ("checkpoint", "out", "textures", "renderer", "depths", "batch_size", "seed", "figure", "progress",
-         "policy")
+         "policy", "readout")
 
 
 def _parse(argv: Sequence[str]) -> dict:
@@ -68,6 +70,9 @@ def _parse(argv: Sequence[str]) -> dict:
     policy = args.setdefault("policy", "greedy")
     if policy not in Policy.values():
         raise UsageError(f"policy must be one of {', '.join(Policy.values())}, got {policy!r}")
+    readout = args.get("readout")
+    if readout is not None and readout not in Readout.values():
+        raise UsageError(f"readout must be one of {', '.join(Readout.values())}, got {readout!r}")
     progress = args.setdefault("progress", True)
     if not isinstance(progress, bool):
         raise UsageError(f"progress must be true or false, got {progress!r}")
@@ -89,6 +94,9 @@ def _evaluate(argv: list[str]) -> int:
     payload = load_checkpoint(args["checkpoint"])
     cfg, learner = load_learner(args["checkpoint"], payload=payload)
     iteration = int(payload["iteration"])
+    if args.get("readout") is not None:
+        for cue in learner.cues.values():
+            cue.config.readout = Readout(args["readout"])
     if args.get("textures") is None:
         bank, textures = TextureBank.default("test"), "default test bank"
     else:

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 from aectorch._checks import check_bool, check_choice, check_int, check_real
-from aectorch.choices import AgentName, Features, Reward, Symmetry
+from aectorch.choices import AgentName, Features, Readout, Reward, Symmetry
 from aectorch.coding.encoder import EncoderConfig
 from aectorch.coding.patches import DEFAULT_SCALES, SCALE_NAMES
 from aectorch.control import DEFAULT_ACTIONS_DEG, PAPER_ACTIONS_DEG, ActorCriticConfig, PPOConfig
@@ -74,6 +74,7 @@ class CueConfig:
     feature_scale: float = 10.0
     reward: Reward = Reward.improvement
     motor_cost: float = 0.0
+    readout: Readout = Readout.argmax
 
     def __post_init__(self) -> None:
         # Messages name the field as "cue.<field>"; `aectorch.runtime.config.to_experiment_config`
@@ -82,6 +83,7 @@ class CueConfig:
         self.agent = check_choice(self.agent, f"{owner}.agent", AgentName)
         self.features = check_choice(self.features, f"{owner}.features", Features)
         self.reward = check_choice(self.reward, f"{owner}.reward", Reward)
+        self.readout = check_choice(self.readout, f"{owner}.readout", Readout)
         if self.symmetry is not None:
             self.symmetry = check_choice(self.symmetry, f"{owner}.symmetry", Symmetry)
         try:

@@ -15,7 +15,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor, nn
 
-from aectorch.choices import Features, Reward
+from aectorch.choices import Features, Readout, Reward
 from aectorch.coding import BinocularEncoder
 from aectorch.control import Agent, Transitions, make_agent
 from aectorch.framework.config import CueConfig
@@ -131,7 +131,11 @@ class CueLearner(nn.Module):
 
     def _act(self, features: Tensor, greedy: bool):
         if greedy:
-            return self.agent.act(features, greedy=True, generator=self.generator)
+            out = self.agent.act(features, greedy=True, generator=self.generator)
+            if self.config.readout == Readout.mean:
+                probabilities = self.agent.log_policy(features).exp()
+                out = out._replace(increments_deg=probabilities @ self.agent.actions_deg.to(probabilities.dtype))
+            return out
         # The numbers one process with the whole batch would draw; this process's rows.
         u = torch.rand(self.shard.whole_batch(features.shape[0]), 1, generator=self.generator, dtype=features.dtype,
                        device=features.device)

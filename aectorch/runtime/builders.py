@@ -8,7 +8,7 @@ import torch
 
 from aectorch.framework import JointLearner, Shard
 from aectorch.runtime.config import ExperimentConfig
-from aectorch.sim import ActiveDepthEnv, TextureBank, TrialProtocol
+from aectorch.sim import PROCEDURAL_TEXTURES, ActiveDepthEnv, TextureBank, TrialProtocol
 
 __all__ = ["available_threads", "build_env", "build_learner", "build_textures", "compile_hot_path",
            "dictionaries", "set_threads", "trial_options", "trial_protocol"]
@@ -38,6 +38,8 @@ def build_textures(folder: str | None, split: str, cfg: ExperimentConfig) -> Tex
     kwargs = dict(dtype=cfg.env.torch_dtype)
     if folder is None:
         return TextureBank.default(split, **kwargs)
+    if folder in PROCEDURAL_TEXTURES:
+        return TextureBank.from_spec(folder, split=split, **kwargs)
     return TextureBank.from_folder(folder, progress=None if cfg.train.progress else False, **kwargs)
 
 

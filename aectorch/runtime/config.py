@@ -28,7 +28,9 @@ from aectorch.evaluate import EVAL_BATCH_SIZE
 from aectorch.framework import PAPER_ACTIONS_DEG, LearnerConfig, default_cues
 from aectorch.runtime.metrics import PAPER_WINDOW
 from aectorch.runtime.watchdog import WatchdogConfig
-from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, START_PURSUIT_DEG, START_VERGENCE_DEG
+from aectorch.sim import (
+    DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, PROCEDURAL_TEXTURES, START_PURSUIT_DEG, START_VERGENCE_DEG,
+)
 
 __all__ = [
     "EnvConfig",
@@ -88,7 +90,9 @@ class EnvConfig:
             ``"pyrender"`` (OpenGL through OSMesa).
         textures: a folder of images used as the object textures (`TextureBank.from_folder`,
             512 x 512 grey); ``None`` uses ``TextureBank.default("train")``, 100 procedural
-            1/f textures standing in for the paper's photographs.
+            1/f textures standing in for the paper's photographs; ``dead-leaves`` 100
+            dead-leaves textures (`TextureBank.dead_leaves`, the default set's seed): occluding
+            discs of power-law sizes, with sharp edges and flat regions.
         distances_m: object distances a trial draws from uniformly, metres (paper: 1.0 to 3.0 m
             in 0.1 m steps).
         fixation_iterations: h, iterations per fixation (paper: 30).
@@ -426,7 +430,7 @@ def validate_resources(cfg: ExperimentConfig) -> None:
     imports, the resume folder has a checkpoint. Raises ``ValueError`` naming the field (and the
     file)."""
     for name, folder in (("env.textures", cfg.env.textures), ("eval.textures", cfg.eval.textures)):
-        if folder is None:
+        if folder is None or folder in PROCEDURAL_TEXTURES:
             continue
         if not os.path.isdir(folder):
             raise ValueError(f"{name}: no such folder {folder!r}")

@@ -16,7 +16,7 @@ from aectorch.sim.render_torch import (
     MipmapAtlas, TorchPlaneRenderer, mipmap_atlas, pixel_rays, render_planes, render_rays, sample_bilinear,
 )
 from aectorch.sim.scene import PlaneScene
-from aectorch.sim.textures import TextureBank, pink_noise_images
+from aectorch.sim.textures import PROCEDURAL_TEXTURES, TextureBank, dead_leaves_image, pink_noise_images
 
 
 def __getattr__(name: str):
@@ -50,6 +50,8 @@ __all__ = [
     "TorchPlaneRenderer",
     "make_renderer",
     "pink_noise_images",
+    "dead_leaves_image",
+    "PROCEDURAL_TEXTURES",
     "render_planes",
     "render_rays",
     "pixel_rays",

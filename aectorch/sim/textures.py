@@ -20,17 +20,20 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
 import torch
 from torch import Tensor
 
 from aectorch._checks import check_int, is_int, is_real
 
-__all__ = ["TextureBank", "pink_noise_images", "DEFAULT_SEEDS", "DEFAULT_SIZES", "IMAGE_EXTENSIONS"]
+__all__ = ["TextureBank", "dead_leaves_image", "pink_noise_images", "DEFAULT_SEEDS", "PROCEDURAL_TEXTURES", "DEFAULT_SIZES", "IMAGE_EXTENSIONS"]
 
 #: File extensions `TextureBank.from_folder` loads by default (compared case-insensitively).
 IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg")
 #: Seeds of the procedural stand-ins for the paper's training and held-out texture sets.
 DEFAULT_SEEDS: dict[str, int] = {"train": 2017, "test": 2018}
+#: Names of generated texture sets that a config may give in place of a folder (`TextureBank.from_spec`).
+PROCEDURAL_TEXTURES: tuple[str, ...] = ("dead-leaves",)
 #: Number of textures of each default split (the AEC lineage: 100 train, 40 test).
 DEFAULT_SIZES: dict[str, int] = {"train": 100, "test": 40}
 _DEFAULT_ALPHA = (1.0, 1.2)
@@ -98,6 +101,74 @@ def pink_noise_images(
     low = images.amin(dim=(-2, -1), keepdim=True)
     span = (images.amax(dim=(-2, -1), keepdim=True) - low).clamp_min(torch.finfo(dtype).tiny)
     return ((images - low) / span).clamp_(0.0, 1.0)
+
+
+def dead_leaves_image(
+    height: int,
+    width: int,
+    *,
+    generator: torch.Generator,
+    radius_px: tuple[float, float] = (2.0, 96.0),
+    leaves: int | None = None,
+    inner_contrast: float = 0.15,
+    dtype: torch.dtype = torch.float32,
+) -> Tensor:
+    """A dead-leaves texture (Lee, Mumford and Huang 2001): opaque discs of uniform random grey
+    fall on the image one after the other, each hiding what lies under it.
+
+    The radii follow the scale-invariant density ``r ** -3`` between ``radius_px``'s bounds, so
+    the image has natural images' 1/f-like spectrum together with what Gaussian 1/f noise lacks:
+    sharp occluding edges, flat regions and non-Gaussian statistics. Each disc carries a faint
+    1/f texture (``inner_contrast`` of a `pink_noise_images` field), so that no region is
+    exactly flat. The result spans [0, 1].
+
+    Args:
+        height, width: the image's size (each >= 2).
+        generator: the source of every random draw (CPU).
+        radius_px: the smallest and largest radius, pixels (0 < low <= high).
+        leaves: how many discs fall (default: enough to cover the image about 5 times over
+            on average, so that almost none of the first layer shows).
+        inner_contrast: the faint texture's share of the grey range (>= 0).
+        dtype: float32 or float64.
+
+    Example:
+        >>> x = dead_leaves_image(64, 64, generator=torch.Generator().manual_seed(0))
+        >>> x.shape, float(x.amin()) >= 0, float(x.amax()) <= 1
+        (torch.Size([64, 64]), True, True)
+    """
+    check_int(height, "height", 2)
+    check_int(width, "width", 2)
+    low, high = (float(r) for r in radius_px)
+    if not (math.isfinite(low) and math.isfinite(high) and 0 < low <= high):
+        raise ValueError(f"radius_px must be (low, high) with 0 < low <= high, got {radius_px!r}")
+    if not (is_real(inner_contrast) and inner_contrast >= 0):
+        raise ValueError(f"inner_contrast must be a number >= 0, got {inner_contrast!r}")
+    if leaves is None:  # the mean disc area under r^-3 on [low, high]: 2 pi ln(high/low) / (low^-2 - high^-2)
+        area = 2 * math.pi * math.log(high / low) / (low ** -2 - high ** -2) if high > low else math.pi * low ** 2
+        leaves = max(1, math.ceil(5 * height * width / area))
+    check_int(leaves, "leaves", 1)
+    u = torch.rand(leaves, generator=generator, dtype=torch.float64)
+    radii = (low ** -2 - u * (low ** -2 - high ** -2)) ** -0.5  # inverse CDF of the r^-3 density
+    centres_y = torch.rand(leaves, generator=generator, dtype=torch.float64) * height
+    centres_x = torch.rand(leaves, generator=generator, dtype=torch.float64) * width
+    greys = torch.rand(leaves, generator=generator, dtype=torch.float64)
+    # numpy for the loop over the discs: thousands of small in-place writes.
+    canvas = np.full((height, width), 0.5)
+    ys = np.arange(height)[:, None] + 0.5
+    xs = np.arange(width)[None, :] + 0.5
+    for r, cy, cx, grey in zip(radii.tolist(), centres_y.tolist(), centres_x.tolist(), greys.tolist()):
+        top, bottom = max(0, int(cy - r)), min(height, int(cy + r) + 1)
+        left, right = max(0, int(cx - r)), min(width, int(cx + r) + 1)
+        if top >= bottom or left >= right:
+            continue
+        inside = (ys[top:bottom] - cy) ** 2 + (xs[:, left:right] - cx) ** 2 <= r * r
+        canvas[top:bottom, left:right][inside] = grey
+    canvas = torch.from_numpy(canvas)
+    if inner_contrast > 0:
+        texture = pink_noise_images(1, height, width, generator=generator, dtype=torch.float64)[0]
+        canvas = (1 - inner_contrast) * canvas + inner_contrast * texture
+    low_value, high_value = canvas.amin(), canvas.amax()
+    return ((canvas - low_value) / (high_value - low_value).clamp_min(1e-12)).to(dtype)
 
 
 class TextureBank:
@@ -216,6 +287,37 @@ class TextureBank:
             [f"pink-{seed}-{i}" for i in range(num)],
             source=f"procedural(seed={seed}, alpha={alpha_text})",
         )
+
+    @classmethod
+    def dead_leaves(
+        cls,
+        num: int = 100,
+        size: int | tuple[int, int] = (512, 512),
+        seed: int = 0,
+        *,
+        dtype: torch.dtype = torch.float32,
+        device: torch.device | str | None = None,
+        **options,
+    ) -> TextureBank:
+        """Seeded dead-leaves textures (`dead_leaves_image`; ``options`` are its keywords).
+
+        Texture ``i`` is drawn from one CPU generator seeded with ``seed``, one after the other,
+        so the first ``k`` textures of a bank of ``num > k`` are the bank of ``k``.
+
+        Example:
+            >>> bank = TextureBank.dead_leaves(num=2, size=32, seed=3)
+            >>> len(bank), bank.names
+            (2, ['leaves-3-0', 'leaves-3-1'])
+        """
+        num = _check_count(num, "num")
+        height, width = _check_size(size)
+        if not is_int(seed):
+            raise TypeError(f"seed must be an int, got {type(seed).__name__} ({seed!r})")
+        dtype = _check_dtype(dtype)
+        generator = torch.Generator().manual_seed(seed)
+        textures = torch.stack([dead_leaves_image(height, width, generator=generator, dtype=dtype, **options)
+                                for _ in range(num)]).to(device)
+        return cls(textures, [f"leaves-{seed}-{i}" for i in range(num)], source=f"dead_leaves(seed={seed})")
 
     @classmethod
     def default(
@@ -372,7 +474,8 @@ class TextureBank:
         """The bank a config names: ``"default"``/``"procedural"`` or a folder of images.
 
         Args:
-            spec: ``"default"`` or ``"procedural"`` (both give `default` with `split`), or the
+            spec: ``"default"`` or ``"procedural"`` (both give `default` with `split`),
+                ``"dead-leaves"`` (`dead_leaves` with the default set's size and seed), or the
                 path of a folder of images (`from_folder`, the whole folder: `split` is not
                 used; give the training and the test set as two folders, or use `split`).
             split: ``"train"`` or ``"test"``, for the default textures.
@@ -395,6 +498,10 @@ class TextureBank:
             )
         if isinstance(spec, str) and spec.strip().lower() in ("default", "procedural"):
             return cls.default(split, size=size, dtype=dtype, device=device)
+        if isinstance(spec, str) and spec.strip().lower() in PROCEDURAL_TEXTURES:
+            if split not in DEFAULT_SEEDS:
+                raise ValueError(f"split must be one of {sorted(DEFAULT_SEEDS)}, got {split!r}")
+            return cls.dead_leaves(DEFAULT_SIZES[split], size, DEFAULT_SEEDS[split], dtype=dtype, device=device)
         folder = Path(os.fspath(spec)).expanduser()
         if not os.fspath(spec) or not folder.exists():
             raise FileNotFoundError(
