@@ -636,3 +636,45 @@ def plot_evaluation(result: Mapping, path: str | os.PathLike) -> Path:
     fig.suptitle(f"Evaluation: {overall}, depth {_as_float(result['depth_mae_m']):.3g} m MAE "
                  f"({result['trials']} trials)", fontsize=11)
     return _save(fig, path)
+
+
+def plot_offsets(sweeps: Mapping[str, Mapping[str, Tensor]], path: str | os.PathLike) -> Path:
+    """The offset diagnostic (:func:`aectorch.evaluate.offset_sweep`) of each cue: (top) the coding
+    reward against the eye's offset from its optimum, relative to the reward at the optimum
+    (median and quartiles over the trials); (bottom) the greedy increment (median and quartiles)
+    and the policy's mean increment (mean), with the line that would reach the optimum in one step.
+
+    Args:
+        sweeps: ``{cue: sweep}``, each an `offset_sweep` result.
+        path: the image file to write.
+
+    Returns:
+        The path written.
+    """
+    if not isinstance(sweeps, Mapping) or not sweeps:
+        raise ValueError("sweeps must map cue names to offset_sweep results")
+    fig = _new_figure((4.2 * len(sweeps), 6.0))
+    axes = fig.subplots(2, len(sweeps), squeeze=False, sharex=True)
+    for column, (cue, sweep) in enumerate(sweeps.items()):
+        x = sweep["offsets_deg"].double().numpy()
+        zero = int(np.abs(x).argmin())
+        reward = sweep["reward"].double().numpy()
+        relative = reward - reward[:, zero : zero + 1]
+        q = np.percentile(relative, [25, 50, 75], axis=0)
+        top, bottom = axes[0, column], axes[1, column]
+        top.fill_between(x, q[0], q[2], color=_color(0), alpha=0.25, label="quartiles")
+        top.plot(x, q[1], color=_color(0), label="median")
+        top.axvline(0, color="k", lw=0.6)
+        top.set_title(f"{cue}: reward - reward at the optimum", fontsize=9)
+        top.legend(fontsize=7)
+        greedy = np.percentile(sweep["increment_deg"].double().numpy(), [25, 50, 75], axis=0)
+        bottom.fill_between(x, greedy[0], greedy[2], color=_color(1), alpha=0.25, label="greedy quartiles")
+        bottom.plot(x, greedy[1], color=_color(1), label="greedy median")
+        bottom.plot(x, sweep["expected_increment_deg"].double().numpy().mean(0), color=_color(2),
+                    label="policy's mean increment")
+        bottom.plot(x, -x, color="k", lw=0.6, ls="--", label="to the optimum")
+        bottom.axhline(0, color="k", lw=0.6)
+        bottom.set_xlabel("offset from the optimum (deg)")
+        bottom.set_title(f"{cue}: increment taken there (deg)", fontsize=9)
+        bottom.legend(fontsize=7)
+    return _save(fig, path)

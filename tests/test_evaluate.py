@@ -199,7 +199,7 @@ def test_last5_is_the_mean_of_each_fixations_last_five_iterations():
     assert set(result["last5"]["fractions"]) == {"pursuit", "vergence", "both"}
 
 
-def test_offset_sweep_reads_the_cues_reward_and_greedy_increment_off_the_optimum():
+def test_offset_sweep_reads_the_cues_reward_and_greedy_increment_off_the_optimum(tmp_path):
     from aectorch.evaluate.offsets import limit_cycle, offset_summary, offset_sweep
 
     bank, learner = _trained_learner()
@@ -215,6 +215,9 @@ def test_offset_sweep_reads_the_cues_reward_and_greedy_increment_off_the_optimum
     torch.testing.assert_close(sweep["reward"][:, 2], coded.reward.double())
     summary = offset_summary(sweep)
     assert summary["trials"] == 3 and 0 <= summary["reward_peak_within_px"] <= 1
+    from aectorch.figures import plot_offsets
+
+    assert plot_offsets({"stereo": sweep}, tmp_path / "offsets.png").stat().st_size > 1000
     with pytest.raises(ValueError, match="cue must be one the learner learns"):
         offset_sweep(learner, bank, cue="torsion")
     # A bang-bang map (+0.2 at or below the optimum, -0.2 above it) cycles between 0 and 0.2.

@@ -16,11 +16,12 @@ torch.set_num_threads(1)
 
 
 def make(num_envs=2, h=2, *, encoder=None, cue=None, **learner):
-    """An environment and a learner of 32 atoms per dictionary; ``encoder`` and ``cue``: fields of
-    every cue's `EncoderConfig` and `CueConfig`, ``learner``: of `LearnerConfig`."""
+    """An environment and a learner of 32 atoms per dictionary, with the natural actor-critic (most
+    tests here are of its updates); ``encoder`` and ``cue``: fields of every cue's `EncoderConfig`
+    and `CueConfig`, ``learner``: of `LearnerConfig`."""
     env = ActiveDepthEnv(num_envs, textures=torch.rand(4, 64, 64, generator=torch.Generator().manual_seed(1)),
                          fixation_iterations=h, seed=0)
-    cues = default_cues(encoder=EncoderConfig(**{"num_atoms": 32, **(encoder or {})}), **(cue or {}))
+    cues = default_cues(encoder=EncoderConfig(**{"num_atoms": 32, **(encoder or {})}), **{"agent": "nac", **(cue or {})})
     learner = JointLearner(LearnerConfig(cues=cues, **learner), generator=torch.Generator().manual_seed(0))
     return env, learner
 
@@ -41,13 +42,13 @@ def test_iteration_records_both_cues_and_the_ground_truth():
 
 
 @pytest.mark.parametrize("scales, newest, dim", [
-    (None, "wide", 72),                                   # the default: wide, coarse, fine
-    (("wide", "coarse", "fine", "full"), "full", 200),   # with the full-resolution scale
+    (None, "full", 200),                          # the default: wide, coarse, fine, full
+    (("wide", "coarse", "fine"), "wide", 72),    # without the full-resolution scale
 ])
 def test_every_scale_gets_a_dictionary_a_reward_term_and_features(scales, newest, dim):
     env, learner = make() if scales is None else make(cue=dict(scales=scales))
     if scales is None:
-        assert learner.config.cues["stereo"].scales == ("wide", "coarse", "fine")
+        assert learner.config.cues["stereo"].scales == ("wide", "coarse", "fine", "full")
     n = len(learner.config.cues["stereo"].scales)
     for _ in range(2):
         record = learner.iteration(env)
@@ -255,7 +256,8 @@ def test_small_batches_train_with_the_default_steps(num_envs):
 
     def run(control):
         env = ActiveDepthEnv(num_envs, seed=0, shift_iterations=20, yoked_pursuit=True)
-        learner = JointLearner(LearnerConfig(cues=default_cues(nac=control)), generator=torch.Generator().manual_seed(0))
+        learner = JointLearner(LearnerConfig(cues=default_cues(nac=control, agent="nac")),
+                               generator=torch.Generator().manual_seed(0))
         worst, entropy = 0.0, []
         for _ in range(60):
             record = learner.iteration(env)
@@ -347,7 +349,8 @@ def test_a_learner_of_one_cue_has_the_environment_hold_the_other_at_its_optimum(
 def test_each_cue_builds_the_agent_its_config_names():
     env, learner = make(h=3)
     assert all(isinstance(c.agent, NaturalActorCritic) for c in learner.cues.values())
-    cues = default_cues(encoder=EncoderConfig(num_atoms=16))
+    assert all(isinstance(c.agent, PPO) for c in JointLearner(LearnerConfig()).cues.values())  # the default
+    cues = default_cues(encoder=EncoderConfig(num_atoms=16), agent="nac")
     cues["stereo"] = CueConfig(agent="ppo", symmetry="swap", encoder=EncoderConfig(num_atoms=16))
     learner = JointLearner(LearnerConfig(cues=cues), generator=torch.Generator().manual_seed(0))
     assert isinstance(learner.stereo.agent, PPO) and isinstance(learner.parallax.agent, NaturalActorCritic)

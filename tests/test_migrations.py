@@ -37,7 +37,7 @@ def test_every_version_that_changed_the_format_has_a_stored_checkpoint():
 @pytest.mark.parametrize("path", STORED, ids=[p.stem for p in STORED])
 def test_a_stored_checkpoint_loads_and_its_learner_steps(path):
     payload = load_checkpoint(path)
-    assert payload["format"] == CHECKPOINT_FORMAT and torch.load(path, weights_only=False)["format"] == 1
+    assert payload["format"] == CHECKPOINT_FORMAT and torch.load(path, weights_only=False)["format"] in (1, 2)
     cfg, learner = load_learner(path, payload=payload)
     assert cfg.learner.cues["stereo"].encoder.num_atoms == 16 and list(learner.cues) == ["parallax", "stereo"]
     env = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0)),
@@ -55,20 +55,24 @@ def test_fields_a_version_did_not_have_take_what_that_version_did():
     assert first.learner.cues["stereo"].nac.batch_reference is None and not first.train.keep_best
     symmetric = load_learner(next(p for p in STORED if p.stem.endswith("488db67")))[0]
     assert [c.symmetry for c in symmetric.learner.cues.values()] == ["mirror", "swap"]
-    last = load_learner(STORED[-1])[0]
+    last = load_learner(STORED[-2])[0]  # the last of format 1
     assert last.learner.render_scales and last.learner.cues["parallax"].encoder.decay == 500
+    for path in STORED[-2:]:  # format 1 and 2: NAC with the argmax read-out, no motor cost, a random start
+        cues = load_learner(path)[0].learner.cues.values()
+        assert [(c.agent, c.readout, c.motor_cost, c.encoder.start, tuple(c.scales)) for c in cues] == [
+            ("nac", "argmax", 0.0, "random", ("wide", "coarse", "fine"))] * 2
 
 
 def test_a_stored_format_1_payload_migrates_once_and_today_s_is_left_alone():
-    raw = torch.load(STORED[-1], weights_only=False)
+    raw = torch.load(STORED[-2], weights_only=False)
     new = migrate(raw)
     assert new is not raw and raw["format"] == 1 and "pursuit.actor_weight" in raw["learner"]
     assert "cues.parallax.agent.actor_weight" in new["learner"] and migrate(new) is new
-    with pytest.raises(ValueError, match="format 3 is not one this aectorch reads"):
-        migrate({**new, "format": 3})
+    with pytest.raises(ValueError, match="format 4 is not one this aectorch reads"):
+        migrate({**new, "format": 4})
 
 
-@pytest.mark.parametrize("path", [STORED[0], STORED[len(STORED) // 2], STORED[-1]], ids=lambda p: p.stem)
+@pytest.mark.parametrize("path", [STORED[0], STORED[len(STORED) // 2], STORED[-2], STORED[-1]], ids=lambda p: p.stem)
 def test_a_stored_checkpoint_resumes(tmp_path, path):
     run = tmp_path / "run"
     run.mkdir()
@@ -78,16 +82,23 @@ def test_a_stored_checkpoint_resumes(tmp_path, path):
     assert summary["iterations"] == 6 and load_checkpoint(run / "checkpoint.pt")["iteration"] == 6
 
 
-def test_the_last_format_1_checkpoint_holds_what_today_s_code_computes(tmp_path):
-    """a9b2aa6's run of make.py's settings, migrated, against the same run of today's train.py:
-    the same tensors under the new names (the same machine gives them bit for bit)."""
+#: The cues' defaults of formats 1 and 2 that format 3 changed, in today's keys.
+OLD_DEFAULTS = [f"learner.cues.{cue}.{key}={value}" for cue in ("parallax", "stereo")
+                for key, value in (("agent", "nac"), ("readout", "argmax"), ("scales", "[wide,coarse,fine]"))]
+
+
+@pytest.mark.parametrize("path", STORED[-2:], ids=lambda p: p.stem)
+def test_the_last_checkpoint_of_each_old_format_holds_what_today_s_code_computes(tmp_path, path):
+    """a9b2aa6's (format 1) and 430fb6a's (format 2) run of make.py's settings, migrated, against the
+    same run of today's train.py with those versions' defaults: the same tensors under today's
+    names (the same machine gives them bit for bit)."""
     run = tmp_path / "run"
     atoms = [f"learner.cues.{cue}.encoder.num_atoms=16" for cue in ("parallax", "stereo")]  # today's keys
-    args = [a for a in (*make.TINY, *make.OPTIONAL) if not a.startswith("learner.num_atoms")] + atoms
+    args = [a for a in (*make.TINY, *make.OPTIONAL) if not a.startswith("learner.num_atoms")] + atoms + OLD_DEFAULTS
     done = subprocess.run([sys.executable, str(ROOT / "train.py"), *args, f"hydra.run.dir={run}"],
                           cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
-    old, new = load_checkpoint(STORED[-1]), load_checkpoint(run / "checkpoint.pt")
+    old, new = load_checkpoint(path), load_checkpoint(run / "checkpoint.pt")
     assert old["learner"].keys() == new["learner"].keys()
     for key, value in new["learner"].items():
         if isinstance(value, torch.Tensor):
@@ -97,4 +108,5 @@ def test_the_last_format_1_checkpoint_holds_what_today_s_code_computes(tmp_path)
     assert {k: v for k, v in old["config"]["learner"].items() if k != "cues"} == \
         {k: v for k, v in new["config"]["learner"].items() if k != "cues"}
     for name, cue in new["config"]["learner"]["cues"].items():
-        assert {k: v for k, v in cue.items() if k != "ppo"} == old["config"]["learner"]["cues"][name]
+        assert {k: v for k, v in cue.items() if k != "ppo"} == \
+            {k: v for k, v in old["config"]["learner"]["cues"][name].items() if k != "ppo"}

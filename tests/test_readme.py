@@ -11,10 +11,10 @@ def test_readme_quick_start_runs():
     assert blocks, "README.md has no python code block"
     namespace: dict = {}
     exec(compile(blocks[0], str(README), "exec"), namespace)
-    assert tuple(namespace["out"].features.shape) == (8, 864)
+    assert tuple(namespace["out"].features.shape) == (8, 1152)
     assert tuple(namespace["x_hat"].shape) == (64, 113, 200)
     assert tuple(namespace["parallax"].shape) == (8, 2, 128, 128)
-    assert set(namespace["stereo"]) == {"wide", "coarse", "fine"}
+    assert set(namespace["stereo"]) == {"wide", "coarse", "fine", "full"}
     assert namespace["info"].errors_deg["pursuit"].shape == (8,)
 
 

@@ -142,7 +142,7 @@ class BinocularEncoder(nn.Module):
         >>> with torch.no_grad():
         ...     out = enc(left, right)
         >>> out.features.shape, out.reward.shape
-        (torch.Size([3, 864]), torch.Size([3]))
+        (torch.Size([3, 1152]), torch.Size([3]))
         >>> _ = enc.learn_(out)   # one dictionary-learning step on every scale
     """
 

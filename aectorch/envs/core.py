@@ -152,7 +152,7 @@ class EyeTask:
         >>> obs = task.reset(seed=0)
         >>> step = task.step(torch.tensor([5, 5]))   # index 5 of DEFAULT_ACTIONS_DEG: 0 deg
         >>> obs["features"].shape, step.reward.shape, step.truncated
-        (torch.Size([2, 864]), torch.Size([2]), False)
+        (torch.Size([2, 1152]), torch.Size([2]), False)
     """
 
     def __init__(self, num_envs: int = 1, config: TaskConfig | None = None, *, seed: int | None = None, **options) -> None:

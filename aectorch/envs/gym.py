@@ -70,7 +70,7 @@ class EyeEnv(gym.Env):
         >>> env = gym.make("aectorch/Vergence-v0", fixation_iterations=4)
         >>> obs, info = env.reset(seed=0)
         >>> obs.shape, env.action_space
-        ((864,), Discrete(11))
+        ((1152,), Discrete(11))
         >>> obs, reward, terminated, truncated, info = env.step(5)
         >>> sorted(info)[:3], terminated, truncated
         (['distance_m', 'left_pan_deg', 'pursuit_error_deg'], False, False)
@@ -115,11 +115,11 @@ class EyeVectorEnv(VectorEnv):
         ...                     fixation_iterations=2)
         >>> obs, infos = envs.reset(seed=0)
         >>> obs.shape, envs.metadata["autoreset_mode"]
-        ((4, 864), <AutoresetMode.SAME_STEP: 'SameStep'>)
+        ((4, 1152), <AutoresetMode.SAME_STEP: 'SameStep'>)
         >>> _ = envs.step(envs.action_space.sample())
         >>> obs, rewards, terminated, truncated, infos = envs.step(envs.action_space.sample())
         >>> truncated.all(), infos["final_obs"].shape
-        (np.True_, (4, 864))
+        (np.True_, (4, 1152))
         >>> envs.close()
     """
 

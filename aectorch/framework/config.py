@@ -25,14 +25,16 @@ class CueConfig:
     """One depth cue's learner (`CueLearner`): its coder, its agent and what the agent learns from.
 
     Attributes:
-        agent: the algorithm of the cue's eye movement: ``"nac"`` (the paper's natural
-            actor-critic, `NaturalActorCritic`, with ``nac``) or ``"ppo"`` (`PPO`, with ``ppo``).
+        agent: the algorithm of the cue's eye movement: ``"ppo"`` (`PPO`, with ``ppo``; the
+            default) or ``"nac"`` (the paper's natural actor-critic, `NaturalActorCritic`, with
+            ``nac``). PPO fixates photographs it never saw more precisely (docs/results.md).
         actions_deg: the action set A of pan increments (paper: +-0.2, +-0.1, +-0.05, 0;
             default `DEFAULT_ACTIONS_DEG` adds +-0.5 and +-1).
         scales: foveal scales, names from :data:`aectorch.coding.patches.SCALE_NAMES`; default
-            :data:`DEFAULT_SCALES`, ``("wide", "coarse", "fine")``: the paper's ``("coarse",
-            "fine")`` and ``"wide"`` (`aectorch.coding.patches.WIDE`, not in the paper: the
-            coarse crop at 3.56 deg/px). ``"full"`` (the central 40 px unreduced) is optional.
+            :data:`DEFAULT_SCALES`, ``("wide", "coarse", "fine", "full")``: the paper's
+            ``("coarse", "fine")``, ``"wide"`` (`aectorch.coding.patches.WIDE`, not in the paper:
+            the coarse crop at 3.56 deg/px) and ``"full"`` (not in the paper: the central 40 px
+            unreduced, 0.22 deg/px; without it the stereo code cannot tell 0.1 deg from 0).
         symmetry: ``null`` (the paper), or the symmetry of the cue's image pairs that its
             dictionaries and agent use: ``"mirror"`` (mirroring the world left-right mirrors both
             images of the parallax pair and negates the pursuit it needs) or ``"swap"``
@@ -61,9 +63,17 @@ class CueConfig:
             coding reward's, minus a constant of the start state), but the improvement leaves out
             the texture's reward level, the largest term of the TD error's noise. With gamma = 1
             the improvement's return telescopes to a constant: use it only with a discount < 1.
+        motor_cost: a metabolic cost of the eye movement (>= 0, default 0): the agent learns from
+            the reward minus ``motor_cost * |increment|`` (degrees) of the action that led to it,
+            as the lineage's AEC models charge the muscles' activity, so that standing still pays
+            where the code cannot tell a small offset from none.
+        readout: the increment the greedy (frozen, evaluated) policy takes: ``"mean"`` (the
+            policy's mean increment, sum_a pi(a|s) a, the default: where the policy hesitates
+            between stepping either way, it steps little) or ``"argmax"`` (the most probable
+            action's, the paper's greedy policy). Training samples actions either way.
     """
 
-    agent: AgentName = AgentName.nac
+    agent: AgentName = AgentName.ppo
     actions_deg: tuple[float, ...] = DEFAULT_ACTIONS_DEG
     scales: tuple[str, ...] = DEFAULT_SCALES
     symmetry: Optional[Symmetry] = None
@@ -74,7 +84,7 @@ class CueConfig:
     feature_scale: float = 10.0
     reward: Reward = Reward.improvement
     motor_cost: float = 0.0
-    readout: Readout = Readout.argmax
+    readout: Readout = Readout.mean
 
     def __post_init__(self) -> None:
         # Messages name the field as "cue.<field>"; `aectorch.runtime.config.to_experiment_config`

@@ -50,7 +50,8 @@ __all__ = [
 
 #: The paper's values (Wong et al. 2017) where they differ from the defaults, applied by
 #: ``preset=paper``: dotted key -> value. What the paper states and the defaults change: its
-#: seven actions, its two scales and no symmetries of the cues (its matching pursuit with 288
+#: natural actor-critic with its greedy (argmax) policy, its seven actions, its two scales and no
+#: symmetries of the cues (its matching pursuit with 288
 #: atoms and 10 coefficients, and its protocol's 30 iterations and 0.1 m, are the defaults). What
 #: it leaves unstated keeps the defaults (docs/paper-mapping.md): the step sizes and the critic,
 #: the z-scored features, the body movement spread over 20 iterations with yoked pursuit, the
@@ -59,7 +60,7 @@ __all__ = [
 PAPER_PRESET: dict[str, Any] = {
     **{f"learner.cues.{cue}.{key}": value for cue in default_cues()
        for key, value in (("actions_deg", list(PAPER_ACTIONS_DEG)), ("symmetry", None),
-                          ("scales", ["coarse", "fine"]))},
+                          ("scales", ["coarse", "fine"]), ("agent", "nac"), ("readout", "argmax"))},
     "train.iterations": 6000,
 }
 

@@ -12,9 +12,13 @@ and the config's ``learner`` section was flat (one ``control`` for both agents, 
 list of cues). Fields that later versions of format 1 added are absent from older files: each
 gets the value that reproduces what the file's version did (:data:`_ADDED_1`).
 
-Format 2 (this version): the cues are data: ``learner.cues.<cue>.*`` in the config and
+Format 2 (2026-12-03): the cues are data: ``learner.cues.<cue>.*`` in the config and
 ``cues.<cue>.encoder.*`` / ``cues.<cue>.agent.*`` in the state dict; the metrics keep their
 windows per eye movement.
+
+Format 3 (this version): each cue's config has ``motor_cost``, ``readout`` and
+``encoder.start``; a format 2 file gets the values that reproduce what it did (:data:`_ADDED_2`:
+no motor cost, the argmax read-out, a random start), whatever today's defaults are.
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ import torch
 __all__ = ["CHECKPOINT_FORMAT", "MIGRATIONS", "migrate"]
 
 #: The format this version writes.
-CHECKPOINT_FORMAT = 2
+CHECKPOINT_FORMAT = 3
 
 #: Format 1's two cues: name, its symmetry's kind, its old state-dict prefixes (encoder, agent),
 #: the eye movement it drives and its key in the old per-cue extra state.
@@ -121,8 +125,25 @@ def _from_1(payload: dict) -> dict:
     return out
 
 
+#: Fields of each cue (and of its encoder) that format 3 added, with format 2's behaviour.
+_ADDED_2 = {"cue": {"motor_cost": 0.0, "readout": "argmax"}, "encoder": {"start": "random"}}
+
+
+def _from_2(payload: dict) -> dict:
+    out = dict(payload)
+    config = copy.deepcopy(payload["config"])
+    cues = (config.get("learner") or {}).get("cues") or {}
+    for name, cue in cues.items():
+        cue = _with_added(cue, _ADDED_2["cue"])
+        cue["encoder"] = _with_added(cue.get("encoder") or {}, _ADDED_2["encoder"])
+        cues[name] = cue
+    out["config"] = config
+    out["format"] = 3
+    return out
+
+
 #: ``MIGRATIONS[v]`` turns a payload of format v into one of format v + 1.
-MIGRATIONS: dict[int, Callable[[dict], dict]] = {1: _from_1}
+MIGRATIONS: dict[int, Callable[[dict], dict]] = {1: _from_1, 2: _from_2}
 
 
 def migrate(payload: dict) -> dict:
