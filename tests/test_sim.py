@@ -807,3 +807,19 @@ def test_both_renderers_satisfy_the_renderer_protocol_and_close_closes_both(bank
         if name == "pyrender":
             assert all(r._gl_renderer is None for r in renderers)  # both OpenGL contexts freed
     assert not isinstance(object(), Renderer)
+
+
+def test_q_is_the_mean_of_each_fixations_last_q_iterations():
+    env = ActiveDepthEnv(3, textures=torch.rand(2, 64, 64, generator=torch.Generator().manual_seed(0)),
+                         fixation_iterations=5, q_iterations=3, seed=0)
+    g = torch.Generator().manual_seed(1)
+    seen = []
+    for _ in range(10):
+        env.apply_pursuit((torch.rand(3, generator=g) - 0.5))
+        env.apply_vergence((torch.rand(3, generator=g) - 0.5))
+        info = env.end_iteration()
+        seen.append(torch.stack((info.left_pan_deg, info.right_pan_deg - info.left_pan_deg), -1))
+    expected = torch.cat((torch.stack(seen[2:5]).mean(0), torch.stack(seen[7:10]).mean(0)), -1)
+    torch.testing.assert_close(info.q_deg, expected)
+    with pytest.raises(ValueError, match="q_iterations"):
+        ActiveDepthEnv(1, textures=torch.rand(1, 8, 8), q_iterations=0)

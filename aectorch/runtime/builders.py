@@ -47,7 +47,8 @@ def trial_protocol(cfg: ExperimentConfig) -> TrialProtocol:
     """The trial protocol of the run's environments (what its evaluation uses too)."""
     e = cfg.env
     return TrialProtocol(renderer=e.renderer, fixation_iterations=e.fixation_iterations, shift_m=e.shift_m,
-                         shift_iterations=e.shift_iterations, yoked_pursuit=e.yoked_pursuit)
+                         shift_iterations=e.shift_iterations, yoked_pursuit=e.yoked_pursuit,
+                         q_iterations=e.q_iterations)
 
 
 def trial_options(cfg: ExperimentConfig) -> dict:

@@ -103,6 +103,8 @@ class EnvConfig:
             held (1 = the whole shift before the first iteration; `ActiveDepthEnv`).
         yoked_pursuit: pursuit increments move both eyes (Hering's law), so vergence only adds
             the convergence; ``false``: the dominant eye alone.
+        q_iterations: the depth MLP reads each fixation's pan and vergence averaged over its
+            last this many iterations (1, the paper: the last iteration's).
         pursuit_start_deg: left-eye pan at each fixation's start, degrees (paper: 0).
         vergence_start_deg: vergence at each fixation's start, degrees (paper: 0 = parallel).
         pursuit_start_spread_deg: while training, each fixation's start pan is drawn uniformly
@@ -122,6 +124,7 @@ class EnvConfig:
     shift_m: float = DEFAULT_PROTOCOL.shift_m
     shift_iterations: int = DEFAULT_PROTOCOL.shift_iterations
     yoked_pursuit: bool = DEFAULT_PROTOCOL.yoked_pursuit
+    q_iterations: int = DEFAULT_PROTOCOL.q_iterations
     pursuit_start_deg: float = START_PURSUIT_DEG
     vergence_start_deg: float = START_VERGENCE_DEG
     pursuit_start_spread_deg: float = 0.0
@@ -139,6 +142,7 @@ class EnvConfig:
         check_real(self.shift_m, f"{owner}.shift_m", minimum=0, unit="metres")
         check_int(self.shift_iterations, f"{owner}.shift_iterations", 1)
         check_bool(self.yoked_pursuit, f"{owner}.yoked_pursuit")
+        check_int(self.q_iterations, f"{owner}.q_iterations", 1)
         for name in ("pursuit_start_deg", "vergence_start_deg"):
             check_real(getattr(self, name), f"{owner}.{name}", unit="degrees")
         for name in ("pursuit_start_spread_deg", "vergence_start_spread_deg"):

@@ -17,8 +17,9 @@ Format 2 (2026-12-03): the cues are data: ``learner.cues.<cue>.*`` in the config
 windows per eye movement.
 
 Format 3 (this version): each cue's config has ``motor_cost``, ``readout`` and
-``encoder.start``; a format 2 file gets the values that reproduce what it did (:data:`_ADDED_2`:
-no motor cost, the argmax read-out, a random start), whatever today's defaults are.
+``encoder.start``, and ``env`` has ``q_iterations``; a format 2 file gets the values that
+reproduce what it did (:data:`_ADDED_2`: no motor cost, the argmax read-out, a random start, q
+of the last iteration), whatever today's defaults are.
 """
 
 from __future__ import annotations
@@ -126,7 +127,8 @@ def _from_1(payload: dict) -> dict:
 
 
 #: Fields of each cue (and of its encoder) that format 3 added, with format 2's behaviour.
-_ADDED_2 = {"cue": {"motor_cost": 0.0, "readout": "argmax"}, "encoder": {"start": "random"}}
+_ADDED_2 = {"cue": {"motor_cost": 0.0, "readout": "argmax"}, "encoder": {"start": "random"},
+            "env": {"q_iterations": 1}}
 
 
 def _from_2(payload: dict) -> dict:
@@ -137,6 +139,8 @@ def _from_2(payload: dict) -> dict:
         cue = _with_added(cue, _ADDED_2["cue"])
         cue["encoder"] = _with_added(cue.get("encoder") or {}, _ADDED_2["encoder"])
         cues[name] = cue
+    if isinstance(config.get("env"), dict):
+        config["env"] = _with_added(config["env"], _ADDED_2["env"])
     out["config"] = config
     out["format"] = 3
     return out

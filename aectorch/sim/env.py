@@ -216,6 +216,8 @@ class ActiveDepthEnv:
         yoked_pursuit: the pursuit increment moves both eyes (Hering's law of equal innervation),
             so vergence only has to add the convergence (default, `TrialProtocol`); ``False``: it
             moves the dominant (left) eye alone and the right eye must follow through vergence.
+        q_iterations: each fixation's q (left pan and vergence) is the mean over its last this
+            many iterations (default 1: the last iteration's, the paper), `TrialProtocol`.
         pursuit_start_deg: left-eye pan at each fixation's start: a number or a ``(low, high)``
             range drawn uniformly per environment and fixation.
         vergence_start_deg: right pan minus left pan at each fixation's start (0 = parallel),
@@ -267,6 +269,7 @@ class ActiveDepthEnv:
         shift_m: float = DEFAULT_PROTOCOL.shift_m,
         shift_iterations: int = DEFAULT_PROTOCOL.shift_iterations,
         yoked_pursuit: bool = DEFAULT_PROTOCOL.yoked_pursuit,
+        q_iterations: int = DEFAULT_PROTOCOL.q_iterations,
         pursuit_start_deg=START_PURSUIT_DEG,
         vergence_start_deg=START_VERGENCE_DEG,
         window: str | PixelWindow = "crops",
@@ -280,7 +283,7 @@ class ActiveDepthEnv:
         batch_slice: tuple[int, int] | None = None,
     ) -> None:
         check_int(num_envs, "num_envs")
-        protocol = TrialProtocol(renderer, fixation_iterations, shift_m, shift_iterations, yoked_pursuit)
+        protocol = TrialProtocol(renderer, fixation_iterations, shift_m, shift_iterations, yoked_pursuit, q_iterations)
         renderer = str(protocol.renderer)
         distances = check_distances(distances_m, "distances_m")
         if dtype not in (torch.float32, torch.float64):
@@ -298,6 +301,7 @@ class ActiveDepthEnv:
         self.shift_m = float(shift_m)
         self.shift_iterations = min(shift_iterations, fixation_iterations)
         self.yoked_pursuit = yoked_pursuit
+        self.q_iterations = min(q_iterations, fixation_iterations)
         self.pursuit_start_deg = _range_or_value(pursuit_start_deg, "pursuit_start_deg")
         self.vergence_start_deg = _range_or_value(vergence_start_deg, "vergence_start_deg")
         self.camera = camera or PinholeCamera()
@@ -344,6 +348,7 @@ class ActiveDepthEnv:
         b = self.num_envs
         self.roll_deg = torch.zeros(b, 2, dtype=self.dtype, device=self.device)
         self.q_deg = torch.zeros(b, 4, dtype=self.dtype, device=self.device)
+        self.q_sum_deg = torch.zeros(b, 2, dtype=self.dtype, device=self.device)
         self._new_trial()
 
     def _uniform(self, bounds: tuple[float, float]) -> Tensor:
@@ -627,10 +632,11 @@ class ActiveDepthEnv:
         fixation_end = iteration == self.fixation_iterations - 1
         trial_end = fixation_end and fixation == 1
         q = distance = None
+        if iteration >= self.fixation_iterations - self.q_iterations:  # q's window
+            self.q_sum_deg = self.q_sum_deg + torch.stack((self.left_pan_deg, self.right_pan_deg - self.left_pan_deg), -1)
         if fixation_end:
-            vergence = self.right_pan_deg - self.left_pan_deg
-            self.q_deg[:, 2 * fixation] = self.left_pan_deg
-            self.q_deg[:, 2 * fixation + 1] = vergence
+            self.q_deg[:, 2 * fixation: 2 * fixation + 2] = self.q_sum_deg / self.q_iterations
+            self.q_sum_deg = torch.zeros_like(self.q_sum_deg)
         info_left, info_right = self.left_pan_deg, self.right_pan_deg
         if trial_end:
             q, distance = self.q_deg.clone(), self.distance_m
@@ -659,7 +665,7 @@ class ActiveDepthEnv:
 
     # -- checkpoints ---------------------------------------------------------------------------
     _STATE_TENSORS = ("texture_index", "distance_m", "plane_x_m", "body_shift_m", "pan_deg",
-                      "roll_deg", "q_deg", "target_m", "_start_pans")
+                      "roll_deg", "q_deg", "target_m", "_start_pans", "q_sum_deg")
 
     def state_dict(self) -> dict:
         """Everything that determines the environments' future: resume with :meth:`load_state_dict`.
@@ -689,6 +695,9 @@ class ActiveDepthEnv:
                     "build it with the same arguments as the one that was saved"
                 )
         for name in self._STATE_TENSORS:
+            if name == "q_sum_deg" and name not in state:  # saved before q_iterations: q was the last iteration's
+                self.q_sum_deg = torch.zeros_like(self.q_sum_deg)
+                continue
             setattr(self, name, state[name].to(device=self.device, dtype=getattr(self, name).dtype).clone())
         self.fixation = int(state["fixation"])
         self.iteration = int(state["iteration"])
@@ -716,5 +725,6 @@ class ActiveDepthEnv:
             f"ActiveDepthEnv(num_envs={self.num_envs}, renderer={self.renderer_name!r}, "
             f"textures={len(self.textures)}, h={self.fixation_iterations}, shift_m={self.shift_m}, "
             f"shift_iterations={self.shift_iterations}, yoked_pursuit={self.yoked_pursuit}, "
+            f"q_iterations={self.q_iterations}, "
             f"window={tuple(self.window)}, device={self.device}, dtype={self.dtype})"
         )

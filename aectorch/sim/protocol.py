@@ -41,6 +41,9 @@ class TrialProtocol:
             fixation and is then held (1: all of it before the first iteration).
         yoked_pursuit: pursuit increments move both eyes (Hering's law); ``False``: the dominant
             eye alone.
+        q_iterations: the trial's eye movements q (the depth MLP's input) are each fixation's
+            pan and vergence averaged over its last this many iterations (1, the paper: the
+            last iteration's; at most ``fixation_iterations``).
 
     Example:
         >>> protocol = TrialProtocol(fixation_iterations=10)
@@ -55,6 +58,7 @@ class TrialProtocol:
     shift_m: float = 0.1
     shift_iterations: int = 20
     yoked_pursuit: bool = True
+    q_iterations: int = 1
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "renderer", check_choice(self.renderer, "renderer", RendererName))
@@ -62,6 +66,7 @@ class TrialProtocol:
         check_real(self.shift_m, "shift_m", minimum=0, unit="metres")
         check_int(self.shift_iterations, "shift_iterations")
         check_bool(self.yoked_pursuit, "yoked_pursuit")
+        check_int(self.q_iterations, "q_iterations")
 
     def env_kwargs(self) -> dict:
         """The keyword arguments of `ActiveDepthEnv` this protocol sets."""
