@@ -35,14 +35,24 @@ def _row(runs: list[Path], evaluation: str) -> dict:
         result = json.loads((run / evaluation).read_text())
         summary = json.loads((run / "summary.json").read_text())
         both = result["fractions"]["both"]
+        last = result.get("last5") or {}
         values = {"pursuit_mae_deg": result["pursuit_mae_deg"], "vergence_mae_deg": result["vergence_mae_deg"],
                   "depth_mae_m": result["depth_mae_m"], "within_1px": both["within"], "beyond_2deg": both["beyond"],
+                  "last5_pursuit_deg": last.get("pursuit_mae_deg"), "last5_vergence_deg": last.get("vergence_mae_deg"),
+                  "last5_within_1px": (last.get("fractions") or {}).get("both", {}).get("within"),
                   "train_s": summary.get("train_seconds"),
                   "window_pursuit_deg": summary["final"].get("pursuit_mae_deg"),
                   "window_vergence_deg": summary["final"].get("vergence_mae_deg")}
         for key, value in values.items():
             cells.setdefault(key, []).append(value)
     return {key: dict(zip(("mean", "sd"), _mean_sd(v)), runs=v) for key, v in cells.items()}
+
+
+def _last(r: dict) -> str:
+    if r["last5_pursuit_deg"]["mean"] is None:
+        return "n/a"
+    return (f"{r['last5_pursuit_deg']['mean']:.3f} / {r['last5_vergence_deg']['mean']:.3f}, "
+            f"{r['last5_within_1px']['mean']:.1%}")
 
 
 def _curves(runs: list[Path], key: str):
@@ -84,8 +94,9 @@ def main(argv=None) -> int:
     groups = {g.split("=", 1)[0]: [Path(r) for r in g.split("=", 1)[1].split(",")] for g in args.groups}
     evals = dict(e.split("=", 1) for e in args.evals)
     table = {s: {name: _row(runs, file) for name, runs in groups.items()} for s, file in evals.items()}
-    head = ("| set | agent | pursuit MAE (deg) | vergence MAE (deg) | depth MAE (m) | both within 0.22 deg | "
-            "either beyond 2 deg | final window pursuit / vergence (deg) | training (s) |")
+    head = ("| set | runs | pursuit MAE (deg) | vergence MAE (deg) | depth MAE (m) | both within 0.22 deg | "
+            "either beyond 2 deg | last 5 iterations: pursuit / vergence (deg), within 0.22 deg | "
+            "final window pursuit / vergence (deg) | training (s) |")
     print(head)
     print("|" + "---|" * (head.count("|") - 1))
     for s, rows in table.items():
@@ -93,7 +104,7 @@ def main(argv=None) -> int:
             def f(key, scale=1.0, digits=3):
                 return f"{r[key]['mean'] * scale:.{digits}f} ({r[key]['sd'] * scale:.{digits}f})"
             print(f"| {s} | {name} | {f('pursuit_mae_deg')} | {f('vergence_mae_deg')} | {f('depth_mae_m')} | "
-                  f"{r['within_1px']['mean']:.1%} | {r['beyond_2deg']['mean']:.1%} | "
+                  f"{r['within_1px']['mean']:.1%} | {r['beyond_2deg']['mean']:.1%} | {_last(r)} | "
                   f"{r['window_pursuit_deg']['mean']:.3f} / {r['window_vergence_deg']['mean']:.3f} | "
                   f"{r['train_s']['mean']:.0f} ({r['train_s']['sd']:.0f}) |")
     if args.json:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import doctest
 import itertools
+import re
 
 import numpy as np
 import pytest
@@ -275,6 +276,26 @@ def test_truncated_jpeg_names_the_file(tmp_path):
     (tmp_path / "cut.jpg").write_bytes(data[: len(data) // 2])
     with pytest.raises(ValueError, match=r"cut\.jpg"):
         TextureBank.from_folder(tmp_path, size=8)
+
+
+@pytest.mark.parametrize("name, content", [("empty.png", b""), ("notes.jpg", b"a text file, not an image\n")])
+def test_a_file_that_is_not_an_image_names_the_file(tmp_path, name, content):
+    Image.new("L", (16, 16), 100).save(tmp_path / "good.png")
+    (tmp_path / name).write_bytes(content)
+    with pytest.raises(ValueError, match=rf"cannot read image file .*{re.escape(name)}"):
+        TextureBank.from_folder(tmp_path, size=8)
+
+
+def test_an_exif_rotated_photograph_is_read_upright(tmp_path):
+    # A portrait stored sideways with EXIF orientation 6 (rotate 90 deg clockwise to view): dark top half.
+    upright = np.zeros((40, 20), np.uint8)
+    upright[20:] = 255
+    stored = Image.fromarray(upright).transpose(Image.Transpose.ROTATE_90)  # as a camera writes it
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    stored.save(tmp_path / "portrait.jpg", exif=exif, quality=95)
+    texture = TextureBank.from_folder(tmp_path, size=(40, 20)).textures[0]
+    assert float(texture[:18].mean()) < 0.1 and float(texture[22:].mean()) > 0.9
 
 
 def test_bad_extensions(tmp_path):

@@ -6,13 +6,13 @@ format v into v + 1), so that every checkpoint written since the first release o
 loads (``tests/test_migrations.py`` loads one stored checkpoint of every version that changed what
 a checkpoint holds). Nothing else in the package knows an old layout.
 
-Format 1 (2026-11-22 to 2026-12-02): the learner's two cues were written out: the state dict named
+Format 1 (commits 30ee905 to a9b2aa6): the learner's two cues were written out: the state dict named
 the parts ``parallax.*``, ``pursuit.*`` (its agent), ``stereo.*``, ``vergence.*``, ``depth.*``,
 and the config's ``learner`` section was flat (one ``control`` for both agents, ``symmetry`` a
 list of cues). Fields that later versions of format 1 added are absent from older files: each
 gets the value that reproduces what the file's version did (:data:`_ADDED_1`).
 
-Format 2 (2026-12-03): the cues are data: ``learner.cues.<cue>.*`` in the config and
+Format 2 (commits 62f2eb0 to 430fb6a): the cues are data: ``learner.cues.<cue>.*`` in the config and
 ``cues.<cue>.encoder.*`` / ``cues.<cue>.agent.*`` in the state dict; the metrics keep their
 windows per eye movement.
 
