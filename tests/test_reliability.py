@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import os
 import signal
 
@@ -116,7 +117,7 @@ def test_run_folder_records_versions_commit_and_device(tmp_path, textures):
 
 
 # -- the watchdog ------------------------------------------------------------------------------------
-def test_watchdog_stops_on_nan_and_keeps_the_last_healthy_checkpoint(tmp_path, textures, monkeypatch):
+def test_watchdog_stops_on_nan_and_keeps_the_last_healthy_checkpoint(tmp_path, textures, monkeypatch, caplog):
     learners = []  # the run's learner, captured as it is built (its real __init__ runs)
     build = JointLearner.__init__
 
@@ -137,6 +138,12 @@ def test_watchdog_stops_on_nan_and_keeps_the_last_healthy_checkpoint(tmp_path, t
     assert checkpoint["iteration"] == 4
     assert all(bool(t.isfinite().all()) for t in checkpoint["learner"].values()
                if isinstance(t, torch.Tensor) and t.is_floating_point() and t.numel())
+    # The resume command the stop printed works as printed: the run finishes from iteration 4.
+    printed = re.search(r"python train\.py (train\.resume=\S+ watchdog\.mode=warn)", caplog.text)
+    assert printed, caplog.text[-2000:]
+    done = _train(*printed.group(1).split(), cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert load_checkpoint(run / "checkpoint.pt")["iteration"] == 12
 
 
 def _record_and_learner():
