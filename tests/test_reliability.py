@@ -8,6 +8,9 @@ import math
 import re
 import os
 import signal
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -19,7 +22,7 @@ from aectorch.framework import JointLearner, LearnerConfig, default_cues
 from aectorch.sim import ActiveDepthEnv, TextureBank
 from aectorch.runtime.watchdog import Watchdog, WatchdogConfig, WatchdogError
 
-from test_train import _cfg, _lines, _train, _without_time, TINY  # noqa: F401  (shared fixtures)
+from test_train import ROOT, _cfg, _lines, _train, _without_time, TINY  # noqa: F401  (shared fixtures)
 from test_train import textures  # noqa: F401
 
 
@@ -324,3 +327,33 @@ def test_resume_after_a_kill_that_tore_the_last_metrics_line(tmp_path, textures)
         f.write('{"iteration": 10, "env_iterations": 5')  # torn, after the checkpoint's iteration 8
     run_experiment(_cfg(textures, f"train.resume={run}"), run)
     assert _without_time(_lines(run)) == _without_time(_lines(straight))
+
+
+def test_sigterm_while_finishing_leaves_a_run_that_resume_finishes_without_training(tmp_path, textures):
+    """SIGTERM during the final evaluation: status 130 and one line naming the resume command; the
+    folder holds the finished training and no half-written result; ``train.resume=`` then writes
+    the evaluation and the summary without training again."""
+    run = tmp_path / "run"
+    args = [*TINY, f"env.textures={textures}", f"eval.textures={textures}", "env.fixation_iterations=30",
+            "train.tensorboard=false", f"hydra.run.dir={run}"]
+    env = dict(os.environ, PYOPENGL_PLATFORM="osmesa", OMP_NUM_THREADS="1")
+    process = subprocess.Popen([sys.executable, str(ROOT / "train.py"), *args], cwd=tmp_path, env=env,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 240
+    while not (run / "figures" / "training.png").exists():  # drawn just before the evaluation
+        assert process.poll() is None and time.monotonic() < deadline, process.communicate()[1][-3000:]
+        time.sleep(0.05)
+    process.send_signal(signal.SIGTERM)
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 130, stderr[-3000:]
+    assert "interrupted while finishing the run" in stderr and f"train.resume={run}" in stderr
+    assert "Traceback" not in stderr
+    assert not (run / "summary.json").exists() and not (run / "evaluation.json").exists()
+    assert load_checkpoint(run / "checkpoint.pt")["iteration"] == 12
+    metrics = (run / "metrics.jsonl").read_text()
+    done = _train(f"train.resume={run}", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert (run / "metrics.jsonl").read_text() == metrics  # no iteration was trained again
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["iterations"] == 12 and "evaluation" in json.dumps(summary)
+    assert json.loads((run / "evaluation.json").read_text())["trials"] > 0

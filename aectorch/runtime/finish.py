@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import logging
+import signal
 from pathlib import Path
 
 import torch
@@ -15,6 +16,7 @@ from aectorch.framework import MIN_DEPTH_TRIALS, JointLearner
 from aectorch.runtime.builders import build_textures, dictionaries, trial_options
 from aectorch.runtime.checkpoint import load_checkpoint, restore, save_checkpoint
 from aectorch.runtime.config import ExperimentConfig
+from aectorch.runtime.loop import _interrupt_on_sigterm
 from aectorch.runtime.outputs import RunFolder, json_value, read_lines
 from aectorch.sim import TextureBank
 
@@ -33,7 +35,25 @@ def _errors(record: dict) -> list[str]:
 
 def finish(run) -> dict:
     """The end of a run (a `TrainingRun` after `TrainingRun.run`): draw the figures, evaluate
-    (``best.pt``, calibrated when asked) and write ``summary.json``."""
+    (``best.pt``, calibrated when asked) and write ``summary.json``.
+
+    Ctrl-C or SIGTERM here stops with one line: ``checkpoint.pt`` already holds the finished
+    training, and ``train.resume=<run>`` does these steps again without training (each file is
+    written whole or not at all, so nothing half-written is left to misread)."""
+    previous_sigterm = _interrupt_on_sigterm()
+    try:
+        return _finish(run)
+    except KeyboardInterrupt:
+        log.warning("\ninterrupted while finishing the run (figures, depth calibration, evaluation, summary); "
+                    "%s holds the finished training; resume with: python train.py train.resume=%s (it does "
+                    "the missing steps without training again)", run.folder / "checkpoint.pt", run.folder.path)
+        raise
+    finally:
+        if previous_sigterm is not None:
+            signal.signal(signal.SIGTERM, previous_sigterm)
+
+
+def _finish(run) -> dict:
     cfg, folder = run.cfg, run.folder
     total = cfg.train.iterations
     records = read_lines(folder.metrics_path)
