@@ -39,6 +39,8 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 
 from aectorch.runtime import format_summary, prepare_run, run_experiment
 from aectorch.runtime.config import register_configs, to_experiment_config
+from aectorch.runtime.checkpoint import load_checkpoint
+from aectorch.runtime.outputs import WriteFailed
 from aectorch.runtime.watchdog import WatchdogError
 
 register_configs()
@@ -98,6 +100,16 @@ def main(raw: DictConfig) -> dict:
         if _debug():
             raise
         sys.exit(130)
+    except WriteFailed as err:  # a full disk: the file, what is kept and the resume line
+        if _debug():
+            raise
+        folder = Path(cfg.train.resume) if checkpoint is not None else run_dir
+        try:
+            kept = f"checkpoint.pt holds iteration {load_checkpoint(folder / 'checkpoint.pt')['iteration']}"
+        except ValueError:
+            kept = "no checkpoint was written yet"
+        print(f"error: {err}; {kept}; free space, then resume: python train.py train.resume={folder}", file=sys.stderr)
+        sys.exit(4)
     except ValueError as err:  # a file found bad while building (an image, a checkpoint's state)
         if _debug():
             raise

@@ -357,3 +357,47 @@ def test_sigterm_while_finishing_leaves_a_run_that_resume_finishes_without_train
     summary = json.loads((run / "summary.json").read_text())
     assert summary["iterations"] == 12 and "evaluation" in json.dumps(summary)
     assert json.loads((run / "evaluation.json").read_text())["trials"] > 0
+
+
+@pytest.mark.parametrize("limit_bytes", [4000, 200])
+def test_a_full_disk_stops_the_run_and_keeps_a_checkpoint_that_resumes_to_the_same_result(tmp_path, textures,
+                                                                                          limit_bytes):
+    """A file-size limit (RLIMIT_FSIZE: writes fail with EFBIG, as on a full disk) set after the
+    checkpoint of iteration 4 was written: the next write fails (metrics.jsonl or checkpoint.pt,
+    by the limit), the run stops with `WriteFailed` naming the file, the checkpoint of iteration 4
+    still loads, and resumed without the limit the run ends bit-identical to an uninterrupted one."""
+    import resource
+
+    from aectorch.runtime.outputs import WriteFailed
+
+    straight = tmp_path / "straight"
+    run_experiment(_cfg(textures), straight)
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+
+    def fill_the_disk(done, record):
+        if done == 5:  # the checkpoint of iteration 4 is written
+            resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, hard))
+
+    full = tmp_path / "full"
+    try:
+        with pytest.raises(WriteFailed, match=r"cannot write .*(metrics\.jsonl|checkpoint\.pt): File too large"):
+            run_experiment(_cfg(textures), full, callback=fill_the_disk)
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+    assert load_checkpoint(full / "checkpoint.pt")["iteration"] == 4
+    assert not [p.name for p in full.iterdir() if p.name.endswith(".tmp")]  # no half-written file left
+    run_experiment(_cfg(textures, f"train.resume={full}"), full)
+    _assert_equal_everywhere(load_checkpoint(straight / "checkpoint.pt"), load_checkpoint(full / "checkpoint.pt"))
+    assert _without_time(_lines(full)) == _without_time(_lines(straight))
+
+
+def test_train_py_says_which_write_failed_and_how_to_resume(tmp_path, textures):
+    run = tmp_path / "run"
+    env = dict(os.environ, PYOPENGL_PLATFORM="osmesa", OMP_NUM_THREADS="1")
+    done = subprocess.run(["prlimit", "--fsize=100000", sys.executable, str(ROOT / "train.py"), *TINY,
+                           f"env.textures={textures}", "eval.enabled=false", f"hydra.run.dir={run}"],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 4, done.stderr[-3000:]
+    lines = [line for line in done.stderr.splitlines() if line.startswith("error:")]
+    assert len(lines) == 1 and "cannot write" in lines[0] and f"train.resume={run}" in lines[0], done.stderr[-2000:]
+    assert "Traceback" not in done.stderr

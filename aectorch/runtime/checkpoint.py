@@ -19,7 +19,6 @@ from __future__ import annotations
 import os
 import pickle
 import re
-import tempfile
 from pathlib import Path
 
 import torch
@@ -28,6 +27,7 @@ from aectorch.framework import JointLearner
 from aectorch.runtime.builders import build_learner
 from aectorch.runtime.config import ExperimentConfig, to_container, to_experiment_config, validate_resources
 from aectorch.runtime.migrations import CHECKPOINT_FORMAT, migrate
+from aectorch.runtime.outputs import atomic_write
 
 __all__ = ["CHECKPOINT_FORMAT", "RESUME_KEYS", "check_resume_overrides", "checkpoint_config", "load_checkpoint",
            "load_learner", "prepare_run", "restore", "resume_config", "save_checkpoint"]
@@ -40,21 +40,9 @@ _RUN_OWN_UNLESS_GIVEN = ("iterations", "progress")
 
 
 def save_checkpoint(path: str | os.PathLike, payload: dict) -> None:
-    """Write ``payload`` with ``torch.save`` atomically (temporary file, fsync, ``os.replace``)."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            torch.save(payload, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    """Write ``payload`` with ``torch.save`` atomically (temporary file, fsync, ``os.replace``):
+    on a failed write (`aectorch.runtime.outputs.WriteFailed`) the previous file is kept."""
+    atomic_write(path, lambda f: torch.save(payload, f), binary=True)
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict:

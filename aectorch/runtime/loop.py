@@ -22,6 +22,7 @@ import logging
 import signal
 import threading
 import time
+from pathlib import Path
 from typing import Callable, Sequence
 
 import torch
@@ -31,7 +32,7 @@ from aectorch.runtime.builders import build_env, build_learner, compile_hot_path
 from aectorch.runtime.checkpoint import CHECKPOINT_FORMAT, restore, save_checkpoint
 from aectorch.runtime.config import ExperimentConfig, to_container
 from aectorch.runtime.metrics import TrainingMetrics
-from aectorch.runtime.outputs import RunFolder
+from aectorch.runtime.outputs import RunFolder, WriteFailed
 from aectorch.runtime.provenance import provenance
 from aectorch.runtime.watchdog import Watchdog, WatchdogError
 
@@ -145,7 +146,10 @@ class MetricsLog(Callback):
             run.folder.log_line(self.file, run.line)
 
     def on_end(self, run):
-        self.file.close()
+        try:
+            self.file.close()
+        except OSError:  # the line that did not fit was reported (WriteFailed); a resume drops a torn line
+            pass
         run.folder.close()
 
 
@@ -176,9 +180,11 @@ class Checkpoints(Callback):
         done, state = run.last
         if not run.folder.main:
             return
+        path, run_dir = run.folder / "checkpoint.pt", run.folder.path
+        if isinstance(err, WriteFailed):  # the disk is full: the last checkpoint written stands (train.py says so)
+            return
         if done > run.start or not run.resumed:
             save_checkpoint(run.folder / "checkpoint.pt", run.payload(done, state, run.elapsed()))
-        path, run_dir = run.folder / "checkpoint.pt", run.folder.path
         if isinstance(err, WatchdogError):
             log.error("\n%s\nstopped; %s holds iteration %d, the last healthy one. Resuming it repeats the same "
                       "computation; watchdog.mode=warn continues past the check: python train.py "

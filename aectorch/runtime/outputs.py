@@ -6,9 +6,11 @@ import fcntl
 import json
 import math
 import os
+import tempfile
 from pathlib import Path
 
-__all__ = ["LOCK_NAME", "RunFolder", "RunFolderBusy", "format_summary", "json_value", "read_lines", "write_json"]
+__all__ = ["LOCK_NAME", "RunFolder", "RunFolderBusy", "WriteFailed", "atomic_write", "format_summary", "json_value",
+           "read_lines", "write_json"]
 
 #: The file in a run folder whose lock (``flock``) the training process holds.
 LOCK_NAME = ".lock"
@@ -16,6 +18,40 @@ LOCK_NAME = ".lock"
 
 class RunFolderBusy(ValueError):
     """Another process trains in this run folder."""
+
+
+_UMASK = os.umask(0)
+os.umask(_UMASK)
+
+
+class WriteFailed(OSError):
+    """A file of the run could not be written (the disk is full, a file-size limit, ...); the
+    message names it and says that the previous version is as it was."""
+
+
+def atomic_write(path: str | os.PathLike, write, *, binary: bool = False) -> None:
+    """Write ``path`` whole or not at all: ``write(file)`` fills a temporary file beside it, which
+    is flushed, fsynced and then renamed over ``path``. If anything fails the temporary file is
+    removed, ``path`` keeps its previous content, and `WriteFailed` names it."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        os.fchmod(fd, 0o666 & ~_UMASK)  # what open() would give (mkstemp's file is private)
+        with os.fdopen(fd, "wb" if binary else "w") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException as err:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        if isinstance(err, (OSError, RuntimeError)):  # torch.save reports a short write as a RuntimeError
+            reason = os.strerror(err.errno) if isinstance(err, OSError) and err.errno else str(err).splitlines()[0]
+            raise WriteFailed(f"cannot write {path}: {reason} (is the disk full, or a file-size limit set?); "
+                              f"{path.name} is as it was before") from err
+        raise
 
 
 def json_value(value):
@@ -26,7 +62,9 @@ def json_value(value):
 
 
 def write_json(path: Path, data: dict) -> None:
-    path.write_text(json.dumps(data, indent=2, allow_nan=True) + "\n")
+    """Write ``data`` as JSON, whole or not at all (`atomic_write`)."""
+    text = json.dumps(data, indent=2, allow_nan=True) + "\n"
+    atomic_write(path, lambda f: f.write(text))
 
 
 def read_lines(path: Path) -> list[dict]:
@@ -121,9 +159,14 @@ class RunFolder:
         return (self.metrics_path if self.main else Path(os.devnull)).open("a")
 
     def log_line(self, file, line: dict) -> None:
-        """Append one metrics line (and its scalars to TensorBoard)."""
-        file.write(json.dumps({k: json_value(v) for k, v in line.items()}) + "\n")
-        file.flush()
+        """Append one metrics line (and its scalars to TensorBoard). A failed write raises
+        `WriteFailed`; a torn last line is dropped on resume (`RunFolder` keeps whole lines)."""
+        try:
+            file.write(json.dumps({k: json_value(v) for k, v in line.items()}) + "\n")
+            file.flush()
+        except OSError as err:
+            raise WriteFailed(f"cannot write {self.metrics_path}: {os.strerror(err.errno) if err.errno else err} "
+                              "(is the disk full, or a file-size limit set?); a resume keeps its whole lines") from err
         if self._writer is not None:
             for key, value in line.items():
                 if key != "iteration" and value is not None and math.isfinite(value):
