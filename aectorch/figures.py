@@ -72,7 +72,13 @@ def _save(fig, path: str | os.PathLike) -> Path:
     # tight_layout leaves the suptitle out of account: keep the top 0.45 inch free for it.
     top = 1.0 if fig._suptitle is None else 1.0 - 0.45 / fig.get_figheight()
     fig.tight_layout(rect=(0.0, 0.0, 1.0, top))
-    fig.savefig(out, dpi=DPI)
+    # Whole or not at all: a failed write (a full disk) leaves the previous figure, not half of one.
+    tmp = out.with_name(f".{out.stem}.{os.getpid()}.tmp{out.suffix}")
+    try:
+        fig.savefig(tmp, dpi=DPI)
+        os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)
     return out
 
 
