@@ -44,16 +44,16 @@ def train(iterations: int = 600, num_envs: int = 16, seed: int = 0, config: CueC
         last = env.iteration == env.fixation_iterations - 1  # these observations end the fixation
         for cue in cues:
             encoder, agent = encoders[cue], agents[cue]
-            with torch.no_grad():  # the coder's pursuit and the agent's update need no graph
+            with torch.no_grad():  # the coder's pursuit needs no graph (PPO's update makes its own)
                 # The cue's image pair at each foveal scale's resolution, coded scale by scale:
                 # features f = the atoms' pooled activity (eq. 5), reward R = -sum of errors (eq. 6).
                 out = encoder(env.observe(cue, encoder.scales))
                 features = out.features * config.feature_scale
-                if cue in pending:  # the previous action's transition, rewarded by the coding gain
-                    f0, a0, r0 = pending[cue]
-                    agent.learn(Transitions(f0, a0, out.reward - r0, features, last=last))
-                act = agent.act(features, uniform=torch.rand(num_envs, 1, generator=g)[:, 0])
-                encoder.learn_(out)  # one dictionary step on the same reconstruction error
+            if cue in pending:  # the previous action's transition, rewarded by the coding gain
+                f0, a0, r0 = pending[cue]
+                agent.learn(Transitions(f0, a0, out.reward - r0, features, last=last))
+            act = agent.act(features, uniform=torch.rand(num_envs, 1, generator=g)[:, 0])
+            encoder.learn_(out)  # one dictionary step on the same reconstruction error
             env.act(cue, act.increments_deg)  # pursuit moves the left eye (yoked), vergence the right
             pending[cue] = (features, act.actions, out.reward)
         info = env.end_iteration()

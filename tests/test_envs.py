@@ -121,10 +121,10 @@ def test_stable_baselines3_ppo_learns_on_the_vec_env():
 
     env = envs.make_sb3_vec_env("aectorch/Vergence-v0", num_envs=4, seed=0, reward="error", **SMALL)
     obs = env.reset()
-    assert obs.shape == (4, 48)
+    assert obs.shape == (4, 64)
     for t in range(4):
         obs, rewards, dones, infos = env.step(np.full(4, 5))
-    assert dones.all() and all(info["TimeLimit.truncated"] and info["terminal_observation"].shape == (48,)
+    assert dones.all() and all(info["TimeLimit.truncated"] and info["terminal_observation"].shape == (64,)
                                for info in infos)
     model = PPO("MlpPolicy", VecMonitor(env), n_steps=8, batch_size=16, n_epochs=1, seed=0, device="cpu")
     model.learn(64)
