@@ -28,8 +28,8 @@ if [ -f "$STAMP" ] && [ "$(cat "$STAMP")" = "$HASH" ]; then
 fi
 rm -f "$STAMP"
 [ -x "$VPY" ] || { say "venv: creating .venv-lerobot"; "$PYTHON" -m venv "$VENV"; }
-say "aectorch: pip install -e .[lerobot,test] (LeRobot and its own torch; the first time ~8 GB, a few minutes)"
-"$VPY" -m pip install "${PIP_FLAGS[@]}" --upgrade-strategy only-if-needed -e ".[lerobot,test]"
+say "aectorch: pip install -e .[lerobot,test,rl] (LeRobot and its own torch; the first time ~8 GB, a few minutes)"
+"$VPY" -m pip install "${PIP_FLAGS[@]}" --upgrade-strategy only-if-needed -e ".[lerobot,test,rl]"
 TV="$("$VPY" -c 'import importlib.metadata as m; print(m.version("torch"))')"
 printf 'torch==%s\n' "${TV%%+*}" > "$VENV/.aectorch-torch-constraint.txt"
 say "PyOpenGL: upgrading to >=3.1.7 for OSMesa (pip's warning about pyrender's pin is expected)"

@@ -133,8 +133,10 @@ class CueLearner(nn.Module):
         if greedy:
             out = self.agent.act(features, greedy=True, generator=self.generator)
             if self.config.readout == Readout.mean:
-                probabilities = self.agent.log_policy(features).exp()
-                out = out._replace(increments_deg=probabilities @ self.agent.actions_deg.to(probabilities.dtype))
+                with torch.no_grad():
+                    probabilities = self.agent.log_policy(features).exp()
+                    mean = probabilities @ self.agent.actions_deg.to(probabilities.dtype)
+                out = out._replace(increments_deg=mean)
             return out
         # The numbers one process with the whole batch would draw; this process's rows.
         u = torch.rand(self.shard.whole_batch(features.shape[0]), 1, generator=self.generator, dtype=features.dtype,

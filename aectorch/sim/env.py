@@ -300,8 +300,7 @@ class ActiveDepthEnv:
         self.fixation_iterations = fixation_iterations
         self.shift_m = float(shift_m)
         self.shift_iterations = min(shift_iterations, fixation_iterations)
-        self.yoked_pursuit = yoked_pursuit
-        self.q_iterations = min(q_iterations, fixation_iterations)
+        self.yoked_pursuit, self.q_iterations = yoked_pursuit, min(q_iterations, fixation_iterations)
         self.pursuit_start_deg = _range_or_value(pursuit_start_deg, "pursuit_start_deg")
         self.vergence_start_deg = _range_or_value(vergence_start_deg, "vergence_start_deg")
         self.camera = camera or PinholeCamera()
@@ -330,8 +329,7 @@ class ActiveDepthEnv:
                 f"{self.scene.background_x_m - eye_x:.2f} m"
             )
         self.distances_m = torch.tensor(distances, dtype=dtype, device=self.device)
-        self.renderer_name = renderer
-        self._renderer_options = dict(renderer_options or {})
+        self.renderer_name, self._renderer_options = renderer, dict(renderer_options or {})
         self.renderer = make_renderer(
             renderer, self.scene, self.camera, device=self.device, dtype=dtype, **self._renderer_options
         )
