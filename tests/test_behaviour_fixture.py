@@ -125,7 +125,8 @@ def test_the_checkpoints_hold_the_fixtures_tensors(fingerprint, name):
     # The fixture's format 1 checkpoint read as today's (the migration's renames), against the new
     # run's: the same tensors under today's names, the same config once validated.
     old = _unflatten(json.loads(record.FIXTURE.read_text())["checkpoints"][name])
-    new = _unflatten(fingerprint["checkpoints"][name])
+    # The environment's running sum of q (env.q_iterations, format 3) is newer than the fixture.
+    new = _unflatten({k: v for k, v in fingerprint["checkpoints"][name].items() if k != "/env/q_sum_deg"})
     migrated = migrate(old)
     assert _config(migrated) == _config(new)
     expected = {k: v for k, v in _flatten({**migrated, "config": None}).items()}

@@ -44,7 +44,10 @@ def _single(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 
 def _tiny(textures: Path, num_envs: int, run: Path) -> list[str]:
     overrides = [o for o in TINY if not o.startswith(("env.num_envs", "train.progress"))]
-    return [*overrides, *QUIET, f"env.num_envs={num_envs}", f"env.textures={textures}", f"hydra.run.dir={run}"]
+    # The natural actor-critic: its batched update reduces over processes exactly; PPO's minibatches
+    # are drawn per process, so a split batch is another (equally valid) run, not the same one.
+    nac = [f"learner.cues.{cue}.agent=nac" for cue in ("parallax", "stereo")]
+    return [*overrides, *QUIET, *nac, f"env.num_envs={num_envs}", f"env.textures={textures}", f"hydra.run.dir={run}"]
 
 
 def _close(a, b, path="checkpoint"):

@@ -91,7 +91,7 @@ def test_train_py_writes_the_run_folder(tmp_path, textures):
             "pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m"}
     for cue in ("parallax", "stereo"):
         keys |= {f"{cue}/reward", f"{cue}/entropy", f"{cue}/td_error"}
-        keys |= {f"{cue}/{s}/{m}" for s in ("wide", "coarse", "fine") for m in ("error", "atom_usage")}
+        keys |= {f"{cue}/{s}/{m}" for s in ("wide", "coarse", "fine", "full") for m in ("error", "atom_usage")}
     assert set(lines[-1]) == keys and lines[-1]["env_iterations"] == 60
     # The roll: the right eye from iteration 6 (0-based; line 6 reports after it), both from 9.
     rolls = [(line["iteration"], line["roll_left_deg"], line["roll_right_deg"]) for line in lines]
@@ -99,7 +99,7 @@ def test_train_py_writes_the_run_folder(tmp_path, textures):
     checkpoint = load_checkpoint(run / "checkpoint.pt")
     assert checkpoint["iteration"] == 12 and checkpoint["env"]["roll_deg"].eq(3).all()
     assert set(checkpoint["initial_dictionaries"]) == {f"{cue}/{s}" for cue in ("parallax", "stereo")
-                                                       for s in ("wide", "coarse", "fine")}
+                                                       for s in ("wide", "coarse", "fine", "full")}
     evaluation = json.loads((run / "evaluation.json").read_text())
     assert evaluation["trials"] == 3
     summary = json.loads((run / "summary.json").read_text())
@@ -413,7 +413,7 @@ def test_fork_continues_a_run_with_changed_settings(tmp_path, textures, capsys, 
     assert after["iteration"] == 12 and after["config"]["learner"]["cues"]["stereo"]["encoder"]["lr"] == 0
     atoms = [k for k in before["learner"] if k.endswith("atoms")]
     assert atoms and all(torch.equal(before["learner"][k], after["learner"][k]) for k in atoms)
-    actor = "cues.parallax.agent.actor_weight"
+    actor = "cues.parallax.agent.policy.weight"  # PPO, the default agent
     assert not torch.equal(before["learner"][actor], after["learner"][actor])
     assert load_checkpoint(source / "checkpoint.pt")["iteration"] == 8  # the source is untouched
     # Bad arguments stop before anything is written, naming what is wrong.

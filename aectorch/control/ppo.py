@@ -278,10 +278,11 @@ class PPO(nn.Module):
                                   old.flatten(), "advantage": advantage.flatten(0, 1), "value_target":
                                   target.flatten(0, 1)}, batch_size=[actions.numel()])
         parameters = [p for group in self.optimizer.param_groups for p in group["params"]]
-        size = max(1, batch.batch_size[0] // cfg.minibatches)
+        minibatches = min(cfg.minibatches, batch.batch_size[0])  # a rollout smaller than that: one each
+        size = batch.batch_size[0] // minibatches
         for _ in range(cfg.epochs):
             order = torch.randperm(batch.batch_size[0], generator=self.generator).to(features.device)
-            for start in range(0, size * cfg.minibatches, size):
+            for start in range(0, size * minibatches, size):
                 losses = self._loss(batch[order[start:start + size]])
                 loss = losses["loss_objective"] + losses["loss_critic"] + losses["loss_entropy"]
                 self.optimizer.zero_grad(set_to_none=False)

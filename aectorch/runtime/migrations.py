@@ -141,6 +141,11 @@ def _from_2(payload: dict) -> dict:
         cues[name] = cue
     if isinstance(config.get("env"), dict):
         config["env"] = _with_added(config["env"], _ADDED_2["env"])
+    # The environment's running sum of q (zero between iterations with q of the last iteration).
+    states = payload.get("env")
+    for state in states if isinstance(states, list) else [states]:
+        if isinstance(state, dict) and isinstance(state.get("q_deg"), torch.Tensor) and "q_sum_deg" not in state:
+            state["q_sum_deg"] = torch.zeros(state["q_deg"].shape[0], 2, dtype=state["q_deg"].dtype)
     out["config"] = config
     out["format"] = 3
     return out
