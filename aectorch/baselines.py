@@ -132,7 +132,6 @@ class Matcher(nn.Module):
         self.constrained = actions is not None
         self.degrees_per_pixel = (camera or PinholeCamera()).degrees_per_pixel
         self.generator = torch.Generator().manual_seed(0)  # the trial loop seeds and restores it
-        self.cues = {name: None for name in self.cue_names}  # the cues it drives (as JointLearner.cues)
 
     def displacement_deg(self, observation: dict[str, Tensor]) -> Tensor:
         """The second image's displacement against the first ``[B]``, degrees, coarse to fine."""

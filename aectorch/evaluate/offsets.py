@@ -75,7 +75,6 @@ def offset_sweep(
     offsets = torch.as_tensor(list(offsets_deg), dtype=torch.float64)
     if offsets.dim() != 1 or offsets.numel() == 0 or not bool(torch.isfinite(offsets).all()):
         raise ValueError(f"offsets_deg must be a non-empty list of finite degrees, got {list(offsets_deg)!r}")
-    check_int(batch_size, "batch_size", 1)
     protocol = resolve_protocol(protocol)
     bank = textures if isinstance(textures, TextureBank) else TextureBank(textures)
     index, distance = _all_conditions(len(bank), distances)
