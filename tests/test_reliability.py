@@ -401,3 +401,43 @@ def test_train_py_says_which_write_failed_and_how_to_resume(tmp_path, textures):
     lines = [line for line in done.stderr.splitlines() if line.startswith("error:")]
     assert len(lines) == 1 and "cannot write" in lines[0] and f"train.resume={run}" in lines[0], done.stderr[-2000:]
     assert "Traceback" not in done.stderr
+
+
+def test_a_full_disk_under_tensorboard_raises_one_write_failed_and_a_resume_purges_the_later_events(tmp_path,
+                                                                                                    capfd):
+    """TensorBoard writes in its own thread; `RunFolder.log_line` flushes it, so a failed write
+    stops the run like one of metrics.jsonl (`WriteFailed` naming tb/, no thread traceback), and
+    a resume (purge_step) hides the events after its checkpoint from TensorBoard's reader."""
+    import resource
+
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from aectorch.runtime.outputs import RunFolder, WriteFailed
+
+    folder = RunFolder(tmp_path / "run")
+    folder.start({}, {}, resumed_at=None, tensorboard=True)
+    line = {"iteration": 0, **{f"k{k}": float(k) for k in range(30)}}  # short keys: TensorBoard grows faster
+    with folder.open_metrics() as file:
+        folder.log_line(file, line)
+        events = next((tmp_path / "run" / "tb").iterdir())
+        soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (events.stat().st_size + 100, hard))
+        try:
+            with pytest.raises(WriteFailed, match=r"cannot write .*tb: File too large"):
+                for iteration in range(1, 10):
+                    folder.log_line(file, {**line, "iteration": iteration})
+        finally:
+            resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+    folder.close()
+    folder.release()
+    assert "Traceback" not in capfd.readouterr().err  # the writer thread's failure is not printed
+    assert (tmp_path / "run" / "metrics.jsonl").read_text().count("\n") == 2  # the line whose events failed
+    resumed = RunFolder(tmp_path / "run")
+    resumed.start({}, {}, resumed_at=0, tensorboard=True)
+    with resumed.open_metrics() as file:
+        resumed.log_line(file, {**line, "iteration": 1, "k0": 7.0})
+    resumed.close()
+    accumulator = EventAccumulator(str(tmp_path / "run" / "tb"))
+    accumulator.Reload()
+    scalars = accumulator.Scalars("k0")
+    assert [(s.step, s.value) for s in scalars] == [(0, 0.0), (1, 7.0)]

@@ -72,6 +72,24 @@ def read_lines(path: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
 
+def _quiet_tensorboard_thread() -> None:
+    """TensorBoard's writer thread prints a traceback when a write fails; `RunFolder.log_line`
+    raises the same error (`WriteFailed`, one line) from its flush, so the thread's is not printed."""
+    import threading
+
+    hook = threading.excepthook
+    if getattr(hook, "_aectorch", False):
+        return
+
+    def excepthook(args):
+        if type(args.thread).__name__ == "_AsyncWriterThread" and issubclass(args.exc_type, OSError):
+            return
+        hook(args)
+
+    excepthook._aectorch = True
+    threading.excepthook = excepthook
+
+
 class RunFolder:
     """The files a run writes into its folder; only the main process (rank 0) writes.
 
@@ -138,7 +156,8 @@ class RunFolder:
         if tensorboard:
             from torch.utils.tensorboard import SummaryWriter
 
-            self._writer = SummaryWriter(log_dir=str(self.path / "tb"), purge_step=resumed_at + 1 if resumed_at else None)
+            _quiet_tensorboard_thread()
+            self._writer = SummaryWriter(log_dir=str(self.path / "tb"), purge_step=None if resumed_at is None else resumed_at + 1)
 
     def _truncate_metrics(self, iteration: int) -> None:
         """Keep the lines up to the checkpoint's iteration; a line torn by a kill mid-write is dropped."""
@@ -168,14 +187,25 @@ class RunFolder:
             raise WriteFailed(f"cannot write {self.metrics_path}: {os.strerror(err.errno) if err.errno else err} "
                               "(is the disk full, or a file-size limit set?); a resume keeps its whole lines") from err
         if self._writer is not None:
-            for key, value in line.items():
-                if key != "iteration" and value is not None and math.isfinite(value):
-                    self._writer.add_scalar(key, value, line["iteration"])
+            try:
+                for key, value in line.items():
+                    if key != "iteration" and value is not None and math.isfinite(value):
+                        self._writer.add_scalar(key, value, line["iteration"])
+                # TensorBoard writes in a thread; flushing here raises its failure in this one.
+                self._writer.flush()
+            except OSError as err:
+                self._writer = None  # closing it would only raise the same error again
+                raise WriteFailed(f"cannot write {self.path / 'tb'}: {os.strerror(err.errno) if err.errno else err} "
+                                  "(is the disk full, or a file-size limit set?); a resume drops TensorBoard's "
+                                  "events after its checkpoint") from err
 
     def close(self) -> None:
         if self._writer is not None:
-            self._writer.close()
-            self._writer = None
+            writer, self._writer = self._writer, None
+            try:
+                writer.close()
+            except OSError:
+                pass  # every line was flushed by log_line, which raised any failure then
 
     def write_json(self, name: str, data: dict) -> None:
         write_json(self.path / name, data)

@@ -28,6 +28,7 @@ from torch import Tensor, nn
 from aectorch._checks import check_int
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.scene import PlaneScene
+from aectorch.sim.textures import empty_textures
 
 __all__ = ["FILTERS", "MipmapAtlas", "TorchPlaneRenderer", "mipmap_atlas", "mipmap_levels", "pixel_rays",
            "render_planes", "render_rays", "sample_bilinear", "texture_atlas"]
@@ -86,16 +87,25 @@ def sample_bilinear(
 #: Above this many atlas rows in float32, the atlas coordinate's rounding (about
 #: rows * 6e-8 texels) would approach 1 % of a texel: sample by index arithmetic instead.
 _ATLAS_ROWS_FLOAT32 = 2**18
+# Texels of level 0 filtered at once while an atlas's mipmaps are built (bounds the temporaries).
+_MIP_CHUNK_TEXELS = 2**22
 
 
 def texture_atlas(textures: Tensor, background: Tensor) -> Tensor:
-    """Stack the object textures and the background (same size) into one ``[N + 1, H, W]`` atlas."""
+    """Stack the object textures and the background (same size) into one ``[N + 1, H, W]`` atlas.
+
+    A large atlas lives in a file mapped into memory (`aectorch.sim.textures.empty_textures`).
+    """
     if background.shape != textures.shape[-2:]:
         raise ValueError(
             f"background must have the textures' size {tuple(textures.shape[-2:])}, got "
             f"{tuple(background.shape)} (PlaneScene resamples it)"
         )
-    return torch.cat((textures, background.to(textures).unsqueeze(0)))
+    n, h, w = textures.shape
+    atlas = empty_textures((n + 1, h, w), textures.dtype, textures.device)
+    atlas[:n] = textures
+    atlas[n] = background
+    return atlas
 
 
 class MipmapAtlas(NamedTuple):
@@ -143,24 +153,38 @@ def mipmap_levels(images: Tensor) -> list[Tensor]:
 def mipmap_atlas(textures: Tensor, background: Tensor) -> MipmapAtlas:
     """The :func:`texture_atlas` of ``textures`` and ``background`` with every layer's mipmaps, packed.
 
-    Memory: about 1.5x the plain atlas (level 0 plus the levels beside it).
+    Memory: about 1.5x the plain atlas (level 0 plus the levels beside it). The layers are
+    filtered a chunk at a time into the packed atlas, which lives in a file mapped into memory
+    when it is large (`aectorch.sim.textures.empty_textures`), so no temporary copy of all the
+    textures is made.
     """
-    atlas = texture_atlas(textures, background)
-    levels = mipmap_levels(atlas)
-    n, h, w = atlas.shape
-    right = levels[1].shape[-1] if len(levels) > 1 else 0
-    height = max(h, sum(level.shape[-2] for level in levels[1:]))
-    packed = atlas.new_zeros(n, height, w + right)
-    origins, sizes, row = [], [], 0
-    for index, level in enumerate(levels):
-        lh, lw = level.shape[-2:]
-        top, left = (0, 0) if index == 0 else (row, w)
-        packed[:, top:top + lh, left:left + lw] = level
-        origins.append((top, left))
-        sizes.append((lh, lw))
-        if index:
-            row += lh
-    as_long = lambda rows: torch.tensor(rows, dtype=torch.int64, device=atlas.device)  # noqa: E731
+    if background.shape != textures.shape[-2:]:
+        raise ValueError(
+            f"background must have the textures' size {tuple(textures.shape[-2:])}, got "
+            f"{tuple(background.shape)} (PlaneScene resamples it)"
+        )
+    n, h, w = textures.shape
+    sizes = [(h, w)]
+    while sizes[-1] != (1, 1):
+        sizes.append((max(sizes[-1][0] // 2, 1), max(sizes[-1][1] // 2, 1)))
+    right = sizes[1][1] if len(sizes) > 1 else 0
+    height = max(h, sum(lh for lh, _ in sizes[1:]))
+    origins, row = [(0, 0)], 0
+    for lh, _ in sizes[1:]:
+        origins.append((row, w))
+        row += lh
+    packed = empty_textures((n + 1, height, w + right), textures.dtype, textures.device)
+    packed[:, h:, :w] = 0  # what no level covers reads 0, as before
+    packed[:, :, w:] = 0
+    step = max(1, _MIP_CHUNK_TEXELS // (h * w))
+    for start in range(0, n + 1, step):
+        stop = min(start + step, n + 1)
+        chunk = textures[start:min(stop, n)]
+        if stop > n:
+            chunk = torch.cat((chunk, background.to(textures).unsqueeze(0)))
+        for (top, left), (lh, lw), level in zip(origins, sizes, mipmap_levels(chunk)):
+            packed[start:stop, top:top + lh, left:left + lw] = level
+    as_long = lambda rows: torch.tensor(rows, dtype=torch.int64, device=textures.device)  # noqa: E731
     return MipmapAtlas(packed, as_long(origins), as_long(sizes))
 
 

@@ -26,7 +26,8 @@ from torch import Tensor
 
 from aectorch._checks import check_int, is_int, is_real
 
-__all__ = ["TextureBank", "dead_leaves_image", "pink_noise_images", "DEFAULT_SEEDS", "PROCEDURAL_TEXTURES", "DEFAULT_SIZES", "IMAGE_EXTENSIONS"]
+__all__ = ["TextureBank", "dead_leaves_image", "empty_textures", "pink_noise_images", "texture_ram_bytes",
+           "DEFAULT_SEEDS", "PROCEDURAL_TEXTURES", "DEFAULT_SIZES", "IMAGE_EXTENSIONS", "TEXTURE_RAM_BYTES"]
 
 #: File extensions `TextureBank.from_folder` loads by default (compared case-insensitively).
 IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg")
@@ -36,7 +37,13 @@ DEFAULT_SEEDS: dict[str, int] = {"train": 2017, "test": 2018}
 PROCEDURAL_TEXTURES: tuple[str, ...] = ("dead-leaves",)
 #: Number of textures of each default split (the AEC lineage: 100 train, 40 test).
 DEFAULT_SIZES: dict[str, int] = {"train": 100, "test": 40}
+#: Texture tensors (a bank, the torch renderer's atlas) larger than this many bytes live in a temporary
+#: file mapped into memory instead of in RAM (`empty_textures`); the environment variable
+#: ``AECTORCH_TEXTURE_RAM`` (bytes) overrides it, ``AECTORCH_TEXTURE_DIR`` chooses the file's folder.
+TEXTURE_RAM_BYTES = 2 * 2**30
 _DEFAULT_ALPHA = (1.0, 1.2)
+# Elements per chunk when a whole bank is checked or reduced (bounds the temporaries).
+_CHUNK_ELEMENTS = 2**22
 _PROGRESS_MIN_FILES = 20
 # Pillow modes holding more than 8 bits per grey pixel: read as float and divided by 65535,
 # because Pillow's convert("L") clips them at 255 instead of rescaling.
@@ -169,6 +176,64 @@ def dead_leaves_image(
         canvas = (1 - inner_contrast) * canvas + inner_contrast * texture
     low_value, high_value = canvas.amin(), canvas.amax()
     return ((canvas - low_value) / (high_value - low_value).clamp_min(1e-12)).to(dtype)
+
+
+def texture_ram_bytes() -> int:
+    """The size above which `empty_textures` maps a file: ``AECTORCH_TEXTURE_RAM`` (bytes, an
+    integer >= 0) when set, else `TEXTURE_RAM_BYTES`.
+
+    Raises:
+        ValueError: ``AECTORCH_TEXTURE_RAM`` is not a non-negative integer.
+    """
+    text = os.environ.get("AECTORCH_TEXTURE_RAM")
+    if text is None or not text.strip():
+        return TEXTURE_RAM_BYTES
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise ValueError(f"AECTORCH_TEXTURE_RAM must be a number of bytes (an integer >= 0), got {text!r}")
+    return value
+
+
+def empty_textures(shape: Sequence[int], dtype: torch.dtype = torch.float32,
+                   device: torch.device | str | None = None) -> Tensor:
+    """An uninitialised CPU (or `device`) tensor for textures, in RAM or, when it is larger than
+    `texture_ram_bytes`, in a temporary file mapped into memory.
+
+    The file (in ``AECTORCH_TEXTURE_DIR``, else the system's temporary folder) is reserved in
+    full at once, so a full disk fails here with ``OSError`` rather than later inside a write to
+    the mapping, and it is unlinked at once: it takes disk space only while the tensor lives and
+    disappears with the process. The operating system keeps the pages it has room for in its
+    page cache, so a bank of 10,000 photographs costs disk, not the process's memory.
+    Tensors on other devices than the CPU are plain ``torch.empty``.
+
+    Example:
+        >>> empty_textures((3, 8, 8)).shape
+        torch.Size([3, 8, 8])
+    """
+    shape = tuple(int(n) for n in shape)
+    device = torch.device(device) if device is not None else torch.device("cpu")
+    numel = math.prod(shape)
+    nbytes = numel * torch.empty((), dtype=dtype).element_size()
+    if device.type != "cpu" or nbytes <= texture_ram_bytes() or numel == 0:
+        return torch.empty(shape, dtype=dtype, device=device)
+    import tempfile
+
+    folder = os.environ.get("AECTORCH_TEXTURE_DIR") or None
+    fd, path = tempfile.mkstemp(prefix="aectorch-textures-", suffix=".bin", dir=folder)
+    try:
+        try:
+            os.posix_fallocate(fd, 0, nbytes)
+        except OSError as err:
+            raise OSError(err.errno, f"cannot reserve {nbytes / 2**30:.2f} GiB for textures in "
+                                     f"{os.path.dirname(path)!r} ({err.strerror}); free disk space or set "
+                                     f"AECTORCH_TEXTURE_DIR to a folder with room") from err
+        return torch.from_file(path, shared=True, size=numel, dtype=dtype).view(shape)
+    finally:
+        os.close(fd)
+        os.unlink(path)
 
 
 class TextureBank:
@@ -402,6 +467,11 @@ class TextureBank:
             dtype: floating dtype of the bank.
             device: device of the bank.
 
+        Memory: one image is decoded at a time; a bank larger than `texture_ram_bytes`
+        (2 GiB: about 2000 textures of 512 x 512 in float32) is written to a temporary file
+        mapped into memory (`empty_textures`), so a folder of 10,000 photographs loads in the
+        process's memory of a few images, at the cost of its size on disk.
+
         Returns:
             The bank, named by file name (relative path when `recursive`).
 
@@ -452,7 +522,7 @@ class TextureBank:
 
         if progress is None:
             progress = len(files) >= _PROGRESS_MIN_FILES and sys.stderr.isatty()
-        textures = torch.empty((len(files), height, width), dtype=dtype, device=device)
+        textures = empty_textures((len(files), height, width), dtype=dtype, device=device)
         for i, file in enumerate(tqdm(files, desc="textures", unit="img", disable=not progress)):
             textures[i] = torch.from_numpy(_load_grey(file, height, width))
         return cls(
@@ -727,9 +797,14 @@ def _check_textures(textures: Tensor) -> None:
     if not textures.is_floating_point():
         hint = " (divide 8-bit images by 255)" if textures.dtype == torch.uint8 else ""
         raise TypeError(f"textures must be a floating tensor, got dtype {textures.dtype}{hint}")
-    if not bool(torch.isfinite(textures).all()):
-        raise ValueError("textures must be finite, got NaN or inf values")
-    low, high = float(textures.amin()), float(textures.amax())
+    # In chunks of textures: a bank mapped from a file (empty_textures) is never copied whole.
+    step = max(1, _CHUNK_ELEMENTS // (h * w))
+    low, high = math.inf, -math.inf
+    for start in range(0, n, step):
+        chunk = textures[start:start + step]
+        if not bool(torch.isfinite(chunk).all()):
+            raise ValueError("textures must be finite, got NaN or inf values")
+        low, high = min(low, float(chunk.amin())), max(high, float(chunk.amax()))
     if low < 0.0 or high > 1.0:
         raise ValueError(f"textures must lie within [0, 1], got values in [{low}, {high}]")
 
