@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -123,7 +124,11 @@ def test_resume_is_bit_identical(tmp_path, textures):
     assert not (tmp_path / "ignored").exists()
 
 
-def test_interruption_leaves_a_checkpoint_and_resume_completes(tmp_path, textures, monkeypatch):
+@pytest.mark.parametrize("fault", ["ctrl-c", "error"])
+def test_interruption_leaves_a_checkpoint_and_resume_completes(tmp_path, textures, monkeypatch, fault):
+    """Ctrl-C in the middle of iteration 8 (its parallax step has learned) stops the run when the
+    iteration is complete: checkpoint 8. An error there leaves the last checkpoint written (4,
+    train.checkpoint_every=4). Either resumes to the uninterrupted run's state."""
     straight = tmp_path / "straight"
     run_experiment(_cfg(textures), straight)
     original = ActiveDepthEnv.apply_vergence
@@ -131,16 +136,19 @@ def test_interruption_leaves_a_checkpoint_and_resume_completes(tmp_path, texture
 
     def failing(self, delta):
         calls["n"] += 1
-        if calls["n"] == 8:  # in the middle of iteration 8: its parallax step has learned
-            raise KeyboardInterrupt
+        if calls["n"] == 8:
+            if fault == "ctrl-c":
+                os.kill(os.getpid(), signal.SIGINT)
+            else:
+                raise RuntimeError("a bug in the middle of an iteration")
         return original(self, delta)
 
     run = tmp_path / "run"
     monkeypatch.setattr(ActiveDepthEnv, "apply_vergence", failing)
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(KeyboardInterrupt if fault == "ctrl-c" else RuntimeError):
         run_experiment(_cfg(textures), run)
     monkeypatch.setattr(ActiveDepthEnv, "apply_vergence", original)
-    assert load_checkpoint(run / "checkpoint.pt")["iteration"] == 7
+    assert load_checkpoint(run / "checkpoint.pt")["iteration"] == (8 if fault == "ctrl-c" else 4)
     run_experiment(_cfg(textures, f"train.resume={run}"), run)
     _assert_same_state(load_checkpoint(straight / "checkpoint.pt")["learner"],
                        load_checkpoint(run / "checkpoint.pt")["learner"])
@@ -165,7 +173,7 @@ def test_sigterm_checkpoints_the_last_completed_iteration(tmp_path, textures):
     with pytest.raises(KeyboardInterrupt, match="signal"):
         run_experiment(_cfg(textures), run, callback=terminate)
     assert signal.getsignal(signal.SIGTERM) is before  # the handler is restored
-    assert load_checkpoint(run / "checkpoint.pt")["iteration"] == 4
+    assert load_checkpoint(run / "checkpoint.pt")["iteration"] == 5  # the iteration it arrived in, completed
     run_experiment(_cfg(textures, f"train.resume={run}"), run)
     _assert_same_state(load_checkpoint(straight / "checkpoint.pt")["learner"],
                        load_checkpoint(run / "checkpoint.pt")["learner"])

@@ -10,9 +10,15 @@ learning is a :class:`Callback` each (:func:`default_callbacks`): the roll pertu
 TensorBoard (:class:`MetricsLog`), ``best.pt`` (:class:`BestState`), ``checkpoint.pt``
 (:class:`Checkpoints`) and the progress bar (:class:`Progress`).
 
-Every completed iteration's state is kept in memory (``TrainingRun.last``), so an interruption
-(Ctrl-C, SIGTERM, the watchdog, an exception from a callback) writes a checkpoint of the last
-completed, healthy iteration before it propagates.
+Interruptions, without copying the learner's state every iteration:
+
+* Ctrl-C and SIGTERM are deferred to the end of the iteration under way (:class:`_DeferredStop`):
+  the loop then writes a checkpoint of that completed iteration and raises ``KeyboardInterrupt``;
+  the resume is bit-identical to an uninterrupted run. A second signal interrupts at once, like
+  any other exception.
+* Any other exception (the watchdog, an error inside an iteration or a callback) leaves the last
+  ``checkpoint.pt`` written, every ``train.checkpoint_every`` iterations after the watchdog has
+  passed it, hence healthy (a fresh run that stops before its first one writes iteration 0's).
 """
 
 from __future__ import annotations
@@ -47,12 +53,39 @@ def _sigterm(signum, frame):
 
 
 def _interrupt_on_sigterm():
-    """Make SIGTERM (``kill``, ``timeout``, a batch scheduler) interrupt like Ctrl-C does, so the
-    last completed iteration is checkpointed; returns the previous handler (``None`` when not
-    in the main thread, where handlers cannot be set)."""
+    """Make SIGTERM interrupt at once like Ctrl-C does (while a run finishes: `aectorch.runtime.finish`);
+    returns the previous handler (``None`` when not in the main thread, where handlers cannot be set)."""
     if threading.current_thread() is not threading.main_thread():
         return None
     return signal.signal(signal.SIGTERM, _sigterm)
+
+
+class _DeferredStop:
+    """While the loop runs, SIGINT (Ctrl-C) and SIGTERM (``kill``, ``timeout``, a batch scheduler)
+    only set :attr:`signum`; the loop stops at the end of the iteration under way. A second
+    signal raises ``KeyboardInterrupt`` at once. Handlers can only be set in the main thread;
+    elsewhere signals act as before."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self.previous: dict | None = None
+
+    def _handle(self, signum, frame):
+        if self.signum is not None:
+            raise KeyboardInterrupt(f"terminated by signal {signum} (a second one)")
+        self.signum = signum
+
+    def __enter__(self) -> "_DeferredStop":
+        if threading.current_thread() is threading.main_thread():
+            self.previous = {sig: signal.signal(sig, self._handle) for sig in self.SIGNALS}
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self.previous is not None:
+            for sig, handler in self.previous.items():
+                signal.signal(sig, handler)
 
 
 class Callback:
@@ -164,8 +197,9 @@ class BestState(Callback):
         if run.best["score"] is None or score < run.best["score"]:
             run.best.update(iteration=done, score=score,
                             **{k: v for k, v in run.line.items() if k.endswith(("_mae_deg", "_mae_m"))})
+            state = run.state()  # on every process: it gathers the environments
             if run.folder.main:
-                save_checkpoint(run.folder / "best.pt", run.payload(done, run.state(), run.elapsed()))
+                save_checkpoint(run.folder / "best.pt", run.payload(done, state, run.elapsed()))
 
 
 class Checkpoints(Callback):
@@ -173,25 +207,39 @@ class Checkpoints(Callback):
     interruption, the last completed (healthy) iteration's, and how to go on."""
 
     def after_iteration(self, run, done, record):
-        if run.folder.main and (done % run.cfg.train.checkpoint_every == 0 or done == run.total):
-            save_checkpoint(run.folder / "checkpoint.pt", run.payload(done, run.state(), run.elapsed()))
+        if done % run.cfg.train.checkpoint_every == 0 or done == run.total:
+            state = run.state()  # on every process: it gathers the environments
+            if run.folder.main:
+                save_checkpoint(run.folder / "checkpoint.pt", run.payload(done, state, run.elapsed()))
+            run.saved = done
 
     def on_interrupt(self, run, err):
-        done, state = run.last
+        # A deferred signal stops every process after the same iteration (`TrainingRun._stop_requested`),
+        # so all gather its state.
+        state = run.state() if run.stopped is not None and run.saved != run.iteration_done else None
         if not run.folder.main:
             return
         path, run_dir = run.folder / "checkpoint.pt", run.folder.path
         if isinstance(err, WriteFailed):  # the disk is full: the last checkpoint written stands (train.py says so)
             return
-        if done > run.start or not run.resumed:
-            save_checkpoint(run.folder / "checkpoint.pt", run.payload(done, state, run.elapsed()))
-        if isinstance(err, WatchdogError):
-            log.error("\n%s\nstopped; %s holds iteration %d, the last healthy one. Resuming it repeats the same "
-                      "computation; watchdog.mode=warn continues past the check: python train.py "
-                      "train.resume=%s watchdog.mode=warn", err, path, done, run_dir)
+        if run.stopped is not None:  # a deferred signal, at the end of a completed iteration
+            done = run.iteration_done
+            if state is not None:
+                save_checkpoint(path, run.payload(done, state, run.elapsed()))
         else:
+            done = run.saved
+            if done == run.start and not run.resumed:  # nothing written yet: the start (iteration 0)
+                save_checkpoint(path, run.payload(done, run.start_state, run.elapsed()))
+        if isinstance(err, WatchdogError):
+            log.error("\n%s\nstopped; %s holds iteration %d, the last checkpoint (checked healthy). Resuming it "
+                      "repeats the same computation; watchdog.mode=warn continues past the check: python train.py "
+                      "train.resume=%s watchdog.mode=warn", err, path, done, run_dir)
+        elif run.stopped is not None or isinstance(err, KeyboardInterrupt):
             log.warning("\ninterrupted after iteration %d of %d; checkpoint written to %s\nresume with: "
                         "python train.py train.resume=%s", done, run.total, path, run_dir)
+        else:
+            log.error("\nstopped by an error in iteration %d; %s holds iteration %d (the last checkpoint)\n"
+                      "resume with: python train.py train.resume=%s", run.iteration_done + 1, path, done, run_dir)
 
 
 class Progress(Callback):
@@ -241,7 +289,8 @@ class TrainingRun:
         env, learner, metrics, watchdog: the run's parts.
         best: the early-stopping record (``iteration``, ``score`` and the window's errors).
         line: the metrics line of this iteration (``None`` when none was written).
-        last: ``(iteration, state)`` of the last completed iteration.
+        saved: the iteration of the last ``checkpoint.pt`` written (or resumed from).
+        stopped: the signal that stops the run at the end of this iteration, or ``None``.
         train_seconds: the training's seconds over all sessions, after :meth:`run`.
     """
 
@@ -297,7 +346,7 @@ class TrainingRun:
 
     # -- state -------------------------------------------------------------------------------------
     def state(self) -> dict:
-        """The state a checkpoint holds, of the iteration just completed (made once per iteration).
+        """The state a checkpoint holds, of the iteration just completed (made at most once per iteration).
         The learners of all processes are identical; the environments are each process's own (one
         process's checkpoint holds its state itself)."""
         done = self.iteration_done
@@ -311,6 +360,14 @@ class TrainingRun:
             })
         return self._state[1]
 
+    def _stop_requested(self, deferred: _DeferredStop) -> bool:
+        """Whether a signal asks to stop after this iteration (in any process of a distributed run,
+        so that all stop at the same iteration)."""
+        flag = deferred.signum is not None
+        if self.shard.world_size > 1:
+            flag = bool(self.shard.sum(torch.tensor([float(flag)])).item() > 0)
+        return flag
+
     def payload(self, iteration: int, state: dict, elapsed: float) -> dict:
         return {"format": CHECKPOINT_FORMAT, "config": self.config_dict, "iteration": iteration,
                 **state, "initial_dictionaries": self.initial, "elapsed_s": elapsed, "best": dict(self.best)}
@@ -322,26 +379,31 @@ class TrainingRun:
             compile_hot_path(self.learner, self.env)
         clock = time.perf_counter()
         self.elapsed = lambda: self.elapsed_before + time.perf_counter() - clock  # noqa: E731
-        self.iteration_done = self.start
-        self.last = (self.start, self.state())  # the last completed (healthy) iteration
+        self.iteration_done = self.saved = self.start
+        self.stopped = None
+        # What an exception before the first checkpoint leaves (a resumed run has its checkpoint).
+        self.start_state = None if self.resumed else self.state()
         started: list[Callback] = []
-        previous_sigterm = _interrupt_on_sigterm()
+        deferred = _DeferredStop()
         try:
-            for callback in self.callbacks:
-                callback.on_start(self)
-                started.append(callback)
-            watches = [c.watch for c in self.callbacks if c.watch is not None]
-            watch = None if not watches else (lambda cue, obs: [w(cue, obs) for w in watches])
-            for it in range(self.start, self.total):
+            with deferred:
                 for callback in self.callbacks:
-                    callback.before_iteration(self, it)
-                record = self.learner.iteration(self.env, watch=watch)
-                record = self.shard.gather_record(record)  # every process sees the whole batch's record
-                self.metrics.update(record)
-                self.iteration_done = done = it + 1
-                for callback in self.callbacks:
-                    callback.after_iteration(self, done, record)
-                self.last = (done, self.state())
+                    callback.on_start(self)
+                    started.append(callback)
+                watches = [c.watch for c in self.callbacks if c.watch is not None]
+                watch = None if not watches else (lambda cue, obs: [w(cue, obs) for w in watches])
+                for it in range(self.start, self.total):
+                    for callback in self.callbacks:
+                        callback.before_iteration(self, it)
+                    record = self.learner.iteration(self.env, watch=watch)
+                    record = self.shard.gather_record(record)  # every process sees the whole batch's record
+                    self.metrics.update(record)
+                    self.iteration_done = done = it + 1
+                    for callback in self.callbacks:
+                        callback.after_iteration(self, done, record)
+                    if self._stop_requested(deferred):
+                        self.stopped = deferred.signum or signal.SIGTERM
+                        raise KeyboardInterrupt(f"terminated by signal {self.stopped}")
         except BaseException as err:
             for callback in started:
                 callback.on_interrupt(self, err)
@@ -349,8 +411,6 @@ class TrainingRun:
         finally:
             for callback in started:
                 callback.on_end(self)
-            if previous_sigterm is not None:
-                signal.signal(signal.SIGTERM, previous_sigterm)
             self.folder.close()
         self.train_seconds = self.elapsed()
         return self.train_seconds
