@@ -85,3 +85,89 @@ def test_kernel_threads_split_the_work_and_change_nothing(orthogonal):
     finally:
         native.set_threads(before)
     assert torch.equal(one.indices, two.indices) and torch.equal(one.coefficients, two.coefficients)
+
+
+def _coded(algorithm: str, dtype, *, seed: int = 0):
+    from aectorch.coding import SparseDictionary
+
+    d = SparseDictionary(96, 40, 6, algorithm, generator=torch.Generator().manual_seed(seed), dtype=dtype)
+    x = torch.randn(5, 17, 40, generator=torch.Generator().manual_seed(seed + 1), dtype=dtype)
+    x[0, 0] = 0  # a zero signal: error 0, no gradient
+    return d, x
+
+
+@pytest.mark.parametrize("algorithm", ["mp", "omp"])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_fused_reconstruction_error_gradient_and_pooling_match_torch(algorithm, dtype):
+    """The dictionary's fused kernels (reconstruction and eq. (4) error, the gradient from the active
+    atoms, the pooled activities) against torch's dense operations, on the same codes."""
+    from aectorch.coding.dictionary import pooled_activity, reconstruction_error
+
+    assert native.available()
+    d, x = _coded(algorithm, dtype)
+    tol = dict(rtol=1e-5, atol=1e-6) if dtype == torch.float32 else dict(rtol=1e-12, atol=1e-13)
+    with torch.no_grad():
+        fused = d(x)
+    code = fused.code
+    dense = code.to_dense(d.num_atoms)
+    reconstruction = dense @ d.atoms.detach().t()
+    torch.testing.assert_close(fused.reconstruction, reconstruction, **tol)
+    torch.testing.assert_close(fused.error, reconstruction_error(x, reconstruction), **tol)
+    assert float(fused.error[0, 0]) == 0.0
+    # the gradient: autograd of the mean error through torch's differentiable path
+    atoms = d.atoms.detach().clone().requires_grad_(True)
+    reference = reconstruction_error(x, code.reconstruct(atoms)).mean()
+    reference.backward()
+    torch.testing.assert_close(d.gradient(x, fused), atoms.grad, **tol)
+    for reduction in ("sum", "mean"):
+        torch.testing.assert_close(d.pooled_activity(code, reduction=reduction),
+                                   pooled_activity(code, d.num_atoms, reduction=reduction), **tol)
+
+
+def test_pooled_power_adds_an_atom_picked_twice_before_squaring():
+    from aectorch.coding import SparseCode, SparseDictionary
+    from aectorch.coding.dictionary import pooled_activity
+
+    d = SparseDictionary(6, 4, 3, "mp", dtype=torch.float64)
+    code = SparseCode(torch.tensor([[[1, 1, 2], [0, 5, 0]], [[3, 3, 3], [4, 2, 1]]]),
+                      torch.tensor([[[1.0, 2, 3], [0.5, 1, -2]], [[1, 1, 1.0], [2, 2, 2]]], dtype=torch.float64))
+    expected = torch.tensor([[(0.5 - 2) ** 2, 3.0 ** 2, 9, 0, 0, 1], [0, 4, 4, 9, 4, 0]], dtype=torch.float64)
+    assert torch.equal(d.pooled_activity(code), expected)
+    assert torch.equal(pooled_activity(code, 6), expected)
+    with pytest.raises(RuntimeError, match="outside"):
+        torch.ops.aectorch.pooled_power(torch.tensor([[[6]]]), torch.ones(1, 1, 1), 6)
+
+
+@pytest.mark.parametrize("op", ["reconstruct_error", "sparse_gradient", "pooled_power"])
+def test_fused_dictionary_kernels_give_the_same_bits_on_any_number_of_threads(op):
+    d, x = _coded("mp", torch.float32, seed=3)
+    with torch.no_grad():
+        out = d(x)
+    flat_x, idx, coef = x.reshape(-1, 40), out.code.indices.reshape(-1, 6), out.code.coefficients.reshape(-1, 6)
+    calls = {
+        "reconstruct_error": lambda: torch.cat([t.reshape(-1) for t in torch.ops.aectorch.reconstruct_error(
+            flat_x, d.atoms.detach().t().contiguous(), idx, coef)]),
+        "sparse_gradient": lambda: torch.ops.aectorch.sparse_gradient(
+            flat_x, out.reconstruction.reshape(-1, 40), idx, coef, 96),
+        "pooled_power": lambda: torch.ops.aectorch.pooled_power(out.code.indices, out.code.coefficients, 96),
+    }
+    before = native.get_threads()
+    try:
+        results = []
+        for threads in (1, 2, 3):
+            native.set_threads(threads)
+            results.append(calls[op]())
+    finally:
+        native.set_threads(before)
+    assert all(torch.equal(results[0], r) for r in results[1:])
+
+
+def test_fused_dictionary_kernels_have_shapes_for_torch_compile():
+    from torch._subclasses.fake_tensor import FakeTensorMode
+
+    with FakeTensorMode():
+        x, idx, coef = torch.empty(7, 40), torch.zeros(7, 6, dtype=torch.long), torch.empty(7, 6)
+        recon, error = torch.ops.aectorch.reconstruct_error(x, torch.empty(96, 40), idx, coef)
+        grad = torch.ops.aectorch.sparse_gradient(x, x, idx, coef, 96)
+        pooled = torch.ops.aectorch.pooled_power(idx.reshape(1, 7, 6), coef.reshape(1, 7, 6), 96)
+    assert (recon.shape, error.shape, grad.shape, pooled.shape) == ((7, 40), (7,), (96, 40), (1, 96))

@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from aectorch._checks import check_int
-from aectorch.coding.pursuit import gram_matrix, matching_pursuit, omp
+from aectorch.coding.pursuit import fused_kernels_apply, gram_matrix, matching_pursuit, omp
 from aectorch.coding.sparse_code import SparseCode
 
 __all__ = ["SparseDictionary", "DictionaryOutput", "pooled_activity", "reconstruction_error"]
@@ -187,14 +187,38 @@ class SparseDictionary(nn.Module):
         return coder(signals, atoms, self.sparsity, gram=gram_matrix(atoms), check=check)
 
     def forward(self, signals: torch.Tensor, *, check: bool = True) -> DictionaryOutput:
-        """Code `signals` and reconstruct them with the current atoms (see class doc)."""
+        """Code `signals` and reconstruct them with the current atoms (see class doc).
+
+        Without a graph to build (grad mode off, or atoms that do not require grad), on CPU the
+        reconstruction and its error come from one fused kernel (``aectorch::reconstruct_error``);
+        with a graph, from torch's differentiable operations.
+        """
         code = self.encode(signals, check=check)
+        if not (torch.is_grad_enabled() and self.atoms.requires_grad) and signals.dtype == self.atoms.dtype \
+                and fused_kernels_apply(signals):
+            p = self.dim
+            reconstruction, error = torch.ops.aectorch.reconstruct_error(
+                signals.reshape(-1, p), self.atoms.detach().t().contiguous(), code.indices.reshape(-1, self.sparsity),
+                code.coefficients.reshape(-1, self.sparsity))
+            return DictionaryOutput(code, reconstruction.reshape(signals.shape), error.reshape(signals.shape[:-1]))
         reconstruction = code.reconstruct(self.atoms)
         return DictionaryOutput(code, reconstruction, reconstruction_error(signals, reconstruction))
 
     def pooled_activity(self, code: SparseCode, *, reduction: str = "sum") -> torch.Tensor:
-        """Eq. (3) for codes `[..., n_patches, k]` of this dictionary -> `[..., N]`."""
-        return pooled_activity(code, self.num_atoms, reduction=reduction)
+        """Eq. (3) for codes `[..., n_patches, k]` of this dictionary -> `[..., N]`.
+
+        On CPU the squared coefficients are added straight into the ``N`` features (``k`` per
+        patch, an atom picked twice in a patch by plain MP summed first) by one fused kernel
+        (``aectorch::pooled_power``) instead of through a dense ``[..., n_patches, N]`` code.
+        """
+        if code.indices.ndim < 2 or reduction not in ("sum", "mean") or torch.is_grad_enabled() \
+                and code.coefficients.requires_grad or not fused_kernels_apply(code.coefficients):
+            return pooled_activity(code, self.num_atoms, reduction=reduction)
+        lead, (patches, k) = code.indices.shape[:-2], code.indices.shape[-2:]
+        features = torch.ops.aectorch.pooled_power(
+            code.indices.reshape(-1, patches, k), code.coefficients.reshape(-1, patches, k), self.num_atoms)
+        features = features.reshape(*lead, self.num_atoms)
+        return features if reduction == "sum" else features / patches
 
     @torch.no_grad()
     def gradient(self, signals: torch.Tensor, output: DictionaryOutput, *,
@@ -212,13 +236,22 @@ class SparseDictionary(nn.Module):
             `[P, N]`, like `atoms`.
         """
         x = signals.reshape(-1, self.dim)
-        residual = x - output.reconstruction.detach().reshape(-1, self.dim)
-        energy = x.square().sum(-1, keepdim=True).clamp_min(torch.finfo(x.dtype).tiny)
-        dense = output.code.to_dense(self.num_atoms).reshape(-1, self.num_atoms)
+        reconstruction = output.reconstruction.detach().reshape(-1, self.dim)
+        if x.dtype == reconstruction.dtype == output.code.coefficients.dtype and fused_kernels_apply(x):
+            # From the k active atoms of each signal (a scatter-add), not the dense [P, M] x [M, N] product.
+            k = output.code.indices.shape[-1]
+            total = torch.ops.aectorch.sparse_gradient(
+                x, reconstruction, output.code.indices.reshape(-1, k), output.code.coefficients.reshape(-1, k),
+                self.num_atoms).t()
+        else:
+            residual = x - reconstruction
+            energy = x.square().sum(-1, keepdim=True).clamp_min(torch.finfo(x.dtype).tiny)
+            dense = output.code.to_dense(self.num_atoms).reshape(-1, self.num_atoms)
+            total = (residual / energy).t() @ dense
         if reduce is None:
-            return (residual / energy).t() @ dense * (-2.0 / x.shape[0])
+            return total * (-2.0 / x.shape[0])
         count = reduce(torch.tensor(float(x.shape[0]), dtype=x.dtype, device=x.device))
-        return reduce((residual / energy).t() @ dense) * (-2.0 / count)
+        return reduce(total.contiguous()) * (-2.0 / count)
 
     @torch.no_grad()
     def learn_(self, signals: torch.Tensor, output: DictionaryOutput, lr: float, *,

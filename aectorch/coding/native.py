@@ -248,6 +248,18 @@ def _register_fake() -> None:
         m = signals.shape[0]
         return signals.new_empty(m, k, dtype=torch.long), signals.new_empty(m, k)
 
+    @torch.library.register_fake("aectorch::reconstruct_error")
+    def _(signals, atoms_t, indices, coefficients):
+        return signals.new_empty(signals.shape), signals.new_empty(signals.shape[0])
+
+    @torch.library.register_fake("aectorch::sparse_gradient")
+    def _(signals, reconstruction, indices, coefficients, num_atoms):
+        return signals.new_empty(num_atoms, signals.shape[1])
+
+    @torch.library.register_fake("aectorch::pooled_power")
+    def _(indices, coefficients, num_atoms):
+        return coefficients.new_empty(indices.shape[0], num_atoms)
+
     @torch.library.register_fake("aectorch::render_trilinear")
     def _(poses, plane_x, texture_index, atlas, xs, ys, steps, scene, tex_h, tex_w, levels, lod_bias, samples):
         return poses.new_empty(poses.shape[0], poses.shape[1], xs.shape[0])

@@ -171,6 +171,12 @@ def _native_ok(signals: torch.Tensor) -> bool:
     return signals.device.type == "cpu" and signals.dtype in (torch.float32, torch.float64) and _native_loaded()
 
 
+def fused_kernels_apply(tensor: torch.Tensor) -> bool:
+    """Whether library code uses the fused CPU kernels for ``tensor`` (a CPU float32/float64
+    tensor, the kernels loaded, and no ``use_backend("torch")`` around the call)."""
+    return _default_backend != "torch" and _native_ok(tensor)
+
+
 def _reversed_index(num_atoms: int, mask: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     return mask - torch.arange(num_atoms, device=device, dtype=dtype)
 

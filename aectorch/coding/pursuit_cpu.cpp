@@ -26,6 +26,10 @@
 #include <type_traits>
 #include <vector>
 
+#ifdef _OPENMP
+#include <omp.h>
+#endif
+
 // Threads of the fused kernels (set by aectorch.coding.native.set_threads; 1 by default): their
 // loops split rows over OpenMP threads of their own, so torch's intra-op threads (which do not
 // pay for the many small ops of a training iteration) can stay at 1 while these use every core.
@@ -201,6 +205,168 @@ std::tuple<at::Tensor, at::Tensor> pursuit(
   return {indices, coefficients};
 }
 
+// Reconstructions D a and eq. (4)'s errors ||x - D a||^2 / ||x||^2 (0 for a zero signal) of sparse
+// codes, one row at a time from the atoms as rows ([N, P], the transposed dictionary): the k
+// atoms' rows are summed into the output row while the signal's row is in L1. Rows are split
+// over the kernels' threads; each row is computed alone, so the result does not depend on them.
+std::tuple<at::Tensor, at::Tensor> reconstruct_error(
+    const at::Tensor& signals, const at::Tensor& atoms_t, const at::Tensor& indices,
+    const at::Tensor& coefficients) {
+  TORCH_CHECK(signals.dim() == 2 && atoms_t.dim() == 2 && indices.dim() == 2 && coefficients.dim() == 2,
+              "aectorch::reconstruct_error expects signals [M, P], atoms_t [N, P], indices and coefficients [M, k]");
+  TORCH_CHECK(signals.scalar_type() == atoms_t.scalar_type() && signals.scalar_type() == coefficients.scalar_type(),
+              "aectorch::reconstruct_error: signals, atoms_t and coefficients must share one dtype");
+  TORCH_CHECK(indices.scalar_type() == at::kLong, "aectorch::reconstruct_error: indices must be int64");
+  const auto x = signals.detach().contiguous();
+  const auto d = atoms_t.detach().contiguous();
+  const auto idx_t = indices.contiguous();
+  const auto coef_t = coefficients.detach().contiguous();
+  const int64_t m = x.size(0), p = x.size(1), n = d.size(0), k = idx_t.size(1);
+  TORCH_CHECK(d.size(1) == p && idx_t.size(0) == m && coef_t.size(0) == m && coef_t.size(1) == k,
+              "aectorch::reconstruct_error: shapes do not match");
+  auto recon = at::empty({m, p}, x.options());
+  auto error = at::empty({m}, x.options());
+  const int threads = static_cast<int>(std::max<int64_t>(1, std::min<int64_t>(aectorch_kernel_threads(), m / 64 + 1)));
+  AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "aectorch_reconstruct_error", [&] {
+    const scalar_t* xs = x.const_data_ptr<scalar_t>();
+    const scalar_t* ds = d.const_data_ptr<scalar_t>();
+    const int64_t* is = idx_t.const_data_ptr<int64_t>();
+    const scalar_t* cs = coef_t.const_data_ptr<scalar_t>();
+    scalar_t* rs = recon.data_ptr<scalar_t>();
+    scalar_t* es = error.data_ptr<scalar_t>();
+    bool bad = false;
+    _Pragma("omp parallel for num_threads(threads) schedule(static) reduction(||:bad)")
+    for (int64_t row = 0; row < m; ++row) {
+      scalar_t* __restrict r = rs + row * p;
+      const scalar_t* __restrict xr = xs + row * p;
+      std::fill(r, r + p, scalar_t(0));
+      for (int64_t j = 0; j < k; ++j) {
+        const int64_t atom = is[row * k + j];
+        if (atom < 0 || atom >= n) { bad = true; continue; }
+        const scalar_t c = cs[row * k + j];
+        const scalar_t* __restrict a = ds + atom * p;
+        for (int64_t q = 0; q < p; ++q) r[q] += c * a[q];
+      }
+      scalar_t energy = 0, residual = 0;
+      for (int64_t q = 0; q < p; ++q) {
+        const scalar_t e = xr[q] - r[q];
+        energy += xr[q] * xr[q];
+        residual += e * e;
+      }
+      es[row] = residual / std::max(energy, std::numeric_limits<scalar_t>::min());
+    }
+    TORCH_CHECK(!bad, "aectorch::reconstruct_error: an index lies outside [0, N)");
+  });
+  return {recon, error};
+}
+
+// sum_i c_ij (x_i - r_i) / ||x_i||^2 into row indices_ij of an [N, P] result: the gradient of eq. (4)
+// from the active atoms only (k per signal) instead of a dense [P, M] x [M, N] product. First the
+// weighted residuals, row by row; then each thread adds into the rows of its own atoms, visiting
+// the signals in order, so the sums (and the result) do not depend on the number of threads.
+at::Tensor sparse_gradient(const at::Tensor& signals, const at::Tensor& reconstruction, const at::Tensor& indices,
+                           const at::Tensor& coefficients, int64_t num_atoms) {
+  TORCH_CHECK(signals.dim() == 2 && reconstruction.sizes() == signals.sizes() && indices.dim() == 2 &&
+                  coefficients.sizes() == indices.sizes() && indices.size(0) == signals.size(0),
+              "aectorch::sparse_gradient expects signals and reconstruction [M, P], indices and coefficients [M, k]");
+  TORCH_CHECK(signals.scalar_type() == reconstruction.scalar_type() && signals.scalar_type() == coefficients.scalar_type(),
+              "aectorch::sparse_gradient: signals, reconstruction and coefficients must share one dtype");
+  TORCH_CHECK(indices.scalar_type() == at::kLong, "aectorch::sparse_gradient: indices must be int64");
+  TORCH_CHECK(num_atoms >= 1, "aectorch::sparse_gradient: num_atoms must be >= 1");
+  const auto x = signals.detach().contiguous();
+  const auto rec = reconstruction.detach().contiguous();
+  const auto idx_t = indices.contiguous();
+  const auto coef_t = coefficients.detach().contiguous();
+  const int64_t m = x.size(0), p = x.size(1), k = idx_t.size(1), n = num_atoms;
+  auto out = at::zeros({n, p}, x.options());
+  auto weighted = at::empty({m, p}, x.options());
+  const int threads = static_cast<int>(std::max<int64_t>(1, std::min<int64_t>(aectorch_kernel_threads(), n)));
+  AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "aectorch_sparse_gradient", [&] {
+    const scalar_t* xs = x.const_data_ptr<scalar_t>();
+    const scalar_t* recs = rec.const_data_ptr<scalar_t>();
+    const int64_t* is = idx_t.const_data_ptr<int64_t>();
+    const scalar_t* cs = coef_t.const_data_ptr<scalar_t>();
+    scalar_t* ws = weighted.data_ptr<scalar_t>();
+    scalar_t* os = out.data_ptr<scalar_t>();
+    bool bad = false;
+    _Pragma("omp parallel num_threads(threads) reduction(||:bad)")
+    {
+      _Pragma("omp for schedule(static)")
+      for (int64_t row = 0; row < m; ++row) {
+        const scalar_t* __restrict xr = xs + row * p;
+        const scalar_t* __restrict rr = recs + row * p;
+        scalar_t* __restrict w = ws + row * p;
+        scalar_t energy = 0;
+        for (int64_t q = 0; q < p; ++q) energy += xr[q] * xr[q];
+        energy = std::max(energy, std::numeric_limits<scalar_t>::min());
+        for (int64_t q = 0; q < p; ++q) w[q] = (xr[q] - rr[q]) / energy;  // (as torch's r / e rounds)
+      }
+      // (the implicit barrier of the loop above: every weighted row is ready)
+      int nthreads = 1, me = 0;
+#ifdef _OPENMP
+      nthreads = omp_get_num_threads();
+      me = omp_get_thread_num();
+#endif
+      const int64_t lo = n * me / nthreads, hi = n * (me + 1) / nthreads;
+      for (int64_t e = 0; e < m * k; ++e) {
+        const int64_t atom = is[e];
+        if (atom < lo || atom >= hi) {
+          if (atom < 0 || atom >= n) bad = true;
+          continue;
+        }
+        const scalar_t c = cs[e];
+        const scalar_t* __restrict w = ws + (e / k) * p;
+        scalar_t* __restrict o = os + atom * p;
+        for (int64_t q = 0; q < p; ++q) o[q] += c * w[q];
+      }
+    }
+    TORCH_CHECK(!bad, "aectorch::sparse_gradient: an index lies outside [0, num_atoms)");
+  });
+  return out;
+}
+
+// Eq. (3): f_gn = sum over the patches of group g of (the patch's coefficient of atom n)^2, the
+// coefficients of an atom picked twice in a patch (plain MP) added before squaring, as a dense code
+// would; from the k (index, coefficient) pairs of each patch, without the dense [G, patches, N] code.
+// Groups are split over the threads; each group's sum runs over its patches in order.
+at::Tensor pooled_power(const at::Tensor& indices, const at::Tensor& coefficients, int64_t num_atoms) {
+  TORCH_CHECK(indices.dim() == 3 && coefficients.sizes() == indices.sizes(),
+              "aectorch::pooled_power expects indices and coefficients [G, patches, k]");
+  TORCH_CHECK(indices.scalar_type() == at::kLong, "aectorch::pooled_power: indices must be int64");
+  TORCH_CHECK(num_atoms >= 1, "aectorch::pooled_power: num_atoms must be >= 1");
+  const auto idx_t = indices.contiguous();
+  const auto coef_t = coefficients.detach().contiguous();
+  const int64_t groups = idx_t.size(0), patches = idx_t.size(1), k = idx_t.size(2), n = num_atoms;
+  auto out = at::zeros({groups, n}, coef_t.options());
+  const int threads = static_cast<int>(std::max<int64_t>(1, std::min<int64_t>(aectorch_kernel_threads(), groups)));
+  AT_DISPATCH_FLOATING_TYPES(coef_t.scalar_type(), "aectorch_pooled_power", [&] {
+    const int64_t* is = idx_t.const_data_ptr<int64_t>();
+    const scalar_t* cs = coef_t.const_data_ptr<scalar_t>();
+    scalar_t* os = out.data_ptr<scalar_t>();
+    bool bad = false;
+    _Pragma("omp parallel for num_threads(threads) schedule(static) reduction(||:bad)")
+    for (int64_t g = 0; g < groups; ++g) {
+      scalar_t* f = os + g * n;
+      for (int64_t patch = 0; patch < patches; ++patch) {
+        const int64_t* ip = is + (g * patches + patch) * k;
+        const scalar_t* cp = cs + (g * patches + patch) * k;
+        for (int64_t j = 0; j < k; ++j) {
+          const int64_t atom = ip[j];
+          if (atom < 0 || atom >= n) { bad = true; continue; }
+          bool earlier = false;
+          for (int64_t i = 0; i < j; ++i) earlier = earlier || ip[i] == atom;
+          if (earlier) continue;  // added with its first pick
+          scalar_t c = cp[j];
+          for (int64_t i = j + 1; i < k; ++i) if (ip[i] == atom) c += cp[i];
+          f[atom] += c * c;
+        }
+      }
+    }
+    TORCH_CHECK(!bad, "aectorch::pooled_power: an index lies outside [0, num_atoms)");
+  });
+  return out;
+}
+
 }  // namespace
 
 void set_kernel_threads(int64_t threads) {
@@ -213,8 +379,17 @@ int64_t kernel_threads() { return aectorch_kernel_threads(); }
 TORCH_LIBRARY(aectorch, m) {
   m.def("pursuit(Tensor signals, Tensor dictionary, Tensor gram, int k, bool orthogonal, int block)"
         " -> (Tensor, Tensor)");
+  m.def("reconstruct_error(Tensor signals, Tensor atoms_t, Tensor indices, Tensor coefficients) -> (Tensor, Tensor)");
+  m.def("sparse_gradient(Tensor signals, Tensor reconstruction, Tensor indices, Tensor coefficients, int num_atoms)"
+        " -> Tensor");
+  m.def("pooled_power(Tensor indices, Tensor coefficients, int num_atoms) -> Tensor");
   m.def("set_kernel_threads(int threads) -> ()", &set_kernel_threads);
   m.def("kernel_threads() -> int", &kernel_threads);
 }
 
-TORCH_LIBRARY_IMPL(aectorch, CPU, m) { m.impl("pursuit", &pursuit); }
+TORCH_LIBRARY_IMPL(aectorch, CPU, m) {
+  m.impl("pursuit", &pursuit);
+  m.impl("reconstruct_error", &reconstruct_error);
+  m.impl("sparse_gradient", &sparse_gradient);
+  m.impl("pooled_power", &pooled_power);
+}
