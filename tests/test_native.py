@@ -138,7 +138,7 @@ def test_pooled_power_adds_an_atom_picked_twice_before_squaring():
         torch.ops.aectorch.pooled_power(torch.tensor([[[6]]]), torch.ones(1, 1, 1), 6)
 
 
-@pytest.mark.parametrize("op", ["reconstruct_error", "sparse_gradient", "pooled_power"])
+@pytest.mark.parametrize("op", ["reconstruct_error", "sparse_gradient", "pooled_power", "pair_patches"])
 def test_fused_dictionary_kernels_give_the_same_bits_on_any_number_of_threads(op):
     d, x = _coded("mp", torch.float32, seed=3)
     with torch.no_grad():
@@ -150,6 +150,7 @@ def test_fused_dictionary_kernels_give_the_same_bits_on_any_number_of_threads(op
         "sparse_gradient": lambda: torch.ops.aectorch.sparse_gradient(
             flat_x, out.reconstruction.reshape(-1, 40), idx, coef, 96),
         "pooled_power": lambda: torch.ops.aectorch.pooled_power(out.code.indices, out.code.coefficients, 96),
+        "pair_patches": lambda: torch.ops.aectorch.pair_patches(x.reshape(10, 17, 20), 1, 5, 2, 6, 1e-8, 1e-6),
     }
     before = native.get_threads()
     try:
@@ -170,4 +171,29 @@ def test_fused_dictionary_kernels_have_shapes_for_torch_compile():
         recon, error = torch.ops.aectorch.reconstruct_error(x, torch.empty(96, 40), idx, coef)
         grad = torch.ops.aectorch.sparse_gradient(x, x, idx, coef, 96)
         pooled = torch.ops.aectorch.pooled_power(idx.reshape(1, 7, 6), coef.reshape(1, 7, 6), 96)
+        patches = torch.ops.aectorch.pair_patches(torch.empty(4, 20, 20), 0, 5, 5, 4, 1e-8, 1e-6)
     assert (recon.shape, error.shape, grad.shape, pooled.shape) == ((7, 40), (7,), (96, 40), (1, 96))
+    assert patches.shape == (2, 16, 50)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("scale", ["wide", "coarse", "fine", "full"])
+def test_fused_patches_match_torch_including_flat_patches(scale, dtype):
+    from aectorch.coding.patches import as_scale, scale_patches
+
+    side = as_scale(scale).side
+    pair = torch.rand(3, 2, side, side, generator=torch.Generator().manual_seed(0), dtype=dtype)
+    pair[0, :, : side // 2, : side // 2] = 0.5  # flat patches: zero
+    pair[1, 1] = 0.25  # a flat second image
+    fused = scale_patches(pair, scale)
+    with use_backend("torch"):
+        reference = scale_patches(pair, scale)
+    tol = dict(rtol=1e-5, atol=1e-6) if dtype == torch.float32 else dict(rtol=1e-12, atol=1e-14)
+    torch.testing.assert_close(fused, reference, **tol)
+    flat = fused.reshape(*fused.shape[:2], 2, -1).abs().sum(-1) == 0  # per half
+    assert torch.equal(flat, reference.reshape(flat.shape + (-1,)).abs().sum(-1) == 0)
+    assert bool(flat[1, :, 1].all()) and not bool(flat[1, :, 0].any())
+    # with a graph to build, torch's differentiable path runs
+    leaf = pair.clone().requires_grad_(True)
+    scale_patches(leaf, scale).sum().backward()
+    assert leaf.grad is not None

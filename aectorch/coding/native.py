@@ -260,6 +260,10 @@ def _register_fake() -> None:
     def _(indices, coefficients, num_atoms):
         return coefficients.new_empty(indices.shape[0], num_atoms)
 
+    @torch.library.register_fake("aectorch::pair_patches")
+    def _(images, offset, p, stride, g, eps, rounding):
+        return images.new_empty(images.shape[0] // 2, g * g, 2 * p * p)
+
     @torch.library.register_fake("aectorch::render_trilinear")
     def _(poses, plane_x, texture_index, atlas, xs, ys, steps, scene, tex_h, tex_w, levels, lod_bias, samples):
         return poses.new_empty(poses.shape[0], poses.shape[1], xs.shape[0])

@@ -367,6 +367,60 @@ at::Tensor pooled_power(const at::Tensor& indices, const at::Tensor& coefficient
   return out;
 }
 
+// The coder's patches of reduced image pairs in one pass (aectorch.coding.patches._cut): images
+// [2B, H, W], first images at even rows; the g x g grid of p x p patches with the given stride,
+// from (offset, offset); each half centred twice (the second pass removes the first one's rounding),
+// divided by its norm, or 0 when it is flat (norm <= eps + rounding * max |pixel|). Output
+// [B, g g, 2 p p]: for each patch the first image's half, then the second's. Rows are split over
+// the threads; each patch is computed alone.
+at::Tensor pair_patches(const at::Tensor& images, int64_t offset, int64_t p, int64_t stride, int64_t g,
+                        double eps, double rounding) {
+  TORCH_CHECK(images.dim() == 3 && images.size(0) % 2 == 0,
+              "aectorch::pair_patches expects images [2B, H, W]");
+  TORCH_CHECK(p >= 1 && stride >= 1 && g >= 1 && offset >= 0 &&
+                  offset + (g - 1) * stride + p <= std::min(images.size(1), images.size(2)),
+              "aectorch::pair_patches: the grid does not fit the images");
+  const auto x = images.detach().contiguous();
+  const int64_t b = x.size(0) / 2, h = x.size(1), w = x.size(2), n = p * p, cells = g * g;
+  auto out = at::empty({b, cells, 2 * n}, x.options());
+  const int64_t rows = b * cells;
+  const int threads = static_cast<int>(std::max<int64_t>(1, std::min<int64_t>(aectorch_kernel_threads(), rows / 16 + 1)));
+  AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "aectorch_pair_patches", [&] {
+    const scalar_t* xs = x.const_data_ptr<scalar_t>();
+    scalar_t* os = out.data_ptr<scalar_t>();
+    const scalar_t e = static_cast<scalar_t>(eps), rnd = static_cast<scalar_t>(rounding);
+    _Pragma("omp parallel for num_threads(threads) schedule(static)")
+    for (int64_t row = 0; row < rows; ++row) {
+      const int64_t pair = row / cells, cell = row % cells, gy = cell / g, gx = cell % g;
+      for (int64_t half = 0; half < 2; ++half) {
+        const scalar_t* img = xs + (2 * pair + half) * h * w + (offset + gy * stride) * w + offset + gx * stride;
+        scalar_t* o = os + row * 2 * n + half * n;
+        scalar_t sum = 0, amax = 0;
+        for (int64_t r = 0; r < p; ++r)
+          for (int64_t c = 0; c < p; ++c) {
+            const scalar_t v = img[r * w + c];
+            o[r * p + c] = v;
+            sum += v;
+            amax = std::max(amax, std::abs(v));
+          }
+        const scalar_t mean = sum / static_cast<scalar_t>(n);
+        scalar_t sum2 = 0;
+        for (int64_t q = 0; q < n; ++q) { o[q] -= mean; sum2 += o[q]; }
+        const scalar_t mean2 = sum2 / static_cast<scalar_t>(n);
+        scalar_t sq = 0;
+        for (int64_t q = 0; q < n; ++q) { o[q] -= mean2; sq += o[q] * o[q]; }
+        const scalar_t norm = std::sqrt(sq);
+        if (norm <= e + rnd * amax) {
+          std::fill(o, o + n, scalar_t(0));
+        } else {
+          for (int64_t q = 0; q < n; ++q) o[q] /= norm;
+        }
+      }
+    }
+  });
+  return out;
+}
+
 }  // namespace
 
 void set_kernel_threads(int64_t threads) {
@@ -383,6 +437,7 @@ TORCH_LIBRARY(aectorch, m) {
   m.def("sparse_gradient(Tensor signals, Tensor reconstruction, Tensor indices, Tensor coefficients, int num_atoms)"
         " -> Tensor");
   m.def("pooled_power(Tensor indices, Tensor coefficients, int num_atoms) -> Tensor");
+  m.def("pair_patches(Tensor images, int offset, int p, int stride, int g, float eps, float rounding) -> Tensor");
   m.def("set_kernel_threads(int threads) -> ()", &set_kernel_threads);
   m.def("kernel_threads() -> int", &kernel_threads);
 }
@@ -392,4 +447,5 @@ TORCH_LIBRARY_IMPL(aectorch, CPU, m) {
   m.impl("reconstruct_error", &reconstruct_error);
   m.impl("sparse_gradient", &sparse_gradient);
   m.impl("pooled_power", &pooled_power);
+  m.impl("pair_patches", &pair_patches);
 }
