@@ -11,9 +11,10 @@ The older commit (``--baseline``, default b39d619: main before issue 21) is chec
 git worktree (``--worktree``, made once) and run with this checkout's Python; its ``train.py``
 imports its own ``aectorch`` (the script's folder comes first on ``sys.path``).
 
-A configuration is ``LABEL=WHERE[:override,override,...]`` with ``WHERE`` ``new`` (this checkout)
-or ``old`` (the worktree); overrides are train.py's ``key=value``. ``@short/long`` after the
-label sets its iteration counts (default ``--short``/``--long``).
+A configuration is ``LABEL=WHERE[:override,override,...]`` with ``WHERE`` ``new`` (this checkout),
+``old`` (the worktree) or a commit hash (a worktree of its own beside it); overrides are train.py's
+``key=value`` (commas inside ``[...]`` belong to a list). ``@short/long`` after the label sets its
+iteration counts (default ``--short``/``--long``).
 
 Usage:
     python benchmarks/train_rate.py                       # the issue-21 set (about 15 minutes on 2 cores)
@@ -56,14 +57,15 @@ QUIET = ["eval.enabled=false", "train.figures=false", "train.progress=false", "t
 def parse(text: str, short: int, long: int) -> dict:
     import re
 
-    match = re.fullmatch(r"(.+?)(?:@(\d+)/(\d+))?=(new|old)(?::(.*))?", text)
+    match = re.fullmatch(r"(.+?)(?:@(\d+)/(\d+))?=(new|old|[0-9a-f]{7,40})(?::(.*))?", text)
     if match is None:
-        raise SystemExit(f"configuration {text!r}: expected LABEL[@SHORT/LONG]=new|old[:key=value,...]")
+        raise SystemExit(f"configuration {text!r}: expected LABEL[@SHORT/LONG]=new|old|COMMIT[:key=value,...]")
     label, short_text, long_text, where, overrides = match.groups()
     overrides = overrides or ""
     if short_text:
         short, long = int(short_text), int(long_text)
-    return {"label": label, "where": where, "overrides": [o for o in overrides.split(",") if o],
+    # Commas inside [...] belong to a list value (learner.cues.stereo.scales=[wide,coarse,fine]).
+    return {"label": label, "where": where, "overrides": [o for o in re.split(r",(?![^\[]*\])", overrides) if o],
             "short": short, "long": long}
 
 
@@ -108,15 +110,21 @@ def main() -> None:
     parser.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "train_rate.json")
     args = parser.parse_args()
     configs = [parse(text, args.short, args.long) for text in args.configs]
-    old = worktree(args.baseline, args.worktree) if any(c["where"] == "old" for c in configs) else None
+    folders = {"new": ROOT}
+    for config in configs:  # a git worktree per older commit ('old' is --baseline)
+        where = config["where"]
+        if where not in folders:
+            commit = args.baseline if where == "old" else where
+            folders[where] = worktree(commit, args.worktree if where == "old" else args.worktree.with_name(
+                f"aectorch-{commit}"))
     rows = {c["label"]: {**c, "B": batch_size(c), "walls": [], "rates": []} for c in configs}
     with tempfile.TemporaryDirectory() as scratch:
         scratch = Path(scratch)
         for config in configs:  # once untimed: builds the native kernels and warms the caches
-            run(config, 1, old if config["where"] == "old" else ROOT, scratch)
+            run(config, 1, folders[config["where"]], scratch)
         for round_ in range(args.rounds):
             for config in configs:
-                cwd = old if config["where"] == "old" else ROOT
+                cwd = folders[config["where"]]
                 short = run(config, config["short"], cwd, scratch)
                 long = run(config, config["long"], cwd, scratch)
                 row = rows[config["label"]]
