@@ -83,8 +83,8 @@ def run_experiment(
             (``run_dir`` is ignored) with its stored config (see `resume_config`).
         run_dir: the run folder (created if needed).
         callback: called as ``callback(iteration, record)`` after every learner iteration
-            (1-based count of completed iterations); an exception it raises interrupts the run
-            like Ctrl-C does (a checkpoint of the last completed iteration is written first).
+            (1-based count of completed iterations); an exception it raises stops the run, which
+            keeps the last checkpoint written (`aectorch.runtime.loop`).
         checkpoint: with ``cfg`` from `prepare_run`: the checkpoint it returned (``None`` for a
             new run); ``cfg`` is then used as it is, and nothing is read or validated again. Not
             given: `run_experiment` calls `prepare_run` itself.

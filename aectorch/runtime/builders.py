@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 
 import torch
@@ -9,6 +10,8 @@ import torch
 from aectorch.framework import JointLearner, Shard
 from aectorch.runtime.config import ExperimentConfig
 from aectorch.sim import PROCEDURAL_TEXTURES, ActiveDepthEnv, TextureBank, TrialProtocol
+
+log = logging.getLogger("aectorch")
 
 __all__ = ["available_threads", "build_env", "build_learner", "build_textures", "compile_hot_path",
            "dictionaries", "set_threads", "trial_options", "trial_protocol"]
@@ -97,11 +100,29 @@ def dictionaries(learner: JointLearner) -> dict[str, torch.Tensor]:
     return {name: atoms.detach().cpu().clone() for name, atoms in learner.dictionaries().items()}
 
 
-def compile_hot_path(learner: JointLearner, env: ActiveDepthEnv | None = None) -> None:
+def compile_hot_path(learner: JointLearner, env: ActiveDepthEnv | None = None) -> list[str]:
     """``train.compile``: compile every cue's encoder (patch extraction, pursuit, pooling, errors)
     and the torch renderer (about 20 elementwise passes per pixel in eager mode, fused when
-    compiled)."""
-    for cue in learner.cues.values():
+    compiled), where that pays: on CUDA, or wherever the fused CPU kernels are not used.
+
+    On CPU with the fused kernels (`aectorch.coding.pursuit.fused_kernels_apply`) those hot paths
+    are the kernels themselves, which ``torch.compile`` can only call as opaque operators:
+    compiling the encoders measured 0.87x eager at ``train.py`` level and 0.98x in-process on a
+    2-core AMD EPYC (docs/performance.md), so there nothing is compiled and the flag changes
+    nothing. Returns the names of what was compiled.
+    """
+    from aectorch.coding.pursuit import fused_kernels_apply
+
+    probe = next(iter(learner.dictionaries().values()))
+    if fused_kernels_apply(probe.detach()):
+        log.info("train.compile: nothing compiled: on CPU the hot paths are the fused kernels, which torch.compile "
+                 "does not speed up (docs/performance.md)")
+        return []
+    compiled = []
+    for name, cue in learner.cues.items():
         cue.encoder.compile()
+        compiled.append(f"{name} encoder")
     if env is not None and isinstance(env.renderer, torch.nn.Module):
         env.renderer.compile(dynamic=False)
+        compiled.append("renderer")
+    return compiled

@@ -166,7 +166,9 @@ class TrainConfig:
         iterations: learner iterations (>= 1); each advances every environment by one
             iteration (steps k1 and k2), so the run makes ``iterations * env.num_envs``
             environment iterations.
-        compile: compile the two encoders' forward passes (the hot path) with ``torch.compile``.
+        compile: compile the two encoders' forward passes (the hot path) with ``torch.compile``
+            where that pays: on CUDA; on CPU the hot paths are fused kernels and nothing is
+            compiled (`aectorch.runtime.builders.compile_hot_path`).
         resume: a run folder to continue in place from its ``checkpoint.pt`` (until
             ``iterations``); its stored config is used, except ``train.iterations``,
             ``train.progress`` and ``train.resume`` from the command line.

@@ -157,7 +157,7 @@ class EveryIteration(Callback):
 
 class WatchdogCheck(Callback):
     """The health checks after every iteration (`Watchdog`); in mode ``stop`` a problem raises, and
-    the checkpoint keeps the last healthy iteration."""
+    ``checkpoint.pt`` keeps the last one written (the watchdog passed it)."""
 
     def after_iteration(self, run, done, record):
         run.watchdog.check(done, record, run.learner)
@@ -204,7 +204,7 @@ class BestState(Callback):
 
 class Checkpoints(Callback):
     """``checkpoint.pt`` every ``train.checkpoint_every`` iterations and at the end; on an
-    interruption, the last completed (healthy) iteration's, and how to go on."""
+    interruption: a deferred signal's completed iteration, else the last written (see the module)."""
 
     def after_iteration(self, run, done, record):
         if done % run.cfg.train.checkpoint_every == 0 or done == run.total:

@@ -49,8 +49,8 @@ class WatchdogConfig:
     """What the watchdog checks after every iteration, and what it does about a problem.
 
     Attributes:
-        mode: ``"stop"`` (raise `WatchdogError`; the checkpoint keeps the last healthy
-            iteration), ``"warn"`` (a warning per kind of problem, the run goes on) or ``"off"``.
+        mode: ``"stop"`` (raise `WatchdogError`; ``checkpoint.pt`` keeps the last checkpoint
+            written, which the watchdog had passed), ``"warn"`` (a warning per kind of problem, the run goes on) or ``"off"``.
         td_error_max: a cue's mean |TD error| over the environments above this (> 0) is a
             diverging critic. The coding rewards are O(1), so are healthy TD errors.
         entropy_min_nats: a cue's mean policy entropy below this (>= 0) ...
