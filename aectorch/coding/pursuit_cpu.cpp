@@ -205,6 +205,72 @@ std::tuple<at::Tensor, at::Tensor> pursuit(
   return {indices, coefficients};
 }
 
+// Sums over a row in 8 independent lanes, added up at the end: the compiler vectorises these (a
+// single running sum is one add per element at the add's latency, since without -ffast-math it may
+// not reorder it), and the order of the additions is fixed, the same on every CPU and thread count.
+constexpr int kLanes = 8;
+
+template <typename T>
+inline T lanes_total(const T* acc) {
+  T s = 0;
+  for (int l = 0; l < kLanes; ++l) s += acc[l];
+  return s;
+}
+
+template <typename T>
+inline T row_sum(const T* __restrict a, int64_t n) {
+  T acc[kLanes] = {};
+  int64_t i = 0;
+  for (; i + kLanes <= n; i += kLanes)
+    for (int l = 0; l < kLanes; ++l) acc[l] += a[i + l];
+  T s = lanes_total(acc);
+  for (; i < n; ++i) s += a[i];
+  return s;
+}
+
+template <typename T>
+inline T row_sum_squares(const T* __restrict a, int64_t n) {
+  T acc[kLanes] = {};
+  int64_t i = 0;
+  for (; i + kLanes <= n; i += kLanes)
+    for (int l = 0; l < kLanes; ++l) acc[l] += a[i + l] * a[i + l];
+  T s = lanes_total(acc);
+  for (; i < n; ++i) s += a[i] * a[i];
+  return s;
+}
+
+template <typename T>
+inline T row_sum_squared_differences(const T* __restrict a, const T* __restrict b, int64_t n) {
+  T acc[kLanes] = {};
+  int64_t i = 0;
+  for (; i + kLanes <= n; i += kLanes)
+    for (int l = 0; l < kLanes; ++l) {
+      const T e = a[i + l] - b[i + l];
+      acc[l] += e * e;
+    }
+  T s = lanes_total(acc);
+  for (; i < n; ++i) s += (a[i] - b[i]) * (a[i] - b[i]);
+  return s;
+}
+
+template <typename T>
+inline T row_max_abs(const T* __restrict a, int64_t n) {
+  T acc[kLanes] = {};
+  int64_t i = 0;
+  for (; i + kLanes <= n; i += kLanes)
+    for (int l = 0; l < kLanes; ++l) acc[l] = std::max(acc[l], std::abs(a[i + l]));
+  T s = 0;
+  for (int l = 0; l < kLanes; ++l) s = std::max(s, acc[l]);
+  for (; i < n; ++i) s = std::max(s, std::abs(a[i]));
+  return s;
+}
+
+// y += c x over a row (a function of its own: inlined, its loop vectorises on restrict pointers).
+template <typename T>
+inline void axpy(T* __restrict y, const T* __restrict x, T c, int64_t n) {
+  for (int64_t i = 0; i < n; ++i) y[i] += c * x[i];
+}
+
 // Reconstructions D a and eq. (4)'s errors ||x - D a||^2 / ||x||^2 (0 for a zero signal) of sparse
 // codes, one row at a time from the atoms as rows ([N, P], the transposed dictionary): the k
 // atoms' rows are summed into the output row while the signal's row is in L1. Rows are split
@@ -243,16 +309,9 @@ std::tuple<at::Tensor, at::Tensor> reconstruct_error(
       for (int64_t j = 0; j < k; ++j) {
         const int64_t atom = is[row * k + j];
         if (atom < 0 || atom >= n) { bad = true; continue; }
-        const scalar_t c = cs[row * k + j];
-        const scalar_t* __restrict a = ds + atom * p;
-        for (int64_t q = 0; q < p; ++q) r[q] += c * a[q];
+        axpy(r, ds + atom * p, cs[row * k + j], p);
       }
-      scalar_t energy = 0, residual = 0;
-      for (int64_t q = 0; q < p; ++q) {
-        const scalar_t e = xr[q] - r[q];
-        energy += xr[q] * xr[q];
-        residual += e * e;
-      }
+      const scalar_t energy = row_sum_squares(xr, p), residual = row_sum_squared_differences(xr, r, p);
       es[row] = residual / std::max(energy, std::numeric_limits<scalar_t>::min());
     }
     TORCH_CHECK(!bad, "aectorch::reconstruct_error: an index lies outside [0, N)");
@@ -296,9 +355,7 @@ at::Tensor sparse_gradient(const at::Tensor& signals, const at::Tensor& reconstr
         const scalar_t* __restrict xr = xs + row * p;
         const scalar_t* __restrict rr = recs + row * p;
         scalar_t* __restrict w = ws + row * p;
-        scalar_t energy = 0;
-        for (int64_t q = 0; q < p; ++q) energy += xr[q] * xr[q];
-        energy = std::max(energy, std::numeric_limits<scalar_t>::min());
+        const scalar_t energy = std::max(row_sum_squares(xr, p), std::numeric_limits<scalar_t>::min());
         for (int64_t q = 0; q < p; ++q) w[q] = (xr[q] - rr[q]) / energy;  // (as torch's r / e rounds)
       }
       // (the implicit barrier of the loop above: every weighted row is ready)
@@ -314,10 +371,7 @@ at::Tensor sparse_gradient(const at::Tensor& signals, const at::Tensor& reconstr
           if (atom < 0 || atom >= n) bad = true;
           continue;
         }
-        const scalar_t c = cs[e];
-        const scalar_t* __restrict w = ws + (e / k) * p;
-        scalar_t* __restrict o = os + atom * p;
-        for (int64_t q = 0; q < p; ++q) o[q] += c * w[q];
+        axpy(os + atom * p, ws + (e / k) * p, cs[e], p);
       }
     }
     TORCH_CHECK(!bad, "aectorch::sparse_gradient: an index lies outside [0, num_atoms)");
@@ -394,22 +448,14 @@ at::Tensor pair_patches(const at::Tensor& images, int64_t offset, int64_t p, int
       const int64_t pair = row / cells, cell = row % cells, gy = cell / g, gx = cell % g;
       for (int64_t half = 0; half < 2; ++half) {
         const scalar_t* img = xs + (2 * pair + half) * h * w + (offset + gy * stride) * w + offset + gx * stride;
-        scalar_t* o = os + row * 2 * n + half * n;
-        scalar_t sum = 0, amax = 0;
-        for (int64_t r = 0; r < p; ++r)
-          for (int64_t c = 0; c < p; ++c) {
-            const scalar_t v = img[r * w + c];
-            o[r * p + c] = v;
-            sum += v;
-            amax = std::max(amax, std::abs(v));
-          }
-        const scalar_t mean = sum / static_cast<scalar_t>(n);
-        scalar_t sum2 = 0;
-        for (int64_t q = 0; q < n; ++q) { o[q] -= mean; sum2 += o[q]; }
-        const scalar_t mean2 = sum2 / static_cast<scalar_t>(n);
-        scalar_t sq = 0;
-        for (int64_t q = 0; q < n; ++q) { o[q] -= mean2; sq += o[q] * o[q]; }
-        const scalar_t norm = std::sqrt(sq);
+        scalar_t* __restrict o = os + row * 2 * n + half * n;
+        for (int64_t r = 0; r < p; ++r) std::memcpy(o + r * p, img + r * w, p * sizeof(scalar_t));
+        const scalar_t amax = row_max_abs(o, n);
+        const scalar_t mean = row_sum(o, n) / static_cast<scalar_t>(n);
+        for (int64_t q = 0; q < n; ++q) o[q] -= mean;
+        const scalar_t mean2 = row_sum(o, n) / static_cast<scalar_t>(n);
+        for (int64_t q = 0; q < n; ++q) o[q] -= mean2;
+        const scalar_t norm = std::sqrt(row_sum_squares(o, n));
         if (norm <= e + rnd * amax) {
           std::fill(o, o + n, scalar_t(0));
         } else {
