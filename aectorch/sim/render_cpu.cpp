@@ -60,6 +60,17 @@ void render(const at::Tensor& poses, const at::Tensor& plane_x, const at::Tensor
   std::vector<T> offsets(samples);
   for (int64_t i = 0; i < samples; ++i) offsets[i] = (T(i) + T(0.5)) / T(samples) - T(0.5);
   const int64_t layer_size = rows * cols;
+  // Each level's scale, size and place in the packed atlas, once per call (the same numbers the
+  // per-pixel code computed: exact powers of two, then the same products).
+  std::vector<T> level_scale(levels), level_h(levels), level_w(levels), level_row(levels), level_col(levels);
+  for (int64_t l = 0; l < levels; ++l) {
+    const T scale = std::ldexp(T(1), -static_cast<int>(l));
+    level_scale[l] = scale;
+    level_h[l] = std::max(th * scale, T(1));
+    level_w[l] = std::max(tw * scale, T(1));
+    level_row[l] = std::max(th - T(2) * th * scale, T(0));
+    level_col[l] = std::min(T(l), T(1)) * tw;
+  }
 
   const int64_t rows_total = batch * cams;
   const int threads = static_cast<int>(std::max<int64_t>(1, std::min<int64_t>(aectorch_kernel_threads(), rows_total)));
@@ -105,30 +116,26 @@ void render(const at::Tensor& poses, const at::Tensor& plane_x, const at::Tensor
         const T fraction = lod - low;
         const T high = std::min(low + T(1), T(top_level));
         const T* layer = tex + (on_object ? object_layer : layers - 1) * layer_size;
-        T level_scale[2], level_h[2], level_w[2], level_row[2], level_col[2];
-        const T level_of[2] = {low, high};
-        for (int k = 0; k < 2; ++k) {
-          const T scale = std::ldexp(T(1), -static_cast<int>(level_of[k]));
-          level_scale[k] = scale;
-          level_h[k] = std::max(th * scale, T(1));
-          level_w[k] = std::max(tw * scale, T(1));
-          level_row[k] = std::max(th - T(2) * th * scale, T(0));
-          level_col[k] = std::min(level_of[k], T(1)) * tw;
-        }
+        const int64_t level_of[2] = {static_cast<int64_t>(low), static_cast<int64_t>(high)};
         // One level when the other has no weight (magnification, or the last level).
         const int levels_read = (fraction == T(0) || high == low) ? 1 : 2;
         T sum = 0;
-        for (int64_t s = 0; s < n_sub; ++s) {
-          const T oc = offsets[s % samples], orow = offsets[s / samples];
-          const T us = samples > 1 ? u + du_c * oc + du_r * orow : u;
-          const T vs = samples > 1 ? v + dv_c * oc + dv_r * orow : v;
-          T value[2];
-          for (int k = 0; k < levels_read; ++k) {
-            const T sx = std::min(std::max(us * level_scale[k], T(0.5)), level_w[k] - T(0.5)) + level_col[k];
-            const T sy = std::min(std::max(vs * level_scale[k], T(0.5)), level_h[k] - T(0.5)) + level_row[k];
-            value[k] = lookup(layer, rows, cols, sx, sy);
+        // Sub-sample s = row * samples + column, in that order (no integer division per sample).
+        for (int64_t srow = 0; srow < samples; ++srow) {
+          const T orow = offsets[srow];
+          for (int64_t scol = 0; scol < samples; ++scol) {
+            const T oc = offsets[scol];
+            const T us = samples > 1 ? u + du_c * oc + du_r * orow : u;
+            const T vs = samples > 1 ? v + dv_c * oc + dv_r * orow : v;
+            T value[2];
+            for (int k = 0; k < levels_read; ++k) {
+              const int64_t l = level_of[k];
+              const T sx = std::min(std::max(us * level_scale[l], T(0.5)), level_w[l] - T(0.5)) + level_col[l];
+              const T sy = std::min(std::max(vs * level_scale[l], T(0.5)), level_h[l] - T(0.5)) + level_row[l];
+              value[k] = lookup(layer, rows, cols, sx, sy);
+            }
+            sum += levels_read == 1 ? value[0] : value[0] + fraction * (value[1] - value[0]);
           }
-          sum += levels_read == 1 ? value[0] : value[0] + fraction * (value[1] - value[0]);
         }
         dst[p] = samples > 1 ? sum / T(n_sub) : sum;
       }
