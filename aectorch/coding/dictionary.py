@@ -268,6 +268,11 @@ class SparseDictionary(nn.Module):
         if not lr >= 0:
             raise ValueError(f"lr must be a non-negative float, got {lr!r}")
         grad = self.gradient(signals, output, reduce=reduce)
+        if self.atoms.is_contiguous() and grad.dtype == self.atoms.dtype and fused_kernels_apply(self.atoms):
+            # The step, the mirror projection and the renormalisation in one kernel (the same arithmetic).
+            torch.ops.aectorch.dictionary_step_(self.atoms.detach(), grad.t(), float(lr), self.mirror, self.partner)
+            torch.autograd.graph.increment_version(self.atoms)
+            return grad
         self.atoms.sub_(grad, alpha=lr)
         self.symmetrize_()
         self.renormalize_()

@@ -24,6 +24,7 @@
 #include <cstring>
 #include <limits>
 #include <type_traits>
+#include <optional>
 #include <vector>
 
 #ifdef _OPENMP
@@ -477,6 +478,52 @@ at::Tensor pair_patches(const at::Tensor& images, int64_t offset, int64_t p, int
   return out;
 }
 
+// One dictionary step in place, atoms [P, N] (row-major: atom n is column n): D <- D - lr G (the
+// gradient given as grad_t [N, P], what sparse_gradient returns), then, with a mirror, the mirror
+// pairs' projection D <- (D + D[mirror][:, partner]) / 2, then every column scaled to unit norm (a
+// zero column stays zero). The column norms sum over the rows in order, for all columns at once.
+void dictionary_step_(at::Tensor& atoms, const at::Tensor& grad_t, double lr, const std::optional<at::Tensor>& mirror,
+                      const std::optional<at::Tensor>& partner) {
+  TORCH_CHECK(atoms.dim() == 2 && atoms.is_contiguous(), "aectorch::dictionary_step_ expects contiguous atoms [P, N]");
+  TORCH_CHECK(grad_t.dim() == 2 && grad_t.size(0) == atoms.size(1) && grad_t.size(1) == atoms.size(0) &&
+                  grad_t.scalar_type() == atoms.scalar_type(),
+              "aectorch::dictionary_step_: grad_t must be [N, P] of the atoms' dtype");
+  TORCH_CHECK(mirror.has_value() == partner.has_value(), "aectorch::dictionary_step_: mirror and partner go together");
+  const int64_t p = atoms.size(0), n = atoms.size(1);
+  const auto g = grad_t.contiguous();
+  at::Tensor mir, par;
+  if (mirror.has_value()) {
+    mir = mirror->to(at::kLong).contiguous();
+    par = partner->to(at::kLong).contiguous();
+    TORCH_CHECK(mir.numel() == p && par.numel() == n, "aectorch::dictionary_step_: mirror [P] and partner [N]");
+  }
+  AT_DISPATCH_FLOATING_TYPES(atoms.scalar_type(), "aectorch_dictionary_step", [&] {
+    scalar_t* d = atoms.data_ptr<scalar_t>();
+    const scalar_t* gs = g.const_data_ptr<scalar_t>();
+    const scalar_t rate = static_cast<scalar_t>(lr);
+    for (int64_t r = 0; r < p; ++r)
+      for (int64_t c = 0; c < n; ++c) d[r * n + c] -= rate * gs[c * p + r];
+    std::vector<scalar_t> work;
+    if (mirror.has_value()) {
+      const int64_t* ms = mir.const_data_ptr<int64_t>();
+      const int64_t* ps = par.const_data_ptr<int64_t>();
+      for (int64_t r = 0; r < p; ++r) TORCH_CHECK(ms[r] >= 0 && ms[r] < p, "aectorch::dictionary_step_: bad mirror");
+      for (int64_t c = 0; c < n; ++c) TORCH_CHECK(ps[c] >= 0 && ps[c] < n, "aectorch::dictionary_step_: bad partner");
+      work.assign(d, d + p * n);
+      for (int64_t r = 0; r < p; ++r) {
+        const scalar_t* other = work.data() + ms[r] * n;
+        for (int64_t c = 0; c < n; ++c) d[r * n + c] = (work[r * n + c] + other[ps[c]]) * scalar_t(0.5);
+      }
+    }
+    std::vector<scalar_t> sq(n, scalar_t(0));
+    for (int64_t r = 0; r < p; ++r)
+      for (int64_t c = 0; c < n; ++c) sq[c] += d[r * n + c] * d[r * n + c];
+    for (int64_t c = 0; c < n; ++c) sq[c] = std::max(std::sqrt(sq[c]), std::numeric_limits<scalar_t>::min());
+    for (int64_t r = 0; r < p; ++r)
+      for (int64_t c = 0; c < n; ++c) d[r * n + c] /= sq[c];
+  });
+}
+
 }  // namespace
 
 void set_kernel_threads(int64_t threads) {
@@ -494,6 +541,7 @@ TORCH_LIBRARY(aectorch, m) {
         " -> Tensor");
   m.def("pooled_power(Tensor indices, Tensor coefficients, int num_atoms) -> Tensor");
   m.def("pair_patches(Tensor images, int offset, int p, int stride, int g, float eps, float rounding) -> Tensor");
+  m.def("dictionary_step_(Tensor(a!) atoms, Tensor grad_t, float lr, Tensor? mirror, Tensor? partner) -> ()");
   m.def("set_kernel_threads(int threads) -> ()", &set_kernel_threads);
   m.def("kernel_threads() -> int", &kernel_threads);
 }
@@ -504,4 +552,5 @@ TORCH_LIBRARY_IMPL(aectorch, CPU, m) {
   m.impl("sparse_gradient", &sparse_gradient);
   m.impl("pooled_power", &pooled_power);
   m.impl("pair_patches", &pair_patches);
+  m.impl("dictionary_step_", &dictionary_step_);
 }
