@@ -5,7 +5,7 @@ on one thread, the fused kernels on ``--kernel-threads``); every round times ``-
 learner iterations of each variant in turn, so the machine's drift hits all alike; medians.
 
 Variants: ``all fused`` (today); ``no fused dictionary step`` (reconstruction, error, pooled
-activities and gradient by torch's dense operations: `SparseDictionary`'s fallback); ``no fused
+activities, gradient and update by torch's operations: `SparseDictionary`'s fallback); ``no fused
 patches`` (the patch cut by torch's operations); ``neither`` (what the loop was before issue 33,
 with the same pursuit and renderer kernels).
 
