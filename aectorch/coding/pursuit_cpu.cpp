@@ -172,16 +172,14 @@ std::tuple<at::Tensor, at::Tensor> pursuit(
   if (m == 0) return {indices, coefficients};
   block = std::max<int64_t>(1, std::min<int64_t>(block, m));
   int64_t tiles = (m + block - 1) / block;
-  // As many tiles per thread, each at most `block` rows: 1568 rows on 2 threads are 4 tiles of 392,
-  // not 3 of 512 and one of 32 (one thread would do twice the other's work). Each row's pursuit is
-  // its own; the tiles' BLAS products give each row the same bits whatever the tile's height on the
-  // CPUs tested (tests/test_native.py: the same codes on any number of threads).
+  // An even number of equal tiles, each at most `block` rows (at least two from 256 rows): two
+  // threads get the same work (1568 rows are 4 tiles of 392, not 3 of 512 and one of 32). The
+  // tiling does not depend on the number of threads, so neither do the codes, whatever the BLAS.
+  if (m >= 256) tiles = std::max<int64_t>(tiles, 2);
+  if (tiles > 1 && tiles % 2) ++tiles;
+  block = (m + tiles - 1) / tiles;
+  tiles = (m + block - 1) / block;
   const int64_t available = std::max<int64_t>(1, std::min<int64_t>(aectorch_kernel_threads(), m));
-  if (available > 1 && tiles % available) {
-    tiles += available - tiles % available;
-    block = (m + tiles - 1) / tiles;
-    tiles = (m + block - 1) / block;
-  }
   const int threads = static_cast<int>(std::max<int64_t>(1, std::min<int64_t>(available, tiles)));
   const at::ThreadLocalState caller_state;
   AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "aectorch_pursuit", [&] {
