@@ -107,7 +107,7 @@ def compile_hot_path(learner: JointLearner, env: ActiveDepthEnv | None = None) -
 
     On CPU with the fused kernels (`aectorch.coding.pursuit.fused_kernels_apply`) those hot paths
     are the kernels themselves, which ``torch.compile`` can only call as opaque operators:
-    compiling the encoders measured 0.87x eager at ``train.py`` level and 0.98x in-process on a
+    compiling the encoders measured 0.87x eager at ``train.py`` level on a
     2-core AMD EPYC (docs/performance.md), so there nothing is compiled and the flag changes
     nothing. Returns the names of what was compiled.
     """
