@@ -138,6 +138,30 @@ def test_pooled_power_adds_an_atom_picked_twice_before_squaring():
         torch.ops.aectorch.pooled_power(torch.tensor([[[6]]]), torch.ones(1, 1, 1), 6)
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("num_atoms", [7, 96, 288])
+def test_fused_gram_matrix_is_torchs_product_on_any_number_of_threads(num_atoms, dtype):
+    from aectorch.coding import gram_matrix
+
+    d = torch.nn.functional.normalize(torch.randn(40, num_atoms, dtype=dtype, generator=torch.Generator().manual_seed(2)), dim=0)
+    reference = d.t() @ d
+    tol = dict(rtol=1e-6, atol=1e-6) if dtype == torch.float32 else dict(rtol=1e-13, atol=1e-14)
+    before = native.get_threads()
+    try:
+        results = []
+        for threads in (1, 2, 3):
+            native.set_threads(threads)
+            results.append(gram_matrix(d))
+    finally:
+        native.set_threads(before)
+    torch.testing.assert_close(results[0], reference, **tol)
+    assert all(torch.equal(results[0], r) for r in results[1:])
+    # with a graph to build, torch's differentiable product runs
+    leaf = d.clone().requires_grad_(True)
+    gram_matrix(leaf).sum().backward()
+    assert leaf.grad is not None
+
+
 @pytest.mark.parametrize("op", ["reconstruct_error", "sparse_gradient", "pooled_power", "pair_patches"])
 def test_fused_dictionary_kernels_give_the_same_bits_on_any_number_of_threads(op):
     d, x = _coded("mp", torch.float32, seed=3)
@@ -172,6 +196,8 @@ def test_fused_dictionary_kernels_have_shapes_for_torch_compile():
         grad = torch.ops.aectorch.sparse_gradient(x, x, idx, coef, 96)
         pooled = torch.ops.aectorch.pooled_power(idx.reshape(1, 7, 6), coef.reshape(1, 7, 6), 96)
         patches = torch.ops.aectorch.pair_patches(torch.empty(4, 20, 20), 0, 5, 5, 4, 1e-8, 1e-6)
+        gram = torch.ops.aectorch.gram(torch.empty(40, 96))
+    assert gram.shape == (96, 96)
     assert (recon.shape, error.shape, grad.shape, pooled.shape) == ((7, 40), (7,), (96, 40), (1, 96))
     assert patches.shape == (2, 16, 50)
 

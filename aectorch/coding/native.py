@@ -256,6 +256,10 @@ def _register_fake() -> None:
     def _(signals, reconstruction, indices, coefficients, num_atoms):
         return signals.new_empty(num_atoms, signals.shape[1])
 
+    @torch.library.register_fake("aectorch::gram")
+    def _(atoms):
+        return atoms.new_empty(atoms.shape[1], atoms.shape[1])
+
     @torch.library.register_fake("aectorch::pooled_power")
     def _(indices, coefficients, num_atoms):
         return coefficients.new_empty(indices.shape[0], num_atoms)

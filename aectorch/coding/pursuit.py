@@ -94,7 +94,15 @@ _INDEX_BITS = 29  # spare mantissa bits of float64 over float32
 
 
 def gram_matrix(dictionary: torch.Tensor) -> torch.Tensor:
-    """The Gram matrix ``G = D^T D`` of a dictionary `[P, N]`, shape `[N, N]`."""
+    """The Gram matrix ``G = D^T D`` of a dictionary `[P, N]`, shape `[N, N]`.
+
+    Without a graph to build, on CPU it comes from the fused kernels' ``aectorch::gram`` (the same
+    product in two blocks of rows, on two of the kernels' threads; torch's own operations run on
+    one thread in training), else from ``D^T @ D``.
+    """
+    if not (torch.is_grad_enabled() and dictionary.requires_grad) and dictionary.ndim == 2 \
+            and fused_kernels_apply(dictionary):
+        return torch.ops.aectorch.gram(dictionary)
     return dictionary.t() @ dictionary
 
 

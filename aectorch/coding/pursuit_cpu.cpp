@@ -86,37 +86,135 @@ inline int64_t argmax_abs(const T* a, int64_t n, T* value) {
   return at;
 }
 
-// alpha[j] -= s * g[j], vectorised.
+// One pass of a pursuit step, then the next step's selection in the same pass:
+// alpha[j] = ((alpha[j] - s[0] rows[0][j]) - s[1] rows[1][j]) - ... (the rows in order: the same
+// roundings as `count` separate passes alpha -= s[c] rows[c]), alpha[zero_at] = 0 (none when
+// zero_at < 0), then the index and value of the largest |alpha[j]| with argmax_abs's rule (the
+// first index on ties). alpha is read and written once per step, not once per row of G, and four
+// vectors are updated side by side, so that their chains of subtractions overlap (one vector at a
+// time waits for each subtraction's latency, count times). Vectors of 64 bytes with AVX-512, else
+// 32 (the results do not depend on the width).
 template <typename T>
-inline void axpy_neg(T* __restrict alpha, const T* __restrict g, T s, int64_t n) {
-  for (int64_t j = 0; j < n; ++j) alpha[j] -= s * g[j];
+inline int64_t update_argmax_abs(T* __restrict alpha, const T* const* rows, const T* s, int64_t count,
+                                 int64_t zero_at, int64_t n, T* value) {
+  using I = std::conditional_t<sizeof(T) == 4, int32_t, int64_t>;
+#if defined(__AVX512F__)
+  constexpr int kBytes = 64;
+#else
+  constexpr int kBytes = 32;
+#endif
+  constexpr int kLanes = kBytes / sizeof(T);
+  typedef T V __attribute__((vector_size(kBytes)));
+  typedef I VI __attribute__((vector_size(kBytes)));
+  V best_lane = {};
+  VI where = {};
+  VI index;
+  for (int l = 0; l < kLanes; ++l) index[l] = l;
+  const I zero = static_cast<I>(zero_at);
+  int64_t j = 0;
+  // Four vectors side by side (their chains of subtractions overlap), then one at a time.
+  for (; j + 4 * kLanes <= n; j += 4 * kLanes) {
+    V a0, a1, a2, a3;
+    std::memcpy(&a0, alpha + j, sizeof(V));
+    std::memcpy(&a1, alpha + j + kLanes, sizeof(V));
+    std::memcpy(&a2, alpha + j + 2 * kLanes, sizeof(V));
+    std::memcpy(&a3, alpha + j + 3 * kLanes, sizeof(V));
+    for (int64_t c = 0; c < count; ++c) {
+      const V sc = V{} + s[c];
+      const T* g = rows[c] + j;
+      V g0, g1, g2, g3;
+      std::memcpy(&g0, g, sizeof(V));
+      std::memcpy(&g1, g + kLanes, sizeof(V));
+      std::memcpy(&g2, g + 2 * kLanes, sizeof(V));
+      std::memcpy(&g3, g + 3 * kLanes, sizeof(V));
+      a0 = a0 - sc * g0;
+      a1 = a1 - sc * g1;
+      a2 = a2 - sc * g2;
+      a3 = a3 - sc * g3;
+    }
+    const V* parts[4] = {&a0, &a1, &a2, &a3};
+    for (int u = 0; u < 4; ++u) {
+      V a = *parts[u];
+      a = index == zero ? V{} : a;
+      std::memcpy(alpha + j + u * kLanes, &a, sizeof(V));
+      const V v = a < 0 ? -a : a;
+      const VI better = v > best_lane;
+      best_lane = better ? v : best_lane;
+      where = better ? index : where;
+      index += kLanes;
+    }
+  }
+  for (; j + kLanes <= n; j += kLanes) {
+    V a;
+    std::memcpy(&a, alpha + j, sizeof(V));
+    for (int64_t c = 0; c < count; ++c) {
+      V g;
+      std::memcpy(&g, rows[c] + j, sizeof(V));
+      a = a - (V{} + s[c]) * g;
+    }
+    a = index == zero ? V{} : a;
+    std::memcpy(alpha + j, &a, sizeof(V));
+    const V v = a < 0 ? -a : a;
+    const VI better = v > best_lane;
+    best_lane = better ? v : best_lane;
+    where = better ? index : where;
+    index += kLanes;
+  }
+  T best = 0;
+  int64_t at = n;  // no value > 0 seen yet
+  for (int l = 0; l < kLanes; ++l) {
+    const T v = best_lane[l];
+    if (v > best || (v == best && v > 0 && where[l] < at)) {
+      best = v;
+      at = where[l];
+    }
+  }
+  for (; j < n; ++j) {  // the tail comes after every lane's indices
+    T a = alpha[j];
+    for (int64_t c = 0; c < count; ++c) a -= s[c] * rows[c][j];
+    if (j == zero_at) a = 0;
+    alpha[j] = a;
+    const T v = std::abs(a);
+    if (v > best) {
+      best = v;
+      at = j;
+    }
+  }
+  if (at == n) at = 0;  // every |a| is 0 (or NaN, which inputs are checked against)
+  *value = alpha[at];
+  return at;
 }
 
 template <typename T>
 void mp_row(T* alpha, const T* gram, int64_t n, int64_t k, int64_t* idx, T* coef) {
+  T c;
+  int64_t lam = argmax_abs(alpha, n, &c);
   for (int64_t i = 0; i < k; ++i) {
-    T c;
-    const int64_t lam = argmax_abs(alpha, n, &c);
     idx[i] = lam;
     coef[i] = c;
-    if (i + 1 < k) axpy_neg(alpha, gram + lam * n, c, n);
+    if (i + 1 < k) {  // alpha -= c G[lam], and the next selection
+      const T* row = gram + lam * n;
+      const T s = c;
+      lam = update_argmax_abs(alpha, &row, &s, 1, -1, n, &c);
+    }
   }
 }
 
 // Batch-OMP with the inverse Cholesky factor Linv of G[I, I] (row-major, k x k, lower).
-// work: k * k + 3 * k values of T.
+// work: k * k + 4 * k values of T; rows: k pointers.
 template <typename T>
-void omp_row(T* alpha, const T* gram, int64_t n, int64_t k, int64_t* idx, T* coef, T* work) {
+void omp_row(T* alpha, const T* gram, int64_t n, int64_t k, int64_t* idx, T* coef, T* work, const T** rows) {
   const T eps = std::numeric_limits<T>::epsilon();
   T* linv = work;         // [k, k]
   T* y = linv + k * k;    // coordinates along the orthonormalised chosen atoms
   T* w = y + k;           // Linv G[I, lam]
   T* g = w + k;           // G[I, lam]
+  T* scale = g + k;       // the update's multiples of G[I_c] (rows[c])
   std::fill(linv, linv + k * k, T(0));
   int64_t used = 0;
+  T a;
+  int64_t lam = argmax_abs(alpha, n, &a);
   for (int64_t i = 0; i < k; ++i) {
-    T a;
-    const int64_t lam = argmax_abs(alpha, n, &a);
     T lkk = gram[lam * n + lam];
     for (int64_t r = 0; r < i; ++r) g[r] = gram[idx[r] * n + lam];
     for (int64_t r = 0; r < i; ++r) {
@@ -138,9 +236,13 @@ void omp_row(T* alpha, const T* gram, int64_t n, int64_t k, int64_t* idx, T* coe
     idx[i] = lam;
     y[i] = a * inv;
     used = i + 1;
-    if (i + 1 < k) {  // alpha -= y_i (D^T q_i), D^T q_i = sum_c Linv[i, c] G[I_c]
-      for (int64_t c = 0; c <= i; ++c) axpy_neg(alpha, gram + idx[c] * n, y[i] * linv[i * k + c], n);
-      alpha[lam] = 0;  // exact in arithmetic; no rounding residue
+    if (i + 1 < k) {  // alpha -= y_i (D^T q_i), D^T q_i = sum_c Linv[i, c] G[I_c]; the next selection
+      for (int64_t c = 0; c <= i; ++c) {
+        rows[c] = gram + idx[c] * n;
+        scale[c] = y[i] * linv[i * k + c];
+      }
+      // alpha[lam] = 0: exact in arithmetic; no rounding residue
+      lam = update_argmax_abs(alpha, rows, scale, i + 1, lam, n, &a);
     }
   }
   for (int64_t c = 0; c < used; ++c) {  // gamma = Linv^T y
@@ -192,7 +294,8 @@ std::tuple<at::Tensor, at::Tensor> pursuit(
       // The caller's grad / inference mode and dispatch state, as at::parallel_for passes them on.
       at::ThreadLocalStateGuard state_guard(caller_state);
       auto alpha = at::empty({block, n}, x.options());
-      std::vector<scalar_t> work(orthogonal ? k * k + 3 * k : 0);
+      std::vector<scalar_t> work(orthogonal ? k * k + 4 * k : 0);
+      std::vector<const scalar_t*> gram_rows(orthogonal ? k : 0);
       _Pragma("omp for schedule(static)")
       for (int64_t t = 0; t < tiles; ++t) {
         const int64_t start = t * block;
@@ -203,7 +306,7 @@ std::tuple<at::Tensor, at::Tensor> pursuit(
         for (int64_t r = 0; r < rows; ++r) {
           const int64_t row = start + r;
           if (orthogonal) {
-            omp_row(a + r * n, g, n, k, idx + row * k, coef + row * k, work.data());
+            omp_row(a + r * n, g, n, k, idx + row * k, coef + row * k, work.data(), gram_rows.data());
           } else {
             mp_row(a + r * n, g, n, k, idx + row * k, coef + row * k);
           }
@@ -212,6 +315,27 @@ std::tuple<at::Tensor, at::Tensor> pursuit(
     }
   });
   return {indices, coefficients};
+}
+
+// The Gram matrix D^T D of atoms [P, N]: its rows in two blocks (one when N < 64), each a BLAS
+// product D[:, block]^T D, on up to two of the kernels' threads. The blocks do not depend on the
+// number of threads, so neither does the result.
+at::Tensor gram(const at::Tensor& atoms) {
+  TORCH_CHECK(atoms.dim() == 2, "aectorch::gram expects atoms [P, N]");
+  const auto d = atoms.detach().contiguous();
+  const int64_t n = d.size(1);
+  auto out = at::empty({n, n}, d.options());
+  const int64_t blocks = n >= 64 ? 2 : 1;
+  const int threads = static_cast<int>(std::min<int64_t>(blocks, aectorch_kernel_threads()));
+  const at::ThreadLocalState caller_state;
+  _Pragma("omp parallel for num_threads(threads) schedule(static)")
+  for (int64_t b = 0; b < blocks; ++b) {
+    at::ThreadLocalStateGuard state_guard(caller_state);
+    const int64_t lo = n * b / blocks, hi = n * (b + 1) / blocks;
+    auto part = out.narrow(0, lo, hi - lo);
+    at::mm_out(part, d.narrow(1, lo, hi - lo).t(), d);
+  }
+  return out;
 }
 
 // Sums over a row in 8 independent lanes, added up at the end: the compiler vectorises these (a
@@ -537,6 +661,7 @@ TORCH_LIBRARY(aectorch, m) {
   m.def("reconstruct_error(Tensor signals, Tensor atoms_t, Tensor indices, Tensor coefficients) -> (Tensor, Tensor)");
   m.def("sparse_gradient(Tensor signals, Tensor reconstruction, Tensor indices, Tensor coefficients, int num_atoms)"
         " -> Tensor");
+  m.def("gram(Tensor atoms) -> Tensor");
   m.def("pooled_power(Tensor indices, Tensor coefficients, int num_atoms) -> Tensor");
   m.def("pair_patches(Tensor images, int offset, int p, int stride, int g, float eps, float rounding) -> Tensor");
   m.def("dictionary_step_(Tensor(a!) atoms, Tensor grad_t, float lr, Tensor? mirror, Tensor? partner) -> ()");
@@ -548,6 +673,7 @@ TORCH_LIBRARY_IMPL(aectorch, CPU, m) {
   m.impl("pursuit", &pursuit);
   m.impl("reconstruct_error", &reconstruct_error);
   m.impl("sparse_gradient", &sparse_gradient);
+  m.impl("gram", &gram);
   m.impl("pooled_power", &pooled_power);
   m.impl("pair_patches", &pair_patches);
   m.impl("dictionary_step_", &dictionary_step_);
