@@ -16,8 +16,13 @@ timed with :class:`aectorch.profiling.StageTimer`. Per stage:
   * the process's peak resident memory rise over the imports (``VmHWM``), whose slope against B
     is the memory per environment.
 
+``--isa avx2`` runs the same on what a CPU without AVX-512 would execute: the fused kernels built
+for ``x86-64-v3`` (AVX2, ``AECTORCH_NATIVE_MARCH``), torch's own kernels dispatched at AVX2
+(``ATEN_CPU_CAPABILITY=avx2``) and MKL limited to AVX2 (``MKL_ENABLE_INSTRUCTIONS=AVX2``): the
+instruction set of an AVX2 machine, on this machine's cores and caches.
+
 Usage:
-    python benchmarks/stages.py [--batches 32 256] [--kernel-threads 1 2] [--json benchmarks/results/stages.json]
+    python benchmarks/stages.py [--batches 32 256] [--kernel-threads 1 2] [--isa native avx2] [--json benchmarks/results/stages.json]
 """
 
 from __future__ import annotations
@@ -33,6 +38,11 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 STAGES = ("render", "encode", "dictionary", "rl", "env", "metrics", "depth")
+#: Environment of a worker per instruction set (``--isa``).
+ISAS = {
+    "native": {},
+    "avx2": {"AECTORCH_NATIVE_MARCH": "x86-64-v3", "ATEN_CPU_CAPABILITY": "avx2", "MKL_ENABLE_INSTRUCTIONS": "AVX2"},
+}
 
 
 def _rss_mb(field: str) -> float:
@@ -126,6 +136,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--batches", type=int, nargs="+", default=[32, 256])
     parser.add_argument("--kernel-threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--isa", nargs="+", default=["native"], choices=list(ISAS),
+                        help="instruction sets to run on (default: native; avx2: no AVX-512, see above)")
     parser.add_argument("--iterations", type=int, default=40)
     parser.add_argument("--warmup", type=int, default=5)
     parser.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "stages.json")
@@ -141,17 +153,21 @@ def main() -> None:
         args.batches = sorted({row["B"] for row in rows})
     for batch in ([] if args.from_json is not None else args.batches):
         for threads in args.kernel_threads:
-            env = dict(os.environ, OMP_WAIT_POLICY="PASSIVE", PYOPENGL_PLATFORM="osmesa")
-            iterations = max(8, args.iterations * 32 // batch)
-            result = subprocess.run([sys.executable, __file__, "--worker", str(batch), str(threads),
-                                     "--iterations", str(iterations), "--warmup", str(args.warmup)],
-                                    env=env, stdout=subprocess.PIPE, text=True, check=True)
-            rows.append(json.loads(result.stdout.strip().splitlines()[-1]))
-            print(f"B={batch}, kernel threads {threads}: {rows[-1]['env_iterations_per_s']:,.0f} env-iterations/s",
-                  file=sys.stderr, flush=True)
-    print("| B | kernel threads | stage | ms / env-iteration | MFLOP / env-iteration | floor (ms) | x floor |")
-    print("|---:|---:|---|---:|---:|---:|---:|")
+            for isa in args.isa:
+                env = dict(os.environ, OMP_WAIT_POLICY="PASSIVE", PYOPENGL_PLATFORM="osmesa", **ISAS[isa])
+                iterations = max(8, args.iterations * 32 // batch)
+                result = subprocess.run([sys.executable, __file__, "--worker", str(batch), str(threads),
+                                         "--iterations", str(iterations), "--warmup", str(args.warmup)],
+                                        env=env, stdout=subprocess.PIPE, text=True, check=True)
+                rows.append(dict(json.loads(result.stdout.strip().splitlines()[-1]), isa=isa))
+                print(f"B={batch}, kernel threads {threads}, {isa}: {rows[-1]['env_iterations_per_s']:,.0f} "
+                      "env-iterations/s", file=sys.stderr, flush=True)
+    isa_column = any(row.get("isa", "native") != "native" for row in rows)
+    print("| B | kernel threads |" + (" ISA |" if isa_column else "")
+          + " stage | ms / env-iteration | MFLOP / env-iteration | floor (ms) | x floor |")
+    print("|---:|---:|" + ("---|" if isa_column else "") + "---|---:|---:|---:|---:|")
     for row in rows:
+        lead = f"| {row['B']} | {row['kernel_threads']} |" + (f" {row.get('isa', 'native')} |" if isa_column else "")
         for name in STAGES:
             ms = row["ms_per_env_iteration"][name]
             flops = row["flops_per_env_iteration"][name]
@@ -162,11 +178,11 @@ def main() -> None:
                 note = f"no matmul floor: {row['rendered_pixels_per_eye_image']:,} px per eye image, 8 lookups each | "
             else:
                 note = f"{floor:.3f} | {ms / floor:.1f}x" if floor else " | "
-            print(f"| {row['B']} | {row['kernel_threads']} | {name} | {ms:.3f} | {flops / 1e6:.2f} | {note} |")
+            print(f"{lead} {name} | {ms:.3f} | {flops / 1e6:.2f} | {note} |")
         total = sum(row["ms_per_env_iteration"].values())
         all_flops = sum(row["flops_per_env_iteration"].values())
         floor = 1e3 * all_flops / row["matmul_flops_per_s"]
-        print(f"| {row['B']} | {row['kernel_threads']} | **all** ({row['env_iterations_per_s']:,.0f} env-it/s) | "
+        print(f"{lead} **all** ({row['env_iterations_per_s']:,.0f} env-it/s) | "
               f"{total:.3f} | {all_flops / 1e6:.2f} | {floor:.3f} | {total / floor:.1f}x |")
     if len(args.batches) > 1:
         by_b = {}

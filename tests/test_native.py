@@ -26,6 +26,19 @@ def test_native_kernel_is_built_and_used():
     torch.testing.assert_close(a.coefficients, b.coefficients, rtol=0, atol=1e-12)
 
 
+@pytest.mark.skipif(os.uname().machine != "x86_64", reason="-march targets of x86-64")
+def test_the_kernels_target_is_this_cpu_unless_aectorch_native_march_names_another(monkeypatch):
+    monkeypatch.delenv("AECTORCH_NATIVE_MARCH", raising=False)
+    assert "-march=native" in native._flags()
+    default_folder = native._build_dir()[1]
+    monkeypatch.setenv("AECTORCH_NATIVE_MARCH", "x86-64-v3")
+    assert "-march=x86-64-v3" in native._flags() and "-march=native" not in native._flags()
+    assert native._build_dir()[1] != default_folder  # a build of its own
+    monkeypatch.setenv("AECTORCH_NATIVE_MARCH", "native; rm -rf ~")
+    with pytest.raises(ValueError, match="AECTORCH_NATIVE_MARCH must name a -march target"):
+        native._flags()
+
+
 def test_backend_argument_is_validated():
     d = torch.nn.functional.normalize(torch.randn(30, 60), dim=0)
     with pytest.raises(ValueError, match="backend must be one of"):

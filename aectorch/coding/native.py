@@ -20,7 +20,9 @@ scratch space) reuses the same build.
 If it cannot be built (no compiler, say), the pursuits fall back to the pure-torch code with one
 warning that says why; results agree within float rounding (tests/test_pursuit.py). Set
 ``AECTORCH_NATIVE=0`` to never use it, and ``AECTORCH_CACHE`` to move the cache
-(default ``~/.cache/aectorch``).
+(default ``~/.cache/aectorch``). On x86-64 the kernels are compiled for this CPU
+(``-march=native``); ``AECTORCH_NATIVE_MARCH`` names another target, e.g. ``x86-64-v3`` (AVX2,
+no AVX-512) to measure what a machine without AVX-512 would run (``benchmarks/stages.py --isa``).
 
 Example:
     >>> from aectorch.coding import native
@@ -74,7 +76,11 @@ def _flags() -> list[str]:
     # loops split over threads of their own (`set_threads`).
     flags = ["-O3", "-ffp-contract=off", "-fopenmp"]
     if platform.machine() in ("x86_64", "AMD64"):
-        flags.append("-march=native")
+        march = os.environ.get("AECTORCH_NATIVE_MARCH", "native")
+        if not march or not all(c.isalnum() or c in "-_." for c in march):
+            raise ValueError(f"AECTORCH_NATIVE_MARCH must name a -march target such as native or x86-64-v3, "
+                             f"got {march!r}")
+        flags.append(f"-march={march}")
     return flags
 
 
