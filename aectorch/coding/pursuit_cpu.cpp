@@ -19,6 +19,9 @@
 #include <torch/library.h>
 
 #include <algorithm>
+#if defined(__AVX512F__)
+#include <immintrin.h>
+#endif
 #include <atomic>
 #include <cmath>
 #include <cstring>
@@ -39,15 +42,71 @@ int aectorch_kernel_threads() { return g_kernel_threads.load(); }
 
 namespace {
 
+// Vectors of 64 bytes with AVX-512, else 32 (AVX2, or two SSE registers). Results never depend
+// on the width: every reduction below gives the same answer whatever the grouping of lanes.
+#if defined(__AVX512F__)
+constexpr int kVectorBytes = 64;
+#else
+constexpr int kVectorBytes = 32;
+#endif
+
+// The largest of the lanes' magnitudes (> 0) and the smallest index among the lanes that hold it:
+// (0, n) when every lane is 0. With AVX-512 two reductions, else a loop over the lanes.
+template <typename T, typename V, typename VI>
+inline void merge_lanes(const V& best_lane, const VI& where, int64_t n, T* best, int64_t* at) {
+  constexpr int kLanes = sizeof(V) / sizeof(T);
+#if defined(__AVX512F__)
+  if constexpr (sizeof(V) == 64) {
+    if constexpr (sizeof(T) == 4) {
+      __m512 b;
+      __m512i w;
+      std::memcpy(&b, &best_lane, 64);
+      std::memcpy(&w, &where, 64);
+      const float top = _mm512_reduce_max_ps(b);
+      *best = 0;
+      *at = n;
+      if (top > 0) {
+        *best = top;
+        *at = _mm512_mask_reduce_min_epi32(_mm512_cmp_ps_mask(b, _mm512_set1_ps(top), _CMP_EQ_OQ), w);
+      }
+    } else {
+      __m512d b;
+      __m512i w;
+      std::memcpy(&b, &best_lane, 64);
+      std::memcpy(&w, &where, 64);
+      const double top = _mm512_reduce_max_pd(b);
+      *best = 0;
+      *at = n;
+      if (top > 0) {
+        *best = top;
+        *at = _mm512_mask_reduce_min_epi64(_mm512_cmp_pd_mask(b, _mm512_set1_pd(top), _CMP_EQ_OQ), w);
+      }
+    }
+    return;
+  }
+#endif
+  T b = 0;
+  int64_t a = n;  // no value > 0 seen yet
+  for (int l = 0; l < kLanes; ++l) {
+    const T v = best_lane[l];
+    if (v > b || (v == b && v > 0 && where[l] < a)) {
+      b = v;
+      a = where[l];
+    }
+  }
+  *best = b;
+  *at = a;
+}
+
 // Index and value of the largest |a[j]|, the first one on ties (torch.argmax's rule).
-// One pass in GCC/Clang vector types (32 bytes: AVX2, or two SSE registers): each lane keeps
-// its largest magnitude and the first index that reached it (a strict comparison keeps the
-// earlier index on ties); then the lanes are merged, ties going to the smaller index.
-// The compilers do not vectorise this from scalar code (it ran 3.4x slower).
+// One pass in GCC/Clang vector types: each lane keeps its largest magnitude and the first index
+// that reached it (a strict comparison keeps the earlier index on ties); then the lanes are
+// merged, ties going to the smaller index. The compilers do not vectorise this from scalar code
+// (it ran 3.4x slower).
 template <typename T>
 inline int64_t argmax_abs(const T* a, int64_t n, T* value) {
   using I = std::conditional_t<sizeof(T) == 4, int32_t, int64_t>;
-  constexpr int kBytes = 32;
+  constexpr int kBytes = kVectorBytes;
   constexpr int kLanes = kBytes / sizeof(T);
   typedef T V __attribute__((vector_size(kBytes)));
   typedef I VI __attribute__((vector_size(kBytes)));
@@ -65,15 +124,9 @@ inline int64_t argmax_abs(const T* a, int64_t n, T* value) {
     where = better ? index : where;
     index += kLanes;
   }
-  T best = 0;
-  int64_t at = n;  // no value > 0 seen yet
-  for (int l = 0; l < kLanes; ++l) {
-    const T v = best_lane[l];
-    if (v > best || (v == best && v > 0 && where[l] < at)) {
-      best = v;
-      at = where[l];
-    }
-  }
+  T best;
+  int64_t at;
+  merge_lanes<T>(best_lane, where, n, &best, &at);
   for (; j < n; ++j) {  // the tail comes after every lane's indices
     const T v = std::abs(a[j]);
     if (v > best) {
@@ -92,17 +145,12 @@ inline int64_t argmax_abs(const T* a, int64_t n, T* value) {
 // zero_at < 0), then the index and value of the largest |alpha[j]| with argmax_abs's rule (the
 // first index on ties). alpha is read and written once per step, not once per row of G, and four
 // vectors are updated side by side, so that their chains of subtractions overlap (one vector at a
-// time waits for each subtraction's latency, count times). Vectors of 64 bytes with AVX-512, else
-// 32 (the results do not depend on the width).
+// time waits for each subtraction's latency, count times).
 template <typename T>
 inline int64_t update_argmax_abs(T* __restrict alpha, const T* const* rows, const T* s, int64_t count,
                                  int64_t zero_at, int64_t n, T* value) {
   using I = std::conditional_t<sizeof(T) == 4, int32_t, int64_t>;
-#if defined(__AVX512F__)
-  constexpr int kBytes = 64;
-#else
-  constexpr int kBytes = 32;
-#endif
+  constexpr int kBytes = kVectorBytes;
   constexpr int kLanes = kBytes / sizeof(T);
   typedef T V __attribute__((vector_size(kBytes)));
   typedef I VI __attribute__((vector_size(kBytes)));
@@ -160,15 +208,9 @@ inline int64_t update_argmax_abs(T* __restrict alpha, const T* const* rows, cons
     where = better ? index : where;
     index += kLanes;
   }
-  T best = 0;
-  int64_t at = n;  // no value > 0 seen yet
-  for (int l = 0; l < kLanes; ++l) {
-    const T v = best_lane[l];
-    if (v > best || (v == best && v > 0 && where[l] < at)) {
-      best = v;
-      at = where[l];
-    }
-  }
+  T best;
+  int64_t at;
+  merge_lanes<T>(best_lane, where, n, &best, &at);
   for (; j < n; ++j) {  // the tail comes after every lane's indices
     T a = alpha[j];
     for (int64_t c = 0; c < count; ++c) a -= s[c] * rows[c][j];
