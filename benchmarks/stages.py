@@ -3,7 +3,7 @@
 For each B (``--batches``) and kernel-thread count (``--kernel-threads``; torch's own operations
 on one thread, as ``train.threads=0`` runs them), in a fresh process: ``train.py``'s default
 environments and learner (``ExperimentConfig()``), ``--warmup`` iterations, then ``--iterations``
-timed with :class:`aectorch.profiling.StageTimer`. Per stage:
+timed with :class:`aectorch.profiling.StageTimer` (with the heap frozen, as the training loop runs). Per stage:
 
   * milliseconds per env-iteration (stage time / B);
   * its matrix-product FLOPs per env-iteration (``FlopCounterMode`` over one iteration, stage by
@@ -72,12 +72,17 @@ def worker(batch: int, kernel_threads: int, iterations: int, warmup: int) -> dic
     env, learner = build_env(cfg), build_learner(cfg)
     for _ in range(warmup):
         learner.iteration(env)
+    from aectorch.runtime.loop import frozen_heap
+
+    heap = frozen_heap()  # as the training loop runs (train.py)
+    heap.__enter__()
     with profiling.StageTimer() as timer:
         start = time.perf_counter()
         for _ in range(iterations):
             learner.iteration(env)
         wall = time.perf_counter() - start
     peak = _rss_mb("VmHWM") - base
+    heap.__exit__(None, None, None)
 
     class FlopStages(profiling.StageTimer):  # one FlopCounterMode per stage
         def __init__(self):

@@ -111,8 +111,14 @@ def test_train_py_writes_the_run_folder(tmp_path, textures):
 
 
 def test_resume_is_bit_identical(tmp_path, textures):
+    import gc
+
     straight = tmp_path / "straight"
-    run_experiment(_cfg(textures), straight)
+    frozen_before, frozen = gc.get_freeze_count(), []
+    # (and the loop runs with the heap frozen, handed back to the collector afterwards)
+    run_experiment(_cfg(textures), straight, callback=lambda it, record: frozen.append(gc.get_freeze_count()))
+    assert len(frozen) == 12 and min(frozen) > frozen_before + 1000
+    assert gc.get_freeze_count() == frozen_before
     half = tmp_path / "half"
     run_experiment(_cfg(textures, "train.iterations=6"), half)
     assert load_checkpoint(half / "checkpoint.pt")["iteration"] == 6

@@ -23,7 +23,9 @@ Interruptions, without copying the learner's state every iteration:
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import gc
 import logging
 import signal
 import threading
@@ -46,6 +48,22 @@ __all__ = ["BestState", "Callback", "Checkpoints", "EveryIteration", "MetricsLog
            "Recording", "TrainingRun", "WatchdogCheck", "default_callbacks"]
 
 log = logging.getLogger("aectorch")
+
+
+@contextlib.contextmanager
+def frozen_heap():
+    """Within the block, Python's cyclic garbage collector leaves alone every object that existed
+    at its start (``gc.freeze``): the learner, the environment, torch's and TorchRL's modules, the
+    configuration. An iteration allocates enough small Python objects to start a collection every
+    few iterations, and each collection of the oldest generation walked all of them: 4 % of a
+    default run's CPU time (``perf``). Objects made inside the block are collected as usual; the
+    frozen ones are handed back to the collector at the end (``gc.unfreeze``)."""
+    gc.collect()
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
 
 
 def _sigterm(signum, frame):
@@ -392,18 +410,19 @@ class TrainingRun:
                     started.append(callback)
                 watches = [c.watch for c in self.callbacks if c.watch is not None]
                 watch = None if not watches else (lambda cue, obs: [w(cue, obs) for w in watches])
-                for it in range(self.start, self.total):
-                    for callback in self.callbacks:
-                        callback.before_iteration(self, it)
-                    record = self.learner.iteration(self.env, watch=watch)
-                    record = self.shard.gather_record(record)  # every process sees the whole batch's record
-                    self.metrics.update(record)
-                    self.iteration_done = done = it + 1
-                    for callback in self.callbacks:
-                        callback.after_iteration(self, done, record)
-                    if self._stop_requested(deferred):
-                        self.stopped = deferred.signum or signal.SIGTERM
-                        raise KeyboardInterrupt(f"terminated by signal {self.stopped}")
+                with frozen_heap():
+                    for it in range(self.start, self.total):
+                        for callback in self.callbacks:
+                            callback.before_iteration(self, it)
+                        record = self.learner.iteration(self.env, watch=watch)
+                        record = self.shard.gather_record(record)  # every process sees the whole batch's record
+                        self.metrics.update(record)
+                        self.iteration_done = done = it + 1
+                        for callback in self.callbacks:
+                            callback.after_iteration(self, done, record)
+                        if self._stop_requested(deferred):
+                            self.stopped = deferred.signum or signal.SIGTERM
+                            raise KeyboardInterrupt(f"terminated by signal {self.stopped}")
         except BaseException as err:
             for callback in started:
                 callback.on_interrupt(self, err)
