@@ -13,8 +13,13 @@ imports its own ``aectorch`` (the script's folder comes first on ``sys.path``).
 
 A configuration is ``LABEL=WHERE[:override,override,...]`` with ``WHERE`` ``new`` (this checkout),
 ``old`` (the worktree) or a commit hash (a worktree of its own beside it); overrides are train.py's
-``key=value`` (commas inside ``[...]`` belong to a list). ``@short/long`` after the label sets its
-iteration counts (default ``--short``/``--long``).
+``key=value`` (commas inside ``[...]`` belong to a list), or ``env:NAME=VALUE`` for an environment
+variable of that configuration's processes (``AVX2`` below). ``@short/long`` after the label sets
+its iteration counts (default ``--short``/``--long``).
+
+``AVX2`` runs what a CPU without AVX-512 executes, on this machine's cores: the fused kernels built
+for x86-64-v3, torch's kernels dispatched at AVX2 and MKL limited to it, e.g.
+``"defaults, AVX2=new:env:AECTORCH_NATIVE_MARCH=x86-64-v3,env:ATEN_CPU_CAPABILITY=avx2,env:MKL_ENABLE_INSTRUCTIONS=AVX2"``.
 
 Usage:
     python benchmarks/train_rate.py                       # the issue-21 set (about 15 minutes on 2 cores)
@@ -65,8 +70,10 @@ def parse(text: str, short: int, long: int) -> dict:
     if short_text:
         short, long = int(short_text), int(long_text)
     # Commas inside [...] belong to a list value (learner.cues.stereo.scales=[wide,coarse,fine]).
-    return {"label": label, "where": where, "overrides": [o for o in re.split(r",(?![^\[]*\])", overrides) if o],
-            "short": short, "long": long}
+    items = [o for o in re.split(r",(?![^\[]*\])", overrides) if o]
+    env = dict(o[len("env:"):].split("=", 1) for o in items if o.startswith("env:"))
+    return {"label": label, "where": where, "overrides": [o for o in items if not o.startswith("env:")],
+            "env": env, "short": short, "long": long}
 
 
 def batch_size(config: dict) -> int:
@@ -90,7 +97,7 @@ def run(config: dict, iterations: int, cwd: Path, scratch: Path) -> float:
     command = [sys.executable, "train.py", f"hydra.run.dir={out}", f"train.iterations={iterations}",
                *QUIET, *config["overrides"]]
     env = dict(os.environ, PYOPENGL_PLATFORM=os.environ.get("PYOPENGL_PLATFORM", "osmesa"),
-               OMP_WAIT_POLICY=os.environ.get("OMP_WAIT_POLICY", "PASSIVE"))
+               OMP_WAIT_POLICY=os.environ.get("OMP_WAIT_POLICY", "PASSIVE"), **config.get("env", {}))
     start = time.perf_counter()
     result = subprocess.run(command, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     wall = time.perf_counter() - start
