@@ -170,3 +170,100 @@ def test_ppo_config_rejects_bad_values():
                          ("clip", -0.2), ("feature_norm", 0)):
         with pytest.raises(ValueError, match=f"PPOConfig.{field} must be"):
             PPOConfig(**{field: value})
+
+
+def _bits(t: torch.Tensor) -> torch.Tensor:
+    t = t.detach().contiguous()
+    return t.view({4: torch.int32, 8: torch.int64}[t.element_size()]) if t.dtype.is_floating_point else t
+
+
+def _reference_learn(agent: PPO, t: Transitions) -> torch.Tensor:
+    """PPO's learn as first written (commit 4065a9b), on ``agent``'s networks, optimizer, generator
+    and buffers: every tensor computed afresh (three z-scorings of the rollout, its TensorDict
+    indexed per minibatch, the z-scoring's moments merged under a mask of ones)."""
+    from tensordict import TensorDict
+
+    def normalize(f):
+        n = agent.feature_count.to(f.dtype)
+        var = torch.where(n > 1, agent.feature_m2 / (n - 1).clamp_min(1), torch.ones_like(agent.feature_m2))
+        x = (f - agent.feature_mean) / torch.sqrt(var + agent.config.normalize_eps)
+        return x * (agent.config.feature_norm / torch.linalg.vector_norm(x, dim=-1, keepdim=True).clamp_min(
+            torch.finfo(x.dtype).tiny))
+
+    cfg = agent.config
+    with torch.no_grad():
+        value = agent.value(normalize(t.features))[:, 0]
+        td_error = t.rewards + cfg.discount * agent.value(normalize(t.next_features))[:, 0] - value
+    agent._rollout.append(t)
+    if not t.last:
+        return td_error
+    rollout = agent._rollout
+    features, actions, rewards, next_features = (torch.stack([s[i] for s in rollout], 1) for i in range(4))
+    last = torch.tensor([s.last for s in rollout])
+    with torch.no_grad():
+        v, nv = agent.value(normalize(features)), agent.value(normalize(next_features))
+        done = last[None, :, None].expand_as(v).clone()
+        advantage, target = agent._gae(cfg.discount, cfg.gae_lambda, v, nv, rewards[..., None], done,
+                                       torch.zeros_like(done))
+        x = normalize(features)
+        old = torch.log_softmax(agent.policy(x), -1).gather(-1, actions[..., None])[..., 0]
+    batch = TensorDict({"observation": x.flatten(0, 1), "action": actions.flatten(), "action_log_prob": old.flatten(),
+                        "advantage": advantage.flatten(0, 1), "value_target": target.flatten(0, 1)},
+                       batch_size=[actions.numel()])
+    parameters = [p for group in agent.optimizer.param_groups for p in group["params"]]
+    size = batch.batch_size[0] // cfg.minibatches
+    for _ in range(cfg.epochs):
+        order = torch.randperm(batch.batch_size[0], generator=agent.generator)
+        for start in range(0, size * cfg.minibatches, size):
+            losses = agent._loss(batch[order[start:start + size]])
+            agent.optimizer.zero_grad(set_to_none=False)
+            (losses["loss_objective"] + losses["loss_critic"] + losses["loss_entropy"]).backward()
+            torch.nn.utils.clip_grad_norm_(parameters, cfg.max_grad_norm)
+            agent.optimizer.step()
+    flat = features.flatten(0, 1)
+    m = torch.ones(flat.shape[0], 1)
+    nb, n = m.sum(), agent.feature_count.to(flat.dtype)
+    total = (n + nb).clamp_min(1)
+    mean_b = (m * flat).sum(0) / nb.clamp_min(1)
+    diff = mean_b - agent.feature_mean
+    agent.feature_m2.copy_(agent.feature_m2 + (m * (flat - mean_b).square()).sum(0) + diff.square() * (n * nb / total))
+    agent.feature_mean.copy_(agent.feature_mean + diff * (nb / total))
+    agent.feature_count += flat.shape[0]
+    agent._rollout = []
+    return td_error
+
+
+def test_ppo_learns_bit_for_bit_as_a_plain_reference():
+    """The agent's shortcuts (z-scoring once, in memory kept across updates; reusing the last
+    call's next features' z-scores and values; minibatches as slices of each epoch's shuffled
+    copy) change no bit: TD errors, actions, parameters, Adam's state, the statistics and the
+    generator as a plain reference's, over fixations of several lengths (the kept memory reused
+    smaller and grown) and transitions whose features are and are not the last call's next ones."""
+    agent = PPO(6, ACTIONS, PPOConfig(epochs=2, minibatches=3), generator=_gen(3))
+    reference = copy.deepcopy(agent)
+    data = _gen(4)
+    f = torch.rand(8, 6, generator=data)
+    for fixation, length in enumerate((6, 3, 9, 4)):
+        for step in range(length):
+            if step == 2:  # not the last call's next features: z-scored and valued afresh
+                f = torch.rand(8, 6, generator=data)
+            if step == 3:  # the same numbers in another tensor, one zero's sign flipped
+                f = f.clone()
+                f[0, 0] = -0.0 if _bits(f[0, 0]) == 0 else f[0, 0]
+            u = torch.rand(8, generator=data)
+            act, ref_act = agent.act(f, uniform=u), reference.act(f, uniform=u)
+            assert all(torch.equal(_bits(a), _bits(b)) for a, b in zip(act, ref_act))
+            f_next = torch.rand(8, 6, generator=data) * (torch.rand(8, 6, generator=data) > 0.3)  # zeros too
+            t = Transitions(f, act.actions, torch.randn(8, generator=data), f_next, last=step == length - 1)
+            out = agent.learn(t)
+            assert torch.equal(_bits(out.td_error), _bits(_reference_learn(reference, t))), (fixation, step)
+            f = f_next
+        assert out.updated
+        state, expected = agent.state_dict(), reference.state_dict()
+        for name in state:
+            if isinstance(state[name], torch.Tensor):
+                assert torch.equal(_bits(state[name]), _bits(expected[name])), (fixation, name)
+        moments = [v for s in agent.optimizer.state_dict()["state"].values() for v in s.values()]
+        expected_moments = [v for s in reference.optimizer.state_dict()["state"].values() for v in s.values()]
+        assert all(torch.equal(_bits(a), _bits(b)) for a, b in zip(moments, expected_moments, strict=True))
+        assert torch.equal(agent.generator.get_state(), reference.generator.get_state())

@@ -16,9 +16,10 @@ __all__ = ["merge_moments", "scale_to_norm", "standardize"]
 
 
 def standardize(features: Tensor, count: Tensor, mean: Tensor, m2: Tensor, eps: float,
-                norm: float | None = None) -> Tensor:
+                norm: float | None = None, *, out: Tensor | None = None) -> Tensor:
     """``(features - mean) / sqrt(var + eps)`` with the sample variance ``m2 / (count - 1)`` (1
     before two samples), then, when ``norm`` is given, each row scaled to that Euclidean norm.
+    ``out``: the result is written there (it may be ``features`` itself; no gradient).
 
     Shape:
         features `[..., F]`; count `[]`; mean, m2 `[F]` -> `[..., F]`.
@@ -33,23 +34,46 @@ def standardize(features: Tensor, count: Tensor, mean: Tensor, m2: Tensor, eps: 
     n = count.to(features.dtype)
     sample_var = m2 / (n - 1).clamp_min(1)
     var = torch.where(n > 1, sample_var, torch.ones_like(sample_var))
-    x = (features - mean) / torch.sqrt(var + eps)
-    return x if norm is None else scale_to_norm(x, norm)
+    # The same operations as ``(features - mean) / sqrt(var + eps)`` then ``x * (norm / length)``,
+    # the division and the product in place on the difference (a new tensor) when no gradient
+    # flows: one large temporary instead of three, the same bits.
+    inplace = not (torch.is_grad_enabled() and (features.requires_grad or mean.requires_grad or m2.requires_grad))
+    if out is not None and not inplace:
+        raise RuntimeError("standardize: out= with a gradient")
+    x = features - mean if out is None else torch.sub(features, mean, out=out)
+    x = x.div_(torch.sqrt(var + eps)) if inplace else x / torch.sqrt(var + eps)
+    return x if norm is None else _scale_to_norm(x, norm, inplace)
 
 
 def scale_to_norm(x: Tensor, norm: float) -> Tensor:
     """Each row of ``x`` `[..., F]` scaled to Euclidean norm ``norm`` (a zero row stays zero)."""
-    length = torch.linalg.vector_norm(x, dim=-1, keepdim=True)
-    return x * (norm / length.clamp_min(torch.finfo(x.dtype).tiny))
+    return _scale_to_norm(x, norm, False)
 
 
-def merge_moments(count: Tensor, mean: Tensor, m2: Tensor, f: Tensor, mask: Tensor,
-                  reduce: Callable[[Tensor], Tensor], window: int | None = None) -> tuple[Tensor, Tensor, Tensor]:
+def _scale_to_norm(x: Tensor, norm: float, inplace: bool) -> Tensor:
+    """`scale_to_norm`, in place on ``x`` when ``inplace``."""
+    scale = norm / torch.linalg.vector_norm(x, dim=-1, keepdim=True).clamp_min(torch.finfo(x.dtype).tiny)
+    return x.mul_(scale) if inplace else x * scale
+
+
+def merge_moments(count: Tensor, mean: Tensor, m2: Tensor, f: Tensor, mask: Tensor | None,
+                  reduce: Callable[[Tensor], Tensor], window: int | None = None, *,
+                  workspace: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
     """Welford count, mean and M2 with the rows of ``f`` `[B, F]` selected by ``mask`` `[B]` merged in
     (Chan's rule); ``reduce`` sums over the processes that share the batch (identity for one).
-    ``window``: the old statistics weigh at most ``window - n_batch`` samples (``None``: all)."""
-    m = mask.to(f.dtype)[:, None]
-    nb = reduce(m.sum())
+    ``window``: the old statistics weigh at most ``window - n_batch`` samples (``None``: all).
+    ``mask=None``: every row (the same numbers as an all-True mask, without its products).
+    ``workspace``: a tensor of ``f``'s shape and dtype to hold the squared deviations (no gradient;
+    else a new one)."""
+    if mask is None:
+        # Multiplying by a mask of ones changes no bit: the same sums, one pass less each.
+        m = None
+        nb = reduce(torch.tensor(float(f.shape[0]), dtype=f.dtype, device=f.device))
+        rows = torch.tensor(f.shape[0], dtype=torch.int64, device=f.device)
+    else:
+        m = mask.to(f.dtype)[:, None]
+        nb = reduce(m.sum())
+        rows = mask.sum()
     n = count.to(f.dtype)
     m2_old = m2
     if window is not None:  # the old statistics weigh at most `window - nb` samples
@@ -57,13 +81,19 @@ def merge_moments(count: Tensor, mean: Tensor, m2: Tensor, f: Tensor, mask: Tens
         m2_old = m2_old * (n_eff / n.clamp_min(1))
         n = n_eff
     total = (n + nb).clamp_min(1)
-    mean_b = reduce((m * f).sum(0)) / nb.clamp_min(1)
-    m2_b = reduce((m * (f - mean_b).square()).sum(0))
+    mean_b = reduce((f if m is None else m * f).sum(0)) / nb.clamp_min(1)
+    if torch.is_grad_enabled() and (f.requires_grad or mean_b.requires_grad):
+        deviation = (f - mean_b).square()
+        deviation = deviation if m is None else m * deviation
+    else:  # the same operations, in place on one temporary
+        deviation = (f - mean_b if workspace is None else torch.sub(f, mean_b, out=workspace)).square_()
+        deviation = deviation if m is None else deviation.mul_(m)
+    m2_b = reduce(deviation.sum(0))
     diff = mean_b - mean
     new_mean = mean + diff * (nb / total)
     new_m2 = m2_old + m2_b + diff.square() * (n * nb / total)
     if window is None:
-        new_count = count + reduce(mask.sum())
+        new_count = count + reduce(rows)
     else:  # the weight of the statistics, at most `window`
-        new_count = n.round().to(count.dtype) + reduce(mask.sum())
+        new_count = n.round().to(count.dtype) + reduce(rows)
     return new_count, new_mean, new_m2

@@ -114,6 +114,21 @@ def _torchrl():
     return TensorDict, TensorDictModule, ProbabilisticActor, ValueOperator, ClipPPOLoss, generalized_advantage_estimate
 
 
+def _same_bits(a: Tensor, b: Tensor) -> bool:
+    """Whether two tensors hold the same bits (unlike `torch.equal`, -0.0 is not 0.0 and a NaN is its
+    own equal): the same inputs for any computation."""
+    if a is b:
+        return True
+    if a.shape != b.shape or a.dtype != b.dtype or a.device != b.device:
+        return False
+    if a.dtype.is_complex:
+        return False
+    if a.dtype.is_floating_point:
+        width = {1: torch.uint8, 2: torch.int16, 4: torch.int32, 8: torch.int64}[a.element_size()]
+        a, b = a.contiguous().view(width), b.contiguous().view(width)
+    return torch.equal(a, b)
+
+
 def _network(inputs: int, outputs: int, hidden: int, init: float, generator, dtype, device) -> nn.Module:
     """A linear map, or an MLP with one tanh hidden layer; weights drawn from ``generator`` on the
     CPU (the same weights on any device), the output layer's uniform in +-``init``, biases 0."""
@@ -201,6 +216,15 @@ class PPO(nn.Module):
                                                       lr=cfg.lr)
         self._rollout: list[Transitions] = []
         self.fixations_seen = 0
+        # The last learn call's next features, z-scored, and their values (see learn), and the
+        # update's large tensors' memory, kept from one update to the next (see _update).
+        self._next: tuple | None = None
+        self._workspace: dict[str, Tensor] = {}
+
+    def __getstate__(self) -> dict:
+        """Copies and pickles leave the caches and the kept memory behind (nothing they hold is state)."""
+        state = super().__getstate__() if hasattr(super(), "__getstate__") else self.__dict__
+        return {**state, "_next": None, "_workspace": {}}
 
     def extra_repr(self) -> str:
         return f"num_features={self.num_features}, num_actions={self.num_actions}, config={self.config}"
@@ -208,8 +232,22 @@ class PPO(nn.Module):
     # -- the policy --------------------------------------------------------------------------------
     def normalize(self, features: Tensor) -> Tensor:
         """The features as the networks see them: z-scored (and scaled to ``feature_norm``)."""
+        return self._standardize(features)
+
+    def _standardize(self, features: Tensor, out: Tensor | None = None) -> Tensor:
+        """`normalize`, written to ``out`` (which may be ``features``) when given."""
         return standardize(features.to(self.feature_mean.dtype), self.feature_count, self.feature_mean,
-                           self.feature_m2, self.config.normalize_eps, self.config.feature_norm)
+                           self.feature_m2, self.config.normalize_eps, self.config.feature_norm, out=out)
+
+    def _buffer(self, name: str, shape: tuple[int, ...], like: Tensor, dtype: torch.dtype | None = None) -> Tensor:
+        """A contiguous tensor of ``shape`` (contents undefined) in memory kept under ``name``: the
+        first elements of a flat buffer that grows when needed."""
+        dtype = dtype or like.dtype
+        numel = math.prod(shape)
+        kept = self._workspace.get(name)
+        if kept is None or kept.numel() < numel or kept.dtype != dtype or kept.device != like.device:
+            kept = self._workspace[name] = torch.empty(numel, dtype=dtype, device=like.device)
+        return kept[:numel].view(shape)
 
     def log_policy(self, features: Tensor) -> Tensor:
         """log pi(.|s), `[B, F]` -> `[B, A]`."""
@@ -238,10 +276,13 @@ class PPO(nn.Module):
         function."""
         t = transitions
         with torch.no_grad():
-            value = self.value(self.normalize(t.features))[:, 0]
-            next_value = self.value(self.normalize(t.next_features))[:, 0]
+            x, value = self._features_of(t.features)
+            next_x = self.normalize(t.next_features)
+            next_value = self.value(next_x)[:, 0]
             td_error = t.rewards.to(value) + self.config.discount * next_value - value
-        self._rollout.append(Transitions(*(x.detach() for x in t[:4]), last=bool(t.last)))
+        self._rollout.append(Transitions(*(u.detach() for u in t[:4]), last=bool(t.last)))
+        # The next call's features are (in a fixation) these next features: z-scored and valued once.
+        self._next = (self._rollout[-1].next_features, next_x, next_value, self._stats_key(), self._value_key())
         if not t.last:
             return LearnOutput(td_error, False)
         self.fixations_seen += 1
@@ -249,6 +290,25 @@ class PPO(nn.Module):
             return LearnOutput(td_error, False)
         self._update(reduce)
         return LearnOutput(td_error, True)
+
+    # What the caches depend on: the z-scoring's buffers, and the value function's parameters (any
+    # in-place change, an optimizer step or a loaded state dict, bumps a tensor's version).
+    def _stats_key(self) -> tuple:
+        return tuple((t.data_ptr(), t._version) for t in (self.feature_count, self.feature_mean, self.feature_m2))
+
+    def _value_key(self) -> tuple:
+        return tuple((p.data_ptr(), p._version) for p in self.value.parameters())
+
+    def _features_of(self, features: Tensor) -> tuple[Tensor, Tensor]:
+        """``normalize(features)`` and its value, `[B]`: the last call's next features' when these are
+        the same bits under the same statistics and value function (the same numbers, computed
+        once), else computed."""
+        cached = self._next
+        if (cached is not None and cached[3] == self._stats_key() and _same_bits(features, cached[0])):
+            x = cached[1]
+            return x, cached[2] if cached[4] == self._value_key() else self.value(x)[:, 0]
+        x = self.normalize(features)
+        return x, self.value(x)[:, 0]
 
     @torch.no_grad()
     def advantages(self, features: Tensor, next_features: Tensor, rewards: Tensor, last: Tensor) -> tuple[Tensor, Tensor]:
@@ -260,33 +320,55 @@ class PPO(nn.Module):
             last: `[T]` bool, True where a fixation ends (its next state's value is bootstrapped and
                 no advantage flows back across it).
         """
-        value = self.value(self.normalize(features))
-        next_value = self.value(self.normalize(next_features))
+        return self._advantages(self.normalize(features), self.normalize(next_features), rewards, last)
+
+    @torch.no_grad()
+    def _advantages(self, x: Tensor, next_x: Tensor, rewards: Tensor, last: Tensor) -> tuple[Tensor, Tensor]:
+        """`advantages` of the z-scored features ``x``, ``next_x``."""
+        value = self.value(x)
+        next_value = self.value(next_x)
         done = last.to(torch.bool)[None, :, None].expand_as(value).clone()
         return self._gae(self.config.discount, self.config.gae_lambda, value, next_value,
                          rewards.to(value)[..., None], done, torch.zeros_like(done))
 
     def _update(self, reduce: Reduce | None) -> None:
         cfg, rollout = self.config, self._rollout
-        features = torch.stack([t.features for t in rollout], 1)  # [B, T, F]
-        next_features = torch.stack([t.next_features for t in rollout], 1)
+        # The rollout's large tensors, [B, T, F], live in memory kept from one update to the next:
+        # fresh memory of that size costs more in page faults than the update's arithmetic on it.
+        first = rollout[0].features
+        shape = (first.shape[0], len(rollout), first.shape[1])
+        features = torch.stack([t.features for t in rollout], 1, out=self._buffer("features", shape, first))
         rewards = torch.stack([t.rewards for t in rollout], 1).to(features)
         actions = torch.stack([t.actions for t in rollout], 1)
         last = torch.tensor([t.last for t in rollout], device=features.device)
-        advantage, target = self.advantages(features, next_features, rewards, last)
-        x = self.normalize(features)
+        # Each z-scored once (the statistics change at the update's end), in place where possible.
+        dtype = self.feature_mean.dtype
+        x = self._standardize(features, self._buffer("x", shape, first, dtype))
+        next_x = self._buffer("next_x", shape, first, dtype)
+        if first.dtype == dtype:
+            next_x = self._standardize(torch.stack([t.next_features for t in rollout], 1, out=next_x), next_x)
+        else:
+            next_x = self._standardize(torch.stack([t.next_features for t in rollout], 1), next_x)
+        advantage, target = self._advantages(x, next_x, rewards, last)
         with torch.no_grad():
             old = torch.log_softmax(self.policy(x), -1).gather(-1, actions[..., None])[..., 0]
-        batch = self._tensordict({"observation": x.flatten(0, 1), "action": actions.flatten(), "action_log_prob":
-                                  old.flatten(), "advantage": advantage.flatten(0, 1), "value_target":
-                                  target.flatten(0, 1)}, batch_size=[actions.numel()])
+        columns = {"observation": x.flatten(0, 1), "action": actions.flatten(), "action_log_prob": old.flatten(),
+                   "advantage": advantage.flatten(0, 1), "value_target": target.flatten(0, 1)}
+        rows = actions.numel()
         parameters = [p for group in self.optimizer.param_groups for p in group["params"]]
-        minibatches = min(cfg.minibatches, batch.batch_size[0])  # a rollout smaller than that: one each
-        size = batch.batch_size[0] // minibatches
+        minibatches = min(cfg.minibatches, rows)  # a rollout smaller than that: one each
+        size = rows // minibatches
+        # Each epoch's shuffled rows, copied once into kept memory (next_x's: no longer needed);
+        # its minibatches, consecutive slices, hold the same rows in the same order as
+        # `batch[order[start:start + size]]` of the rollout's TensorDict.
+        shuffled_x = next_x.flatten(0, 1)
         for _ in range(cfg.epochs):
-            order = torch.randperm(batch.batch_size[0], generator=self.generator).to(features.device)
+            order = torch.randperm(rows, generator=self.generator).to(features.device)
+            shuffled = self._tensordict({k: torch.index_select(v, 0, order, out=shuffled_x) if k == "observation"
+                                         else v.index_select(0, order) for k, v in columns.items()},
+                                        batch_size=[rows])
             for start in range(0, size * minibatches, size):
-                losses = self._loss(batch[order[start:start + size]])
+                losses = self._loss(shuffled[start:start + size])
                 loss = losses["loss_objective"] + losses["loss_critic"] + losses["loss_entropy"]
                 self.optimizer.zero_grad(set_to_none=False)
                 loss.backward()
@@ -296,10 +378,8 @@ class PPO(nn.Module):
                         p.grad.copy_(reduce(p.grad) / world)
                 nn.utils.clip_grad_norm_(parameters, cfg.max_grad_norm)
                 self.optimizer.step()
-        flat = features.flatten(0, 1)
-        stats = merge_moments(self.feature_count, self.feature_mean, self.feature_m2, flat,
-                              torch.ones(flat.shape[0], dtype=torch.bool, device=flat.device),
-                              reduce or (lambda t: t))
+        stats = merge_moments(self.feature_count, self.feature_mean, self.feature_m2, features.flatten(0, 1), None,
+                              reduce or (lambda t: t), workspace=next_x.flatten(0, 1) if first.dtype == dtype else None)
         for buffer, new in zip((self.feature_count, self.feature_mean, self.feature_m2), stats):
             buffer.copy_(new)
         self._rollout = []
@@ -324,6 +404,7 @@ class PPO(nn.Module):
                              "next_features": t.next_features, "last": t.last} for t in self._rollout]}
 
     def set_extra_state(self, state: dict) -> None:
+        self._next = None
         self.optimizer.load_state_dict(state["optimizer"])
         self.fixations_seen = int(state["fixations_seen"])
         device = self.feature_mean.device
