@@ -177,10 +177,27 @@ def _bits(t: torch.Tensor) -> torch.Tensor:
     return t.view({4: torch.int32, 8: torch.int64}[t.element_size()]) if t.dtype.is_floating_point else t
 
 
+def _stock_loss(agent: PPO):
+    """The ClipPPOLoss of commit 4065a9b on ``agent``'s networks: TorchRL's stock wrappers and
+    validated categorical distributions."""
+    from tensordict.nn import TensorDictModule
+    from torchrl.modules import ProbabilisticActor, ValueOperator
+    from torchrl.objectives import ClipPPOLoss
+
+    cfg = agent.config
+    actor = ProbabilisticActor(TensorDictModule(agent.policy, in_keys=["observation"], out_keys=["logits"]),
+                               in_keys=["logits"], distribution_class=torch.distributions.Categorical,
+                               return_log_prob=True)
+    return ClipPPOLoss(actor, ValueOperator(agent.value, in_keys=["observation"]), clip_epsilon=cfg.clip,
+                       entropy_coeff=cfg.entropy_coef, critic_coeff=cfg.value_coef, loss_critic_type="l2",
+                       normalize_advantage=cfg.normalize_advantage, functional=False, log_explained_variance=False)
+
+
 def _reference_learn(agent: PPO, t: Transitions) -> torch.Tensor:
     """PPO's learn as first written (commit 4065a9b), on ``agent``'s networks, optimizer, generator
     and buffers: every tensor computed afresh (three z-scorings of the rollout, its TensorDict
-    indexed per minibatch, the z-scoring's moments merged under a mask of ones)."""
+    indexed per minibatch, the z-scoring's moments merged under a mask of ones), the loss built
+    from TorchRL's stock wrappers (`_stock_loss`, set as ``agent._loss`` by the caller)."""
     from tensordict import TensorDict
 
     def normalize(f):
@@ -236,11 +253,12 @@ def _reference_learn(agent: PPO, t: Transitions) -> torch.Tensor:
 def test_ppo_learns_bit_for_bit_as_a_plain_reference():
     """The agent's shortcuts (z-scoring once, in memory kept across updates; reusing the last
     call's next features' z-scores and values; minibatches as slices of each epoch's shuffled
-    copy) change no bit: TD errors, actions, parameters, Adam's state, the statistics and the
+    copy; the loss's networks without TorchRL's wrappers, its distributions unvalidated) change no bit: TD errors, actions, parameters, Adam's state, the statistics and the
     generator as a plain reference's, over fixations of several lengths (the kept memory reused
     smaller and grown) and transitions whose features are and are not the last call's next ones."""
     agent = PPO(6, ACTIONS, PPOConfig(epochs=2, minibatches=3), generator=_gen(3))
     reference = copy.deepcopy(agent)
+    reference.__dict__["_loss"] = _stock_loss(reference)
     data = _gen(4)
     f = torch.rand(8, 6, generator=data)
     for fixation, length in enumerate((6, 3, 9, 4)):

@@ -23,6 +23,7 @@ built.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 from typing import Optional, Sequence
@@ -102,16 +103,43 @@ class PPOConfig:
             check_real(self.feature_norm, f"{owner}.feature_norm", above=0)
 
 
+@functools.cache
 def _torchrl():
     try:
         from tensordict import TensorDict
-        from tensordict.nn import TensorDictModule
-        from torchrl.modules import ProbabilisticActor, ValueOperator
+        from tensordict.nn import TensorDictModuleBase
+        from torchrl.modules import ProbabilisticActor
         from torchrl.objectives import ClipPPOLoss
         from torchrl.objectives.value.functional import generalized_advantage_estimate
     except ImportError as err:
         raise ImportError("the PPO agent needs TorchRL: pip install 'aectorch[rl]' (torchrl and tensordict)") from err
-    return TensorDict, TensorDictModule, ProbabilisticActor, ValueOperator, ClipPPOLoss, generalized_advantage_estimate
+
+    class Keyed(TensorDictModuleBase):
+        """``tensordict[out_key] = network(tensordict[in_key])``: what ``TensorDictModule(network,
+        [in_key], [out_key])`` (and `ValueOperator`) computes, the same tensor, without their
+        per-call machinery (argument dispatch, and the output's `TensorDict.from_any`, which looks
+        up pandas on the import path each time)."""
+
+        def __init__(self, network: nn.Module, in_key: str, out_key: str) -> None:
+            super().__init__()
+            self.network = network
+            self.in_keys, self.out_keys = [in_key], [out_key]
+
+        def forward(self, tensordict):
+            tensordict.set(self.out_keys[0], self.network(tensordict.get(self.in_keys[0])))
+            return tensordict
+
+    # A module-level name (`__getattr__` below), so that an agent pickles.
+    Keyed.__name__ = Keyed.__qualname__ = "_Keyed"
+    Keyed.__module__ = __name__
+    globals()["_Keyed"] = Keyed
+    return TensorDict, Keyed, ProbabilisticActor, ClipPPOLoss, generalized_advantage_estimate
+
+
+def __getattr__(name: str):
+    if name == "_Keyed":  # defined with TorchRL's import
+        return _torchrl()[1]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _same_bits(a: Tensor, b: Tensor) -> bool:
@@ -198,15 +226,17 @@ class PPO(nn.Module):
         self.register_buffer("feature_count", torch.zeros((), dtype=torch.int64, device=like.device))
         self.register_buffer("feature_mean", like.new_zeros(num_features))
         self.register_buffer("feature_m2", like.new_zeros(num_features))
-        TensorDict, TensorDictModule, ProbabilisticActor, ValueOperator, ClipPPOLoss, gae = _torchrl()
+        TensorDict, Keyed, ProbabilisticActor, ClipPPOLoss, gae = _torchrl()
         self._tensordict, self._gae = TensorDict, gae
-        actor = ProbabilisticActor(TensorDictModule(self.policy, in_keys=["observation"], out_keys=["logits"]),
-                                   in_keys=["logits"], distribution_class=torch.distributions.Categorical,
-                                   return_log_prob=True)
+        # The loss's categorical distributions skip torch's argument checks (the logits are the
+        # policy's, the actions its own indices): the same numbers, fewer operations per step.
+        actor = ProbabilisticActor(Keyed(self.policy, "observation", "logits"), in_keys=["logits"],
+                                   distribution_class=torch.distributions.Categorical,
+                                   distribution_kwargs={"validate_args": False}, return_log_prob=True)
         # The loss holds the networks through TorchRL's wrappers: not registered as a submodule, so
         # the state dict names them once (policy.*, value.*).
         self.__dict__["_loss"] = ClipPPOLoss(
-            actor, ValueOperator(self.value, in_keys=["observation"]), clip_epsilon=cfg.clip,
+            actor, Keyed(self.value, "observation", "state_value"), clip_epsilon=cfg.clip,
             entropy_coeff=cfg.entropy_coef, critic_coeff=cfg.value_coef, loss_critic_type="l2",
             normalize_advantage=cfg.normalize_advantage,
             # The same update without functional parameter copies or the explained-variance log,
@@ -333,8 +363,8 @@ class PPO(nn.Module):
 
     def _update(self, reduce: Reduce | None) -> None:
         cfg, rollout = self.config, self._rollout
-        # The rollout's large tensors, [B, T, F], live in memory kept from one update to the next:
-        # fresh memory of that size costs more in page faults than the update's arithmetic on it.
+        # The rollout's large tensors, [B, T, F], live in memory kept from one update to the next
+        # (fresh memory of that size is paid for in page faults at every update).
         first = rollout[0].features
         shape = (first.shape[0], len(rollout), first.shape[1])
         features = torch.stack([t.features for t in rollout], 1, out=self._buffer("features", shape, first))
