@@ -703,6 +703,57 @@ def test_native_trilinear_kernel_matches_the_torch_code(scene, head, samples):
     assert p.grad is not None and p.grad.abs().sum() > 0
 
 
+@pytest.mark.parametrize("samples", [1, 2, 3])
+def test_native_trilinear_simd_blocks_tails_and_misses(scene, head, samples):
+    """The kernel's vector path (blocks of 16 or 8 pixels, masks for each branch) against the torch
+    code: rows whose pixel count is no multiple of the block (a tail, and fewer pixels than one
+    block), pixels on neither plane or behind the camera, magnification (one level), the last level,
+    many rows; float64 to 1e-9, float32 to float rounding."""
+    import aectorch.sim.render_torch as render_torch
+    from aectorch.coding import native
+    from aectorch.sim.render_torch import pixel_rays
+
+    assert native.available(), "the fused CPU kernels did not build (see the warning)"
+    g = torch.Generator().manual_seed(3)
+    base, plane_x = agreement_poses(head, torch.float64)  # [3, 2, 4, 4]
+    poses = base.repeat(3, 1, 1, 1)  # 9 x 2 = 18 rows
+    # Rotate every camera by up to ~90 degrees about a random axis and move it: rays that miss both
+    # planes or point away from them, cameras beyond the object plane (it is behind them).
+    axis = torch.nn.functional.normalize(torch.randn(18, 3, generator=g, dtype=torch.float64), dim=1)
+    angle = (torch.rand(18, 1, 1, generator=g, dtype=torch.float64) * 2 - 1) * 1.6
+    k = torch.zeros(18, 3, 3, dtype=torch.float64)
+    k[:, 0, 1], k[:, 0, 2], k[:, 1, 2] = -axis[:, 2], axis[:, 1], -axis[:, 0]
+    k = k - k.transpose(1, 2)
+    rot = torch.eye(3, dtype=torch.float64) + angle.sin() * k + (1 - angle.cos()) * k @ k
+    poses = poses.clone().reshape(18, 4, 4)
+    poses[:, :3, :3] = rot @ poses[:, :3, :3]
+    poses[:, :3, 3] += torch.randn(18, 3, generator=g, dtype=torch.float64) * torch.tensor([0.3, 0.5, 0.5])
+    poses = poses.reshape(9, 2, 4, 4)
+    plane_x = plane_x.repeat(3) * torch.tensor([1, 1, 1, 0.5, 2, 1, 1, 0.05, 3], dtype=torch.float64)
+    index = torch.tensor([0, 1, 2, 2, 1, 0, 1, 2, 0])
+    renderer = TorchPlaneRenderer(scene, filter="trilinear").double()
+    mip = renderer._atlas()
+    rays = pixel_rays(CAMERA, [(CAMERA.central_window(80), 2), (CROPS, 8)], dtype=torch.float64)
+    torch_code = render_torch._native_trilinear
+    for pixels in (rays[0].shape[0] - 3, 37, 5):  # a tail after whole blocks; a short row
+        some = tuple(r[:pixels] for r in rays)
+        for lod_bias in (-0.5, -6.0, 6.0):  # as trained; magnified everywhere; the coarsest levels
+            def render(p, dtype):
+                return render_torch.render_rays(p.to(dtype), plane_x.to(dtype), index, scene,
+                                                tuple(r.to(dtype) for r in some), atlas=mip, filter="trilinear",
+                                                lod_bias=lod_bias, samples=samples)
+            fused64, fused32 = render(poses, torch.float64), render(poses, torch.float32)
+            try:
+                render_torch._native_trilinear = lambda *args: False
+                reference = render(poses, torch.float64)
+            finally:
+                render_torch._native_trilinear = torch_code
+            where = f"{pixels} pixels, lod_bias {lod_bias}"
+            assert (reference == 0).any() and (reference > 0).any(), where  # misses and hits
+            torch.testing.assert_close(fused64, reference, rtol=0, atol=1e-9, msg=where)
+            torch.testing.assert_close(fused32, reference.float(), rtol=0, atol=2e-4, msg=where)
+
+
 def test_pyrender_and_torch_agree_at_every_scale(scene, head):
     """Both renderers with mipmaps at each default scale's resolution: mean |diff| <= 1 % (2.6 grey levels)."""
     from aectorch.coding.patches import COARSE, FINE, WIDE

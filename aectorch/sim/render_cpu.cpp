@@ -10,16 +10,25 @@
 // (AVX-512: 16 floats or 8 doubles; AVX2: 8 or 4), every lane doing exactly the scalar code's
 // operations in the same order (add/sub/mul/div/min/max/floor are exact in SIMD, no FMA: the
 // build uses -ffp-contract=off and no fma intrinsics), so the result is bit-identical to the
-// scalar loop (render_row_scalar, the fallback without AVX2 and for atlases of 2^31 elements or
-// more). The branches become masks: a pixel on neither plane is rendered as a dummy at texel
-// (0, 0) of the background and stored as 0; the level pair is per lane (its scale, size and place
-// in the atlas computed from the level as the scalar code's tables are); the second level is read
-// only when some lane of the block has weight on it; each texel fetch is a gather (int32 indices,
-// clamped at 0 so that no lane can read outside the atlas). The level of detail's log2 stays the
-// scalar libm call, lane by lane (a vector log2 rounds differently). std::max(a, b) is
-// (a < b ? b : a), i.e. max_ps(b, a), and std::min(a, b) is min_ps(b, a) (the same result for
-// NaN and signed zeros too). Threads: OpenMP over rows (aectorch_kernel_threads()); each pixel is
-// independent, so the result does not depend on the threads or the block size.
+// scalar loop (render_row_scalar: the fallback without AVX2, and for atlases of 2^31 elements or
+// more). std::max(a, b) is (a < b ? b : a), i.e. max_ps(b, a), and std::min(a, b) is
+// min_ps(b, a): the same result for NaN and signed zeros too.
+//
+// A row goes in chunks of 16 blocks, two passes each. First the rays, planes, footprints and
+// levels of detail of the whole chunk into small buffers; the level of detail's log2 stays the
+// scalar libm call (a vector log2 rounds differently), one scalar loop over the chunk, and is
+// skipped where rho2 is so small (by a relative margin of 2^-10, far beyond libm's error) that
+// the level is clamped to exactly 0 anyway (magnification: ~2/3 of the pixels when training).
+// Then the sub-samples' lookups, block by block, while the next chunk's centre texels (finer
+// level) are prefetched. The branches become masks: a pixel on neither plane is rendered as a
+// dummy at texel (0, 0) of the background and stored as 0 (as are the dummy lanes after a row's
+// last pixel); each lane's two levels (their scale, size and place in the atlas computed from
+// the level as the scalar code's tables are); the second level is read only when some lane of
+// the block has weight on it. Texel fetches are gathers with int32 indices, clamped at 0 so that
+// no lane can read outside the atlas; float32 on AVX-512 reads each pair of neighbours in a texel
+// row with one 64-bit gather (half the gathered elements). Threads: OpenMP over rows
+// (aectorch_kernel_threads()); each pixel is independent, so the result depends neither on the
+// threads nor on the block size.
 //
 // Registered as aectorch::render_trilinear (built with the pursuit kernel by
 // aectorch.coding.native; its fake implementation for torch.compile lives there too).
@@ -370,12 +379,18 @@ void render_row_simd(const Row<typename S::T>& R) {
   const int object_offset = static_cast<int>(R.object_layer * R.layer_size);
   const int background_offset = static_cast<int>((R.layers - 1) * R.layer_size);
   const I layer_step = S::iset1(object_offset - background_offset), background_base = S::iset1(background_offset);
-  // The chunk: per pixel (u, v) in level-0 texels, the footprint's sides, the level of detail
-  // (first max(rho2, 1e-30)) and the layer's offset in the atlas; per block which lanes see a
-  // plane and which need the log2.
-  alignas(64) T cu[K], cv[K], cdu_c[K], cdv_c[K], cdu_r[K], cdv_r[K], clod[K];
-  alignas(64) int coff[K], cidx[N];
-  M cseen[BLOCKS], cneed[BLOCKS];
+  // A chunk: per pixel (u, v) in level-0 texels, the footprint's sides, the level of detail
+  // (first max(rho2, 1e-30)), the layer's offset in the atlas and the centre texel at the finer
+  // level (to prefetch); per block which lanes see a plane and which need the log2. Two of them:
+  // the next chunk's texels are prefetched while this one's are read.
+  struct Chunk {
+    alignas(64) T u[K], v[K], du_c[K], dv_c[K], du_r[K], dv_r[K], lod[K];
+    alignas(64) int off[K], centre[K];
+    M seen[BLOCKS], need[BLOCKS];
+    int64_t start;
+    int blocks;
+  };
+  Chunk chunks[2];
   alignas(64) T buffer[N], xin[N], yin[N], sin_[N];
 
   // Bilinear at clamped texel coordinates (lookup above), layer_off + the texel's index.
@@ -404,11 +419,12 @@ void render_row_simd(const Row<typename S::T>& R) {
     return L;
   };
 
-  for (int64_t c0 = 0; c0 < R.pixels; c0 += K) {
-    const int blocks = static_cast<int>((std::min<int64_t>(K, R.pixels - c0) + N - 1) / N);
+  auto prepare = [&](Chunk& C, int64_t start) {
+    C.start = start;
+    const int blocks = C.blocks = static_cast<int>((std::min<int64_t>(K, R.pixels - start) + N - 1) / N);
     // 1. The rays, planes and footprints.
     for (int j = 0; j < blocks; ++j) {
-      const int64_t p = c0 + j * N;
+      const int64_t p = C.start + j * N;
       const int n = static_cast<int>(std::min<int64_t>(N, R.pixels - p));
       V x, y, st;
       if (n == N) {
@@ -436,7 +452,7 @@ void render_row_simd(const Row<typename S::T>& R) {
           ? S::mand(S::mand(ahead, S::mand(S::ge(ub, zero), S::le(ub, one))), S::mand(S::ge(vb, zero), S::le(vb, one)))
           : S::mnone();
       const M seen = S::mor(on_object, on_background);
-      cseen[j] = seen;
+      C.seen[j] = seen;
       // Lanes on neither plane: u = v = 0 and no footprint (level 0 of the background, in range).
       const V u = S::select(seen, S::mul(S::select(on_object, uo, ub), tw), zero);
       const V v = S::select(seen, S::mul(S::select(on_object, vo, vb), th), zero);
@@ -449,51 +465,55 @@ void render_row_simd(const Row<typename S::T>& R) {
       // std::max(c, r) = max_ps(r, c)
       const V rho2 = S::max(S::add(S::mul(du_r, du_r), S::mul(dv_r, dv_r)), S::add(S::mul(du_c, du_c), S::mul(dv_c, dv_c)));
       const V rho2c = S::max(tiny, rho2);
-      cneed[j] = S::mand(seen, S::mnot(S::lt(rho2c, below_zero)));
+      C.need[j] = S::mand(seen, S::mnot(S::lt(rho2c, below_zero)));
       const int at = j * N;
-      S::store(cu + at, u), S::store(cv + at, v);
-      S::store(cdu_c + at, du_c), S::store(cdv_c + at, dv_c), S::store(cdu_r + at, du_r), S::store(cdv_r + at, dv_r);
-      S::store(clod + at, rho2c);
-      S::istore(coff + at, S::iadd(background_base, S::imul(S::cvt(S::select(on_object, one, zero)), layer_step)));
+      S::store(C.u + at, u), S::store(C.v + at, v);
+      S::store(C.du_c + at, du_c), S::store(C.dv_c + at, dv_c), S::store(C.du_r + at, du_r), S::store(C.dv_r + at, dv_r);
+      S::store(C.lod + at, rho2c);
+      S::istore(C.off + at, S::iadd(background_base, S::imul(S::cvt(S::select(on_object, one, zero)), layer_step)));
     }
     // 2. log2 (libm, one lane at a time) where the level of detail is not surely 0.
     for (int j = 0; j < blocks; ++j) {
-      for (unsigned need = S::bits(cneed[j]); need; need &= need - 1) {
+      for (unsigned need = S::bits(C.need[j]); need; need &= need - 1) {
         const int i = j * N + __builtin_ctz(need);
-        clod[i] = std::log2(clod[i]);
+        C.lod[i] = std::log2(C.lod[i]);
       }
     }
-    // 3. The levels of detail; prefetch each pixel's centre texels at the finer level.
+    // 3. The levels of detail, and each pixel's centre texel at the finer level.
     for (int j = 0; j < blocks; ++j) {
       const int at = j * N;
-      V lod = S::add(S::mul(half, S::load(clod + at)), bias);
-      lod = S::select(cneed[j], S::min(top, S::max(zero, lod)), zero);
-      S::store(clod + at, lod);
+      V lod = S::add(S::mul(half, S::load(C.lod + at)), bias);
+      lod = S::select(C.need[j], S::min(top, S::max(zero, lod)), zero);
+      S::store(C.lod + at, lod);
       const Level L = level_of(S::floor(lod));
-      const V sx = S::add(S::min(L.wmax, S::max(half, S::mul(S::load(cu + at), L.scale))), L.col);
-      const V sy = S::add(S::min(L.hmax, S::max(half, S::mul(S::load(cv + at), L.scale))), L.row);
+      const V sx = S::add(S::min(L.wmax, S::max(half, S::mul(S::load(C.u + at), L.scale))), L.col);
+      const V sy = S::add(S::min(L.hmax, S::max(half, S::mul(S::load(C.v + at), L.scale))), L.row);
       const I x0 = S::imax(S::cvt(S::sub(sx, half)), izero), y0 = S::imax(S::cvt(S::sub(sy, half)), izero);
-      S::istore(cidx, S::iadd(S::iload(coff + at), S::iadd(S::imul(y0, icols), x0)));
-      for (int i = 0; i < N; ++i) {
-        const T* texel = R.tex + cidx[i];
-        __builtin_prefetch(texel);
-        __builtin_prefetch(texel + cols);
-      }
+      S::istore(C.centre + at, S::iadd(S::iload(C.off + at), S::iadd(S::imul(y0, icols), x0)));
     }
+  };
+  auto render_chunk = [&](const Chunk& C, const Chunk* next) {
     // 4. The sub-samples, two levels each where some lane of the block needs the second.
-    for (int j = 0; j < blocks; ++j) {
-      const int64_t p = c0 + j * N;
+    for (int j = 0; j < C.blocks; ++j) {
+      if (next != nullptr && j < next->blocks) {
+        for (int i = j * N; i < (j + 1) * N; ++i) {
+          const T* texel = R.tex + next->centre[i];
+          __builtin_prefetch(texel);
+          __builtin_prefetch(texel + cols);
+        }
+      }
+      const int64_t p = C.start + j * N;
       const int n = static_cast<int>(std::min<int64_t>(N, R.pixels - p));
       const int at = j * N;
-      const M seen = cseen[j];
+      const M seen = C.seen[j];
       const unsigned seen_bits = S::bits(seen);
       V out = zero;
       if (seen_bits != 0) {
-        const V u = S::load(cu + at), v = S::load(cv + at);
-        const V du_c = S::load(cdu_c + at), dv_c = S::load(cdv_c + at);
-        const V du_r = S::load(cdu_r + at), dv_r = S::load(cdv_r + at);
-        const V lod = S::load(clod + at);
-        const I layer_off = S::iload(coff + at);
+        const V u = S::load(C.u + at), v = S::load(C.v + at);
+        const V du_c = S::load(C.du_c + at), dv_c = S::load(C.dv_c + at);
+        const V du_r = S::load(C.du_r + at), dv_r = S::load(C.dv_r + at);
+        const V lod = S::load(C.lod + at);
+        const I layer_off = S::iload(C.off + at);
         const V low = S::floor(lod);
         const V fraction = S::sub(lod, low);
         const V high = S::min(top, S::add(low, one));
@@ -531,6 +551,14 @@ void render_row_simd(const Row<typename S::T>& R) {
         for (int i = 0; i < n; ++i) R.dst[p + i] = buffer[i];
       }
     }
+  };
+
+  prepare(chunks[0], 0);
+  for (int i = 0; i < chunks[0].blocks * N; ++i) __builtin_prefetch(R.tex + chunks[0].centre[i]);
+  for (int64_t start = 0, k = 0; start < R.pixels; start += K, k ^= 1) {
+    const bool more = start + K < R.pixels;
+    if (more) prepare(chunks[k ^ 1], start + K);
+    render_chunk(chunks[k], more ? &chunks[k ^ 1] : nullptr);
   }
 }
 #endif
