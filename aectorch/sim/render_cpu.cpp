@@ -24,11 +24,11 @@
 // dummy at texel (0, 0) of the background and stored as 0 (as are the dummy lanes after a row's
 // last pixel); each lane's two levels (their scale, size and place in the atlas computed from
 // the level as the scalar code's tables are); the second level is read only when some lane of
-// the block has weight on it. Texel fetches are gathers with int32 indices, clamped at 0 so that
-// no lane can read outside the atlas; float32 on AVX-512 reads each pair of neighbours in a texel
-// row with one 64-bit gather (half the gathered elements). Threads: OpenMP over rows
-// (aectorch_kernel_threads()); each pixel is independent, so the result depends neither on the
-// threads nor on the block size.
+// the block has weight on it. Texel fetches are gathers with int32 indices, clamped into the
+// layer so that no lane can read outside the atlas (not even from NaN inputs); float32 on AVX-512
+// reads each pair of neighbours in a texel row with one 64-bit gather (half the gathered
+// elements). Threads: OpenMP over rows (aectorch_kernel_threads()); each pixel is independent,
+// so the result depends neither on the threads nor on the block size.
 //
 // Registered as aectorch::render_trilinear (built with the pursuit kernel by
 // aectorch.coding.native; its fake implementation for torch.compile lives there too).
@@ -374,7 +374,7 @@ void render_row_simd(const Row<typename S::T>& R) {
   const bool object_ahead = R.reach_o > 0, background_ahead = R.reach_b > 0;
   const int64_t samples = R.samples;
   const int cols = static_cast<int>(R.cols);
-  const I icols = S::iset1(cols), irows1 = S::iset1(static_cast<int>(R.rows - 1));
+  const I icols = S::iset1(cols), icols1 = S::iset1(cols - 1), irows1 = S::iset1(static_cast<int>(R.rows - 1));
   const I izero = S::iset1(0), ione = S::iset1(1);
   const int object_offset = static_cast<int>(R.object_layer * R.layer_size);
   const int background_offset = static_cast<int>((R.layers - 1) * R.layer_size);
@@ -398,7 +398,9 @@ void render_row_simd(const Row<typename S::T>& R) {
     const V fx = S::sub(x, half), fy = S::sub(y, half);
     const V x0f = S::floor(fx), y0f = S::floor(fy);
     const V wx = S::sub(fx, x0f), wy = S::sub(fy, y0f);
-    const I x0 = S::imax(S::cvt(x0f), izero), y0 = S::imax(S::cvt(y0f), izero);
+    // (clamped into the layer: the identity for any level and coordinates the scalar code can
+    // meet, and no lane can read outside the atlas even from NaN inputs)
+    const I x0 = S::imin(S::imax(S::cvt(x0f), izero), icols1), y0 = S::imin(S::imax(S::cvt(y0f), izero), irows1);
     const I y1 = S::imin(S::iadd(y0, ione), irows1);
     const I row0 = S::iadd(layer_off, S::imul(y0, icols)), row1 = S::iadd(layer_off, S::imul(y1, icols));
     V a, b, c, d;
