@@ -25,19 +25,9 @@ import os
 import sys
 from pathlib import Path
 
-# How idle OpenMP threads wait (read once, when torch loads libgomp). With the default threads
-# (train.threads=0: torch's own operations on one thread, the fused kernels' threads one per
-# core) a kernel thread spins up to GOMP_SPINCOUNT polls (tens of milliseconds) before it
-# sleeps: woken from sleep for each of the ~50 kernel calls of an iteration, the loop ran 10 %
-# slower (docs/performance.md). With torch on several threads (train.threads=N), idle threads
-# sleep at once: a spinning thread made loops of small ops on 2 threads 15-45x slower while
-# another process held a core. A value set in the environment wins.
-if "OMP_WAIT_POLICY" not in os.environ and "GOMP_SPINCOUNT" not in os.environ:
-    _threads = [a.split("=", 1)[1].strip() for a in sys.argv[1:] if a.lstrip("+").startswith("train.threads=")]
-    if _threads and _threads[-1] not in ("0", "null"):
-        os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
-    else:
-        os.environ["GOMP_SPINCOUNT"] = "3000000"
+# Idle OpenMP threads sleep instead of spinning: with a spinning thread, loops of small ops on 2
+# threads ran 15-45x slower while another process held a core (docs/performance.md).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import hydra
 from hydra.core.hydra_config import HydraConfig

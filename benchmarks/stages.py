@@ -159,9 +159,7 @@ def main() -> None:
     for batch in ([] if args.from_json is not None else args.batches):
         for threads in args.kernel_threads:
             for isa in args.isa:
-                env = dict(os.environ, PYOPENGL_PLATFORM="osmesa", **ISAS[isa])
-                if "OMP_WAIT_POLICY" not in env and "GOMP_SPINCOUNT" not in env:
-                    env["GOMP_SPINCOUNT"] = "3000000"  # as train.py's defaults wait (train.py)
+                env = dict(os.environ, OMP_WAIT_POLICY="PASSIVE", PYOPENGL_PLATFORM="osmesa", **ISAS[isa])
                 iterations = max(8, args.iterations * 32 // batch)
                 result = subprocess.run([sys.executable, __file__, "--worker", str(batch), str(threads),
                                          "--iterations", str(iterations), "--warmup", str(args.warmup)],

@@ -180,11 +180,9 @@ class TrainConfig:
             kernels (``aectorch.coding.native.set_threads``) N each; 0 (default) gives the fused
             kernels (rendering, pursuit) every core this process may use
             (``os.sched_getaffinity``, shared among a ``torchrun`` run's processes) and torch's
-            own operations one, which measured fastest (docs/performance.md). Unless the
-            environment says otherwise, ``train.py`` lets idle kernel threads spin a while
-            (``GOMP_SPINCOUNT=3000000``, tens of milliseconds) before they sleep with 0, and makes
-            them sleep at once (``OMP_WAIT_POLICY=PASSIVE``) with N >= 1, where a spinning thread
-            slows torch's small operations on a core another process needs.
+            own operations one, which measured fastest (docs/performance.md). ``train.py`` sets
+            ``OMP_WAIT_POLICY=PASSIVE`` (unless set), so idle threads sleep instead of spinning on
+            a core another process needs.
         progress: show tqdm progress bars.
         figures: draw the figures into ``figures/`` at the end.
         tensorboard: write TensorBoard events into ``tb/``.
