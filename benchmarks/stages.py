@@ -22,7 +22,7 @@ for ``x86-64-v3`` (AVX2, ``AECTORCH_NATIVE_MARCH``), torch's own kernels dispatc
 instruction set of an AVX2 machine, on this machine's cores and caches.
 
 Usage:
-    python benchmarks/stages.py [--batches 32 256] [--kernel-threads 1 2] [--isa native avx2] [--json benchmarks/results/stages.json]
+    python benchmarks/stages.py [--batches 32 256] [--kernel-threads 1 2] [--isa native avx2] [--repeats 5] [--json benchmarks/results/stages.json]
 """
 
 from __future__ import annotations
@@ -137,6 +137,12 @@ def worker(batch: int, kernel_threads: int, iterations: int, warmup: int) -> dic
     }
 
 
+def _x_floor(row: dict) -> float:
+    """All stages' milliseconds per env-iteration over the floor of their matrix products."""
+    floor = 1e3 * sum(row["flops_per_env_iteration"].values()) / row["matmul_flops_per_s"]
+    return sum(row["ms_per_env_iteration"].values()) / floor
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--batches", type=int, nargs="+", default=[32, 256])
@@ -144,6 +150,8 @@ def main() -> None:
     parser.add_argument("--isa", nargs="+", default=["native"], choices=list(ISAS),
                         help="instruction sets to run on (default: native; avx2: no AVX-512, see above)")
     parser.add_argument("--iterations", type=int, default=40)
+    parser.add_argument("--repeats", type=int, default=1,
+                        help="runs per row, in interleaved rounds; the table shows each row's median run")
     parser.add_argument("--warmup", type=int, default=5)
     parser.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "stages.json")
     parser.add_argument("--from-json", type=Path, default=None, help="only print the table of an earlier run")
@@ -156,17 +164,30 @@ def main() -> None:
     if args.from_json is not None:
         rows = json.loads(args.from_json.read_text())["rows"]
         args.batches = sorted({row["B"] for row in rows})
-    for batch in ([] if args.from_json is not None else args.batches):
-        for threads in args.kernel_threads:
-            for isa in args.isa:
-                env = dict(os.environ, OMP_WAIT_POLICY="PASSIVE", PYOPENGL_PLATFORM="osmesa", **ISAS[isa])
-                iterations = max(8, args.iterations * 32 // batch)
-                result = subprocess.run([sys.executable, __file__, "--worker", str(batch), str(threads),
-                                         "--iterations", str(iterations), "--warmup", str(args.warmup)],
-                                        env=env, stdout=subprocess.PIPE, text=True, check=True)
-                rows.append(dict(json.loads(result.stdout.strip().splitlines()[-1]), isa=isa))
-                print(f"B={batch}, kernel threads {threads}, {isa}: {rows[-1]['env_iterations_per_s']:,.0f} "
-                      "env-iterations/s", file=sys.stderr, flush=True)
+    runs: dict[tuple, list[dict]] = {}
+    for repeat in range(0 if args.from_json is not None else args.repeats):  # rounds: drift hits every row
+        for batch in args.batches:
+            for threads in args.kernel_threads:
+                for isa in args.isa:
+                    env = dict(os.environ, OMP_WAIT_POLICY="PASSIVE", PYOPENGL_PLATFORM="osmesa", **ISAS[isa])
+                    iterations = max(8, args.iterations * 32 // batch)
+                    result = subprocess.run([sys.executable, __file__, "--worker", str(batch), str(threads),
+                                             "--iterations", str(iterations), "--warmup", str(args.warmup)],
+                                            env=env, stdout=subprocess.PIPE, text=True, check=True)
+                    run = dict(json.loads(result.stdout.strip().splitlines()[-1]), isa=isa)
+                    runs.setdefault((batch, threads, isa), []).append(run)
+                    print(f"round {repeat + 1}: B={batch}, kernel threads {threads}, {isa}: "
+                          f"{run['env_iterations_per_s']:,.0f} env-iterations/s, {_x_floor(run):.1f}x floor",
+                          file=sys.stderr, flush=True)
+    for key, found in runs.items():  # each row: its median run by the ratio to the floor
+        ordered = sorted(found, key=_x_floor)
+        rows.append(dict(ordered[(len(ordered) - 1) // 2], repeats=[
+            {"env_iterations_per_s": r["env_iterations_per_s"], "x_floor": _x_floor(r)} for r in found]))
+    if len(runs) and args.repeats > 1:
+        for row in rows:
+            ratios = sorted(r["x_floor"] for r in row["repeats"])
+            print(f"B={row['B']}, kernel threads {row['kernel_threads']}, {row['isa']}: x floor over "
+                  f"{len(ratios)} runs {', '.join(f'{x:.1f}' for x in ratios)} (median run below)", file=sys.stderr)
     isa_column = any(row.get("isa", "native") != "native" for row in rows)
     print("| B | kernel threads |" + (" ISA |" if isa_column else "")
           + " stage | ms / env-iteration | MFLOP / env-iteration | floor (ms) | x floor |")
