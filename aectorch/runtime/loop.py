@@ -55,9 +55,9 @@ def frozen_heap():
     """Within the block, Python's cyclic garbage collector leaves alone every object that existed
     at its start (``gc.freeze``): the learner, the environment, torch's and TorchRL's modules, the
     configuration. An iteration allocates enough small Python objects to start a collection every
-    few iterations, and each collection of the oldest generation walked all of them: 4 % of a
-    default run's CPU time (``perf``). Objects made inside the block are collected as usual; the
-    frozen ones are handed back to the collector at the end (``gc.unfreeze``)."""
+    few iterations, and each collection of the oldest generation walked all of them. Objects made
+    inside the block are collected as usual; the frozen ones are handed back to the collector at
+    the end (``gc.unfreeze``)."""
     gc.collect()
     gc.freeze()
     try:
