@@ -13,7 +13,7 @@ class's state, so both run on identical copies of one agent. The workload is the
   * ``update``: the fixation's last `learn`, which runs the update (the second of a run), after
     the calls before it (untimed);
   * ``bare_update``: `_update` alone on that rollout set directly (``agent._rollout = ...``, no
-    `learn` before it, so no cache of learn's);
+    `learn` before it);
   * ``fixation``: the recorded calls replayed in order (each cue's `act` and `learn` calls of the
     fixation's iterations, one update each), per iteration (both cues).
 

@@ -251,11 +251,12 @@ def _reference_learn(agent: PPO, t: Transitions) -> torch.Tensor:
 
 
 def test_ppo_learns_bit_for_bit_as_a_plain_reference():
-    """The agent's shortcuts (z-scoring once, in memory kept across updates; reusing the last
-    call's next features' z-scores and values; minibatches as slices of each epoch's shuffled
-    copy; the loss's networks without TorchRL's wrappers, its distributions unvalidated) change no bit: TD errors, actions, parameters, Adam's state, the statistics and the
-    generator as a plain reference's, over fixations of several lengths (the kept memory reused
-    smaller and grown) and transitions whose features are and are not the last call's next ones."""
+    """The agent's shortcuts (z-scoring once, in memory kept across updates; minibatches as
+    slices of each epoch's shuffled copy; the loss's networks without TorchRL's wrappers, its
+    distributions unvalidated) change no bit: TD errors, actions, parameters, Adam's state, the
+    statistics and the generator as a plain reference's, over fixations of several lengths (the
+    kept memory reused smaller and grown) and transitions whose features are and are not the last
+    call's next ones."""
     agent = PPO(6, ACTIONS, PPOConfig(epochs=2, minibatches=3), generator=_gen(3))
     reference = copy.deepcopy(agent)
     reference.__dict__["_loss"] = _stock_loss(reference)
@@ -263,7 +264,7 @@ def test_ppo_learns_bit_for_bit_as_a_plain_reference():
     f = torch.rand(8, 6, generator=data)
     for fixation, length in enumerate((6, 3, 9, 4)):
         for step in range(length):
-            if step == 2:  # not the last call's next features: z-scored and valued afresh
+            if step == 2:  # not the last call's next features
                 f = torch.rand(8, 6, generator=data)
             if step == 3:  # the same numbers in another tensor, one zero's sign flipped
                 f = f.clone()

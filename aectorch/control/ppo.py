@@ -23,7 +23,6 @@ built.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 from dataclasses import dataclass
 from typing import Optional, Sequence
@@ -103,58 +102,17 @@ class PPOConfig:
             check_real(self.feature_norm, f"{owner}.feature_norm", above=0)
 
 
-@functools.cache
 def _torchrl():
     try:
         from tensordict import TensorDict
-        from tensordict.nn import TensorDictModuleBase
         from torchrl.modules import ProbabilisticActor
         from torchrl.objectives import ClipPPOLoss
         from torchrl.objectives.value.functional import generalized_advantage_estimate
+
+        from aectorch.control._keyed import Keyed
     except ImportError as err:
         raise ImportError("the PPO agent needs TorchRL: pip install 'aectorch[rl]' (torchrl and tensordict)") from err
-
-    class Keyed(TensorDictModuleBase):
-        """``tensordict[out_key] = network(tensordict[in_key])``: what ``TensorDictModule(network,
-        [in_key], [out_key])`` (and `ValueOperator`) computes, the same tensor, without their
-        per-call machinery (argument dispatch, and the output's `TensorDict.from_any`, which looks
-        up pandas on the import path each time)."""
-
-        def __init__(self, network: nn.Module, in_key: str, out_key: str) -> None:
-            super().__init__()
-            self.network = network
-            self.in_keys, self.out_keys = [in_key], [out_key]
-
-        def forward(self, tensordict):
-            tensordict.set(self.out_keys[0], self.network(tensordict.get(self.in_keys[0])))
-            return tensordict
-
-    # A module-level name (`__getattr__` below), so that an agent pickles.
-    Keyed.__name__ = Keyed.__qualname__ = "_Keyed"
-    Keyed.__module__ = __name__
-    globals()["_Keyed"] = Keyed
     return TensorDict, Keyed, ProbabilisticActor, ClipPPOLoss, generalized_advantage_estimate
-
-
-def __getattr__(name: str):
-    if name == "_Keyed":  # defined with TorchRL's import
-        return _torchrl()[1]
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def _same_bits(a: Tensor, b: Tensor) -> bool:
-    """Whether two tensors hold the same bits (unlike `torch.equal`, -0.0 is not 0.0 and a NaN is its
-    own equal): the same inputs for any computation."""
-    if a is b:
-        return True
-    if a.shape != b.shape or a.dtype != b.dtype or a.device != b.device:
-        return False
-    if a.dtype.is_complex:
-        return False
-    if a.dtype.is_floating_point:
-        width = {1: torch.uint8, 2: torch.int16, 4: torch.int32, 8: torch.int64}[a.element_size()]
-        a, b = a.contiguous().view(width), b.contiguous().view(width)
-    return torch.equal(a, b)
 
 
 def _network(inputs: int, outputs: int, hidden: int, init: float, generator, dtype, device) -> nn.Module:
@@ -246,15 +204,13 @@ class PPO(nn.Module):
                                                       lr=cfg.lr)
         self._rollout: list[Transitions] = []
         self.fixations_seen = 0
-        # The last learn call's next features, z-scored, and their values (see learn), and the
-        # update's large tensors' memory, kept from one update to the next (see _update).
-        self._next: tuple | None = None
+        # The update's large tensors' memory, kept from one update to the next (see _update).
         self._workspace: dict[str, Tensor] = {}
 
     def __getstate__(self) -> dict:
-        """Copies and pickles leave the caches and the kept memory behind (nothing they hold is state)."""
+        """Copies and pickles leave the kept memory behind (nothing it holds is state)."""
         state = super().__getstate__() if hasattr(super(), "__getstate__") else self.__dict__
-        return {**state, "_next": None, "_workspace": {}}
+        return {**state, "_workspace": {}}
 
     def extra_repr(self) -> str:
         return f"num_features={self.num_features}, num_actions={self.num_actions}, config={self.config}"
@@ -306,13 +262,10 @@ class PPO(nn.Module):
         function."""
         t = transitions
         with torch.no_grad():
-            x, value = self._features_of(t.features)
-            next_x = self.normalize(t.next_features)
-            next_value = self.value(next_x)[:, 0]
+            value = self.value(self.normalize(t.features))[:, 0]
+            next_value = self.value(self.normalize(t.next_features))[:, 0]
             td_error = t.rewards.to(value) + self.config.discount * next_value - value
         self._rollout.append(Transitions(*(u.detach() for u in t[:4]), last=bool(t.last)))
-        # The next call's features are (in a fixation) these next features: z-scored and valued once.
-        self._next = (self._rollout[-1].next_features, next_x, next_value, self._stats_key(), self._value_key())
         if not t.last:
             return LearnOutput(td_error, False)
         self.fixations_seen += 1
@@ -320,25 +273,6 @@ class PPO(nn.Module):
             return LearnOutput(td_error, False)
         self._update(reduce)
         return LearnOutput(td_error, True)
-
-    # What the caches depend on: the z-scoring's buffers, and the value function's parameters (any
-    # in-place change, an optimizer step or a loaded state dict, bumps a tensor's version).
-    def _stats_key(self) -> tuple:
-        return tuple((t.data_ptr(), t._version) for t in (self.feature_count, self.feature_mean, self.feature_m2))
-
-    def _value_key(self) -> tuple:
-        return tuple((p.data_ptr(), p._version) for p in self.value.parameters())
-
-    def _features_of(self, features: Tensor) -> tuple[Tensor, Tensor]:
-        """``normalize(features)`` and its value, `[B]`: the last call's next features' when these are
-        the same bits under the same statistics and value function (the same numbers, computed
-        once), else computed."""
-        cached = self._next
-        if (cached is not None and cached[3] == self._stats_key() and _same_bits(features, cached[0])):
-            x = cached[1]
-            return x, cached[2] if cached[4] == self._value_key() else self.value(x)[:, 0]
-        x = self.normalize(features)
-        return x, self.value(x)[:, 0]
 
     @torch.no_grad()
     def advantages(self, features: Tensor, next_features: Tensor, rewards: Tensor, last: Tensor) -> tuple[Tensor, Tensor]:
@@ -434,7 +368,6 @@ class PPO(nn.Module):
                              "next_features": t.next_features, "last": t.last} for t in self._rollout]}
 
     def set_extra_state(self, state: dict) -> None:
-        self._next = None
         self.optimizer.load_state_dict(state["optimizer"])
         self.fixations_seen = int(state["fixations_seen"])
         device = self.feature_mean.device
