@@ -98,10 +98,22 @@ inline void merge_lanes(const V& best_lane, const VI& where, int64_t n, T* best,
   *at = a;
 }
 
+// One vector's step of a lane-wise argmax |a|: each lane keeps its largest magnitude and the first
+// index that reached it (a strict comparison keeps the earlier index on ties); index moves on to
+// the next vector's.
+template <typename V, typename VI>
+inline void keep_largest(V a, V& best_lane, VI& where, VI& index) {
+  constexpr int kLanes = sizeof(V) / sizeof(a[0]);
+  const V v = a < 0 ? -a : a;
+  const VI better = v > best_lane;
+  best_lane = better ? v : best_lane;
+  where = better ? index : where;
+  index += kLanes;
+}
+
 // Index and value of the largest |a[j]|, the first one on ties (torch.argmax's rule).
-// One pass in GCC/Clang vector types: each lane keeps its largest magnitude and the first index
-// that reached it (a strict comparison keeps the earlier index on ties); then the lanes are
-// merged, ties going to the smaller index. The compilers do not vectorise this from scalar code
+// One pass in GCC/Clang vector types (keep_largest), then the lanes are merged, ties going to the
+// smaller index. The compilers do not vectorise this from scalar code
 // (it ran 3.4x slower).
 template <typename T>
 inline int64_t argmax_abs(const T* a, int64_t n, T* value) {
@@ -118,11 +130,7 @@ inline int64_t argmax_abs(const T* a, int64_t n, T* value) {
   for (; j + kLanes <= n; j += kLanes) {
     V v;
     std::memcpy(&v, a + j, sizeof(V));
-    v = v < 0 ? -v : v;
-    const VI better = v > best_lane;
-    best_lane = better ? v : best_lane;
-    where = better ? index : where;
-    index += kLanes;
+    keep_largest(v, best_lane, where, index);
   }
   T best;
   int64_t at;
@@ -185,11 +193,7 @@ inline int64_t update_argmax_abs(T* __restrict alpha, const T* const* rows, cons
       V a = *parts[u];
       a = index == zero ? V{} : a;
       std::memcpy(alpha + j + u * kLanes, &a, sizeof(V));
-      const V v = a < 0 ? -a : a;
-      const VI better = v > best_lane;
-      best_lane = better ? v : best_lane;
-      where = better ? index : where;
-      index += kLanes;
+      keep_largest(a, best_lane, where, index);
     }
   }
   for (; j + kLanes <= n; j += kLanes) {
@@ -202,11 +206,7 @@ inline int64_t update_argmax_abs(T* __restrict alpha, const T* const* rows, cons
     }
     a = index == zero ? V{} : a;
     std::memcpy(alpha + j, &a, sizeof(V));
-    const V v = a < 0 ? -a : a;
-    const VI better = v > best_lane;
-    best_lane = better ? v : best_lane;
-    where = better ? index : where;
-    index += kLanes;
+    keep_largest(a, best_lane, where, index);
   }
   T best;
   int64_t at;
