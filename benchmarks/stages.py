@@ -74,15 +74,12 @@ def worker(batch: int, kernel_threads: int, iterations: int, warmup: int) -> dic
         learner.iteration(env)
     from aectorch.runtime.loop import frozen_heap
 
-    heap = frozen_heap()  # as the training loop runs (train.py)
-    heap.__enter__()
-    with profiling.StageTimer() as timer:
+    with frozen_heap(), profiling.StageTimer() as timer:  # the heap frozen as the training loop runs
         start = time.perf_counter()
         for _ in range(iterations):
             learner.iteration(env)
         wall = time.perf_counter() - start
     peak = _rss_mb("VmHWM") - base
-    heap.__exit__(None, None, None)
 
     class FlopStages(profiling.StageTimer):  # one FlopCounterMode per stage
         def __init__(self):
