@@ -13,7 +13,16 @@ class Keyed(TensorDictModuleBase):
     """``tensordict[out_key] = network(tensordict[in_key])``: what ``TensorDictModule(network,
     [in_key], [out_key])`` (and TorchRL's `ValueOperator`) computes, the same tensor, without their
     per-call machinery (argument dispatch, and the output's `TensorDict.from_any`, which looks up
-    pandas on the import path each time)."""
+    pandas on the import path each time).
+
+    Example:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> value = Keyed(torch.nn.Linear(3, 1), "observation", "state_value")
+        >>> out = value(TensorDict({"observation": torch.ones(2, 3)}, batch_size=[2]))
+        >>> out["state_value"].shape, value.in_keys, value.out_keys
+        (torch.Size([2, 1]), ['observation'], ['state_value'])
+    """
 
     def __init__(self, network: nn.Module, in_key: str, out_key: str) -> None:
         super().__init__()
