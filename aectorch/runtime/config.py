@@ -188,7 +188,8 @@ class TrainConfig:
         tensorboard: write TensorBoard events into ``tb/``.
         deterministic: ``torch.use_deterministic_algorithms(True, warn_only=True)`` for the
             run (and cuBLAS's workspace setting on CUDA): the same seed and config give the same
-            run on the same machine.
+            run on the same machine. Its NaN fill of new tensors stays off
+            (`aectorch.runtime.FILL_UNINITIALIZED_MEMORY`).
         keep_best: early stopping by the training signal: at every log line whose eq. (9)
             window is full (``metrics_window`` fixation ends), if the window's pursuit plus
             vergence MAE is the lowest so far, write the state to ``best.pt`` (the checkpoint's
