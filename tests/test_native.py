@@ -100,6 +100,31 @@ def test_kernel_threads_split_the_work_and_change_nothing(orthogonal):
     assert torch.equal(one.indices, two.indices) and torch.equal(one.coefficients, two.coefficients)
 
 
+def _gram_of(seed: int, child: bool = False) -> torch.Tensor:
+    if child:  # what a DataLoader's worker does: torch's own operations on one thread
+        torch.set_num_threads(1)
+    d = torch.randn(40, 96, generator=torch.Generator().manual_seed(seed))
+    return torch.ops.aectorch.gram(d)
+
+
+def test_kernels_run_in_a_forked_child_after_their_threads_started():
+    """A fork's child has none of the parent's OpenMP threads: its kernels run on one thread, with
+    the same bits. Before, a child that used them (a multiprocessing pool, a DataLoader's worker
+    forked after training) waited forever for the missing threads."""
+    import multiprocessing
+
+    before = native.get_threads()
+    try:
+        native.set_threads(2)
+        parent = _gram_of(0)  # the parent's second thread runs
+        with multiprocessing.get_context("fork").Pool(1) as pool:
+            child = pool.apply_async(_gram_of, (0, True)).get(timeout=120)
+        again = _gram_of(0)
+    finally:
+        native.set_threads(before)
+    assert torch.equal(parent, child) and torch.equal(parent, again)
+
+
 def _coded(algorithm: str, dtype, *, seed: int = 0):
     from aectorch.coding import SparseDictionary
 

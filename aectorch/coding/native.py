@@ -231,7 +231,8 @@ def set_threads(threads: int) -> None:
 
     Independent of ``torch.set_num_threads``: ``train.threads=0`` gives the kernels every core
     and keeps torch's own operations, which are too small to pay for a second thread, on one.
-    Does nothing when the kernels are not available.
+    A fork's child (a multiprocessing pool, a DataLoader's worker) starts with one kernel thread:
+    libgomp cannot use the parent's threads there. Does nothing when the kernels are not available.
     """
     check_int(threads, "threads")
     if load():

@@ -23,6 +23,7 @@
 #include <immintrin.h>
 #endif
 #include <atomic>
+#include <pthread.h>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -39,6 +40,14 @@
 // pay for the many small ops of a training iteration) can stay at 1 while these use every core.
 static std::atomic<int> g_kernel_threads{1};
 int aectorch_kernel_threads() { return g_kernel_threads.load(); }
+
+// A fork's child has none of the parent's OpenMP threads, but libgomp still counts them: a second
+// thread in a child would wait for them forever. Children run the kernels on one thread (as torch
+// does its own operations in a DataLoader's workers); set_threads gives them more again.
+static const int g_fork_guard = [] {
+  pthread_atfork(nullptr, nullptr, [] { g_kernel_threads.store(1); });
+  return 0;
+}();
 
 namespace {
 
