@@ -100,7 +100,7 @@ def test_tensorboard_continues_without_duplicates_or_gaps(tmp_path, textures):
 
 
 def test_the_nan_fill_of_new_tensors_changes_no_bit(tmp_path, textures, monkeypatch):
-    """Deterministic runs leave torch's NaN fill of new tensors off (it cost 6 % of an iteration):
+    """Deterministic runs leave torch's NaN fill of new tensors off (5 % of an iteration's CPU time):
     with it on, every bit of the checkpoint is the same, so the run reads no memory it did not write."""
     import aectorch.runtime as runtime
 
