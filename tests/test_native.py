@@ -162,6 +162,57 @@ def test_fused_reconstruction_error_gradient_and_pooling_match_torch(algorithm, 
                                    pooled_activity(code, d.num_atoms, reduction=reduction), **tol)
 
 
+@pytest.mark.parametrize("algorithm", ["mp", "omp"])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("lead", [(), (4,), (2, 3)])
+def test_encode_in_one_pass_gives_the_bits_of_the_three_kernels_on_any_number_of_threads(algorithm, dtype, lead):
+    """`SparseDictionary.forward_pooled` (one aectorch::encode call) against the pursuit, then
+    reconstruct_error, then pooled_power: every output bit-identical, with 1, 2 and 3 threads."""
+    from torch.profiler import ProfilerActivity, profile
+
+    d, x = _coded(algorithm, dtype, seed=4)
+    x = x.reshape(-1, 40)[:84].reshape(*lead, -1, 40) if lead else x.reshape(-1, 40)[:9]
+    before = native.get_threads()
+    try:
+        for threads in (1, 2, 3):
+            native.set_threads(threads)
+            with torch.no_grad():
+                with profile(activities=[ProfilerActivity.CPU]) as prof:
+                    out, features = d.forward_pooled(x, reduction="mean")
+                plain = d(x)
+                plain_features = d.pooled_activity(plain.code, reduction="mean")
+            ops = {e.key for e in prof.key_averages()}
+            assert "aectorch::encode" in ops and "aectorch::reconstruct_error" not in ops
+            for got, expected in zip((*out.code, out.reconstruction, out.error, features),
+                                     (*plain.code, plain.reconstruction, plain.error, plain_features)):
+                assert got.shape == expected.shape and torch.equal(got, expected)
+    finally:
+        native.set_threads(before)
+    assert features.shape == (*lead, d.num_atoms)
+    # with a graph to build, or on torch's backend: the unfused path, the same numbers
+    out_graph, features_graph = d.forward_pooled(x, reduction="sum")
+    assert out_graph.error.requires_grad
+    torch.testing.assert_close(features_graph, features * x.shape[-2])
+    with use_backend("torch"), torch.no_grad():
+        out_torch, features_torch = d.forward_pooled(x, reduction="mean")
+    assert torch.equal(out_torch.code.indices, out.code.indices)
+    torch.testing.assert_close(features_torch, features)
+
+
+def test_encode_checks_its_groups_and_has_shapes_for_torch_compile():
+    from torch._subclasses.fake_tensor import FakeTensorMode
+
+    d, x = _coded("mp", torch.float32)
+    atoms = d.atoms.detach()
+    gram = atoms.t() @ atoms
+    with pytest.raises(RuntimeError, match="groups must be >= 1 and divide"):
+        torch.ops.aectorch.encode(x.reshape(-1, 40)[:7], atoms, gram, 6, False, 512, 2)
+    with FakeTensorMode():
+        outs = torch.ops.aectorch.encode(torch.empty(12, 40), torch.empty(40, 96), torch.empty(96, 96), 6, True, 512, 3)
+    assert [tuple(o.shape) for o in outs] == [(12, 6), (12, 6), (12, 40), (12,), (3, 96)]
+    assert outs[0].dtype == torch.long
+
+
 def test_pooled_power_adds_an_atom_picked_twice_before_squaring():
     from aectorch.coding import SparseCode, SparseDictionary
     from aectorch.coding.dictionary import pooled_activity

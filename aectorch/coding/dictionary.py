@@ -13,7 +13,8 @@ import torch
 from torch import nn
 
 from aectorch._checks import check_int
-from aectorch.coding.pursuit import fused_kernels_apply, gram_matrix, matching_pursuit, omp
+from aectorch.coding.pursuit import DEFAULT_BLOCK_SIZE, _default_backend_name, _validate, fused_kernels_apply, \
+    gram_matrix, matching_pursuit, omp
 from aectorch.coding.sparse_code import SparseCode
 
 __all__ = ["SparseDictionary", "DictionaryOutput", "pooled_activity", "reconstruction_error"]
@@ -203,6 +204,44 @@ class SparseDictionary(nn.Module):
             return DictionaryOutput(code, reconstruction.reshape(signals.shape), error.reshape(signals.shape[:-1]))
         reconstruction = code.reconstruct(self.atoms)
         return DictionaryOutput(code, reconstruction, reconstruction_error(signals, reconstruction))
+
+    def forward_pooled(self, signals: torch.Tensor, *, check: bool = True,
+                       reduction: str = "sum") -> tuple[DictionaryOutput, torch.Tensor]:
+        """``self(signals)`` and the pooled activity of its code over the patches, eq. (3):
+        `(DictionaryOutput, features [..., N])` for signals `[..., n_patches, P]`.
+
+        The same numbers as ``out = self(signals); self.pooled_activity(out.code, reduction=...)``.
+        Without a graph to build, on CPU all of it (the pursuit, the reconstructions, their errors
+        and the pooling) is one fused kernel (``aectorch::encode``), one pass over the signals.
+
+        Example:
+            >>> import torch
+            >>> d = SparseDictionary(num_atoms=16, dim=8, sparsity=2, generator=torch.Generator().manual_seed(0))
+            >>> x = torch.randn(3, 5, 8, generator=torch.Generator().manual_seed(1))
+            >>> with torch.no_grad():
+            ...     out, features = d.forward_pooled(x, reduction="mean")
+            ...     plain = d.pooled_activity(d(x).code, reduction="mean")
+            >>> features.shape, torch.allclose(features, plain)
+            (torch.Size([3, 16]), True)
+        """
+        atoms = self.atoms
+        lead = signals.shape[:-2] if isinstance(signals, torch.Tensor) else ()
+        if not isinstance(signals, torch.Tensor) or signals.ndim < 2 or reduction not in ("sum", "mean") \
+                or signals.shape[:-1].numel() == 0 or (torch.is_grad_enabled() and atoms.requires_grad) \
+                or signals.dtype != atoms.dtype or not fused_kernels_apply(signals):
+            out = self(signals, check=check)
+            return out, self.pooled_activity(out.code, reduction=reduction)
+        detached = atoms.detach()
+        gram = gram_matrix(detached)
+        _validate(signals, detached, self.sparsity, gram, check, _default_backend_name())
+        patches, p, k = signals.shape[-2], self.dim, self.sparsity
+        indices, coefficients, reconstruction, error, features = torch.ops.aectorch.encode(
+            signals.reshape(-1, p), detached, gram, k, self.algorithm == "omp", DEFAULT_BLOCK_SIZE,
+            max(1, lead.numel()))
+        code = SparseCode(indices.reshape(*signals.shape[:-1], k), coefficients.reshape(*signals.shape[:-1], k))
+        out = DictionaryOutput(code, reconstruction.reshape(signals.shape), error.reshape(signals.shape[:-1]))
+        features = features.reshape(*lead, self.num_atoms)
+        return out, features if reduction == "sum" else features / patches
 
     def pooled_activity(self, code: SparseCode, *, reduction: str = "sum") -> torch.Tensor:
         """Eq. (3) for codes `[..., n_patches, k]` of this dictionary -> `[..., N]`.

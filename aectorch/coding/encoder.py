@@ -272,10 +272,10 @@ class BinocularEncoder(nn.Module):
             else:
                 raise ValueError(f"the observation holds neither scale {scale.name!r} nor {WINDOW!r}: "
                                  f"{sorted(observation)}")
-            out = dictionary(x, check=check)
+            out, pooled = dictionary.forward_pooled(x, check=check, reduction=self.pooling)
             patches.append(x)
             codes.append(out)
-            features.append(dictionary.pooled_activity(out.code, reduction=self.pooling))
+            features.append(pooled)
             errors.append(out.error.mean(-1))
         errors_t = torch.stack(errors, -1)
         return EncoderOutput(

@@ -255,6 +255,12 @@ def _register_fake() -> None:
         m = signals.shape[0]
         return signals.new_empty(m, k, dtype=torch.long), signals.new_empty(m, k)
 
+    @torch.library.register_fake("aectorch::encode")
+    def _(signals, dictionary, gram, k, orthogonal, block, groups):
+        m, n = signals.shape[0], dictionary.shape[1]
+        return (signals.new_empty(m, k, dtype=torch.long), signals.new_empty(m, k), signals.new_empty(signals.shape),
+                signals.new_empty(m), signals.new_empty(groups, n))
+
     @torch.library.register_fake("aectorch::reconstruct_error")
     def _(signals, atoms_t, indices, coefficients):
         return signals.new_empty(signals.shape), signals.new_empty(signals.shape[0])

@@ -303,31 +303,43 @@ void omp_row(T* alpha, const T* gram, int64_t n, int64_t k, int64_t* idx, T* coe
   }
 }
 
-std::tuple<at::Tensor, at::Tensor> pursuit(
-    const at::Tensor& signals, const at::Tensor& dictionary, const at::Tensor& gram, int64_t k,
-    bool orthogonal, int64_t block) {
+// The checks and the contiguous operands of pursuit and encode.
+struct PursuitInputs {
+  at::Tensor x, d, g;
+  int64_t m, n;
+};
+
+PursuitInputs pursuit_inputs(const char* op, const at::Tensor& signals, const at::Tensor& dictionary,
+                             const at::Tensor& gram, int64_t k) {
   TORCH_CHECK(signals.dim() == 2 && dictionary.dim() == 2 && gram.dim() == 2,
-              "aectorch::pursuit expects signals [M, P], dictionary [P, N] and gram [N, N]");
+              op, " expects signals [M, P], dictionary [P, N] and gram [N, N]");
   TORCH_CHECK(signals.scalar_type() == dictionary.scalar_type() &&
                   signals.scalar_type() == gram.scalar_type(),
-              "aectorch::pursuit: signals, dictionary and gram must share one dtype");
+              op, ": signals, dictionary and gram must share one dtype");
   // Detached: the codes are not differentiable (the torch code's support is a constant too), and a
   // worker thread must not see an input that requires grad in an out= product.
-  const auto x = signals.detach().contiguous();
-  const auto d = dictionary.detach().contiguous();
-  const auto G = gram.detach().contiguous();
-  const int64_t m = x.size(0), n = d.size(1);
-  TORCH_CHECK(x.size(1) == d.size(0) && G.size(0) == n && G.size(1) == n,
-              "aectorch::pursuit: shapes do not match");
-  TORCH_CHECK(k >= 1 && k <= n, "aectorch::pursuit: k must be in [1, N]");
-  auto indices = at::zeros({m, k}, x.options().dtype(at::kLong));
-  auto coefficients = at::zeros({m, k}, x.options());
-  if (m == 0) return {indices, coefficients};
+  PursuitInputs in{signals.detach().contiguous(), dictionary.detach().contiguous(), gram.detach().contiguous(), 0, 0};
+  in.m = in.x.size(0);
+  in.n = in.d.size(1);
+  TORCH_CHECK(in.x.size(1) == in.d.size(0) && in.g.size(0) == in.n && in.g.size(1) == in.n,
+              op, ": shapes do not match");
+  TORCH_CHECK(k >= 1 && k <= in.n, op, ": k must be in [1, N]");
+  return in;
+}
+
+// The pursuits of M signals in tiles of rows, inside one OpenMP region: `before` (run by every
+// thread; it may hold worksharing loops of its own), then the tiles (each thread takes whole
+// tiles: its own correlations X D, a BLAS product, and each row's pursuit, after which `row_done(row)`
+// runs while the row is in cache), then `after` (likewise). An even number of equal tiles, each at
+// most `block` rows (at least two from 256 rows): two threads get the same work (1568 rows are 4
+// tiles of 392, not 3 of 512 and one of 32). The tiling does not depend on the number of threads,
+// so neither do the codes, whatever the BLAS.
+template <typename T, typename Before, typename RowDone, typename After>
+void pursue(const PursuitInputs& in, int64_t k, bool orthogonal, int64_t block, int64_t* idx, T* coef,
+            Before&& before, RowDone&& row_done, After&& after) {
+  const int64_t m = in.m, n = in.n;
   block = std::max<int64_t>(1, std::min<int64_t>(block, m));
   int64_t tiles = (m + block - 1) / block;
-  // An even number of equal tiles, each at most `block` rows (at least two from 256 rows): two
-  // threads get the same work (1568 rows are 4 tiles of 392, not 3 of 512 and one of 32). The
-  // tiling does not depend on the number of threads, so neither do the codes, whatever the BLAS.
   if (m >= 256) tiles = std::max<int64_t>(tiles, 2);
   if (tiles > 1 && tiles % 2) ++tiles;
   block = (m + tiles - 1) / tiles;
@@ -335,35 +347,47 @@ std::tuple<at::Tensor, at::Tensor> pursuit(
   const int64_t available = std::max<int64_t>(1, std::min<int64_t>(aectorch_kernel_threads(), m));
   const int threads = static_cast<int>(std::max<int64_t>(1, std::min<int64_t>(available, tiles)));
   const at::ThreadLocalState caller_state;
-  AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "aectorch_pursuit", [&] {
-    const scalar_t* g = G.const_data_ptr<scalar_t>();
-    int64_t* idx = indices.data_ptr<int64_t>();
-    scalar_t* coef = coefficients.data_ptr<scalar_t>();
-    // Threads take whole tiles (their own correlations X D, a BLAS product, and the pursuits).
-    _Pragma("omp parallel num_threads(threads)")  // (in a macro argument: _Pragma, not #pragma)
-    {
-      // The caller's grad / inference mode and dispatch state, as at::parallel_for passes them on.
-      at::ThreadLocalStateGuard state_guard(caller_state);
-      auto alpha = at::empty({block, n}, x.options());
-      std::vector<scalar_t> work(orthogonal ? k * k + 4 * k : 0);
-      std::vector<const scalar_t*> gram_rows(orthogonal ? k : 0);
-      _Pragma("omp for schedule(static)")
-      for (int64_t t = 0; t < tiles; ++t) {
-        const int64_t start = t * block;
-        const int64_t rows = std::min(block, m - start);
-        auto tile = alpha.narrow(0, 0, rows);
-        at::mm_out(tile, x.narrow(0, start, rows), d);
-        scalar_t* a = tile.data_ptr<scalar_t>();
-        for (int64_t r = 0; r < rows; ++r) {
-          const int64_t row = start + r;
-          if (orthogonal) {
-            omp_row(a + r * n, g, n, k, idx + row * k, coef + row * k, work.data(), gram_rows.data());
-          } else {
-            mp_row(a + r * n, g, n, k, idx + row * k, coef + row * k);
-          }
+  const T* g = in.g.const_data_ptr<T>();
+  _Pragma("omp parallel num_threads(threads)")  // (in a macro argument: _Pragma, not #pragma)
+  {
+    // The caller's grad / inference mode and dispatch state, as at::parallel_for passes them on.
+    at::ThreadLocalStateGuard state_guard(caller_state);
+    before();
+    auto alpha = at::empty({block, n}, in.x.options());
+    std::vector<T> work(orthogonal ? k * k + 4 * k : 0);
+    std::vector<const T*> gram_rows(orthogonal ? k : 0);
+    _Pragma("omp for schedule(static)")
+    for (int64_t t = 0; t < tiles; ++t) {
+      const int64_t start = t * block;
+      const int64_t rows = std::min(block, m - start);
+      auto tile = alpha.narrow(0, 0, rows);
+      at::mm_out(tile, in.x.narrow(0, start, rows), in.d);
+      T* a = tile.data_ptr<T>();
+      for (int64_t r = 0; r < rows; ++r) {
+        const int64_t row = start + r;
+        if (orthogonal) {
+          omp_row(a + r * n, g, n, k, idx + row * k, coef + row * k, work.data(), gram_rows.data());
+        } else {
+          mp_row(a + r * n, g, n, k, idx + row * k, coef + row * k);
         }
+        row_done(row);
       }
     }
+    after();
+  }
+}
+
+std::tuple<at::Tensor, at::Tensor> pursuit(
+    const at::Tensor& signals, const at::Tensor& dictionary, const at::Tensor& gram, int64_t k,
+    bool orthogonal, int64_t block) {
+  const auto in = pursuit_inputs("aectorch::pursuit", signals, dictionary, gram, k);
+  auto indices = at::zeros({in.m, k}, in.x.options().dtype(at::kLong));
+  auto coefficients = at::zeros({in.m, k}, in.x.options());
+  if (in.m == 0) return {indices, coefficients};
+  AT_DISPATCH_FLOATING_TYPES(in.x.scalar_type(), "aectorch_pursuit", [&] {
+    auto nothing = [] {};
+    pursue<scalar_t>(in, k, orthogonal, block, indices.data_ptr<int64_t>(), coefficients.data_ptr<scalar_t>(),
+                     nothing, [](int64_t) {}, nothing);
   });
   return {indices, coefficients};
 }
@@ -455,6 +479,47 @@ inline void axpy(T* __restrict y, const T* __restrict x, T c, int64_t n) {
   for (int64_t i = 0; i < n; ++i) y[i] += c * x[i];
 }
 
+// One signal's reconstruction r = sum_j c_j D[:, i_j] (the atoms as rows, atoms_t [N, P]) and its
+// eq. (4) error ||x - r||^2 / ||x||^2 (0 for a zero signal). False if an index lies outside [0, N)
+// (that atom is skipped). Shared by reconstruct_error and encode: the same arithmetic, the same bits.
+template <typename T>
+inline bool reconstruct_row(const T* __restrict xr, const T* ds, int64_t n, int64_t p, const int64_t* ir,
+                            const T* cr, int64_t k, T* __restrict r, T* error) {
+  bool ok = true;
+  std::fill(r, r + p, T(0));
+  for (int64_t j = 0; j < k; ++j) {
+    const int64_t atom = ir[j];
+    if (atom < 0 || atom >= n) { ok = false; continue; }
+    axpy(r, ds + atom * p, cr[j], p);
+  }
+  const T energy = row_sum_squares(xr, p), residual = row_sum_squared_differences(xr, r, p);
+  *error = residual / std::max(energy, std::numeric_limits<T>::min());
+  return ok;
+}
+
+// Eq. (3) of one group of `patches` codes into f [N] (zeroed by the caller): the squared
+// coefficients per atom, an atom picked twice in a patch summed before squaring. False if an
+// index lies outside [0, N). Shared by pooled_power and encode.
+template <typename T>
+inline bool pool_group(const int64_t* is, const T* cs, int64_t patches, int64_t k, int64_t n, T* f) {
+  bool ok = true;
+  for (int64_t patch = 0; patch < patches; ++patch) {
+    const int64_t* ip = is + patch * k;
+    const T* cp = cs + patch * k;
+    for (int64_t j = 0; j < k; ++j) {
+      const int64_t atom = ip[j];
+      if (atom < 0 || atom >= n) { ok = false; continue; }
+      bool earlier = false;
+      for (int64_t i = 0; i < j; ++i) earlier = earlier || ip[i] == atom;
+      if (earlier) continue;  // added with its first pick
+      T c = cp[j];
+      for (int64_t i = j + 1; i < k; ++i) if (ip[i] == atom) c += cp[i];
+      f[atom] += c * c;
+    }
+  }
+  return ok;
+}
+
 // Reconstructions D a and eq. (4)'s errors ||x - D a||^2 / ||x||^2 (0 for a zero signal) of sparse
 // codes, one row at a time from the atoms as rows ([N, P], the transposed dictionary): the k
 // atoms' rows are summed into the output row while the signal's row is in L1. Rows are split
@@ -487,16 +552,7 @@ std::tuple<at::Tensor, at::Tensor> reconstruct_error(
     bool bad = false;
     _Pragma("omp parallel for num_threads(threads) schedule(static) reduction(||:bad)")
     for (int64_t row = 0; row < m; ++row) {
-      scalar_t* __restrict r = rs + row * p;
-      const scalar_t* __restrict xr = xs + row * p;
-      std::fill(r, r + p, scalar_t(0));
-      for (int64_t j = 0; j < k; ++j) {
-        const int64_t atom = is[row * k + j];
-        if (atom < 0 || atom >= n) { bad = true; continue; }
-        axpy(r, ds + atom * p, cs[row * k + j], p);
-      }
-      const scalar_t energy = row_sum_squares(xr, p), residual = row_sum_squared_differences(xr, r, p);
-      es[row] = residual / std::max(energy, std::numeric_limits<scalar_t>::min());
+      bad = !reconstruct_row(xs + row * p, ds, n, p, is + row * k, cs + row * k, k, rs + row * p, es + row) || bad;
     }
     TORCH_CHECK(!bad, "aectorch::reconstruct_error: an index lies outside [0, N)");
   });
@@ -584,25 +640,59 @@ at::Tensor pooled_power(const at::Tensor& indices, const at::Tensor& coefficient
     bool bad = false;
     _Pragma("omp parallel for num_threads(threads) schedule(static) reduction(||:bad)")
     for (int64_t g = 0; g < groups; ++g) {
-      scalar_t* f = os + g * n;
-      for (int64_t patch = 0; patch < patches; ++patch) {
-        const int64_t* ip = is + (g * patches + patch) * k;
-        const scalar_t* cp = cs + (g * patches + patch) * k;
-        for (int64_t j = 0; j < k; ++j) {
-          const int64_t atom = ip[j];
-          if (atom < 0 || atom >= n) { bad = true; continue; }
-          bool earlier = false;
-          for (int64_t i = 0; i < j; ++i) earlier = earlier || ip[i] == atom;
-          if (earlier) continue;  // added with its first pick
-          scalar_t c = cp[j];
-          for (int64_t i = j + 1; i < k; ++i) if (ip[i] == atom) c += cp[i];
-          f[atom] += c * c;
-        }
-      }
+      bad = !pool_group(is + g * patches * k, cs + g * patches * k, patches, k, n, os + g * n) || bad;
     }
     TORCH_CHECK(!bad, "aectorch::pooled_power: an index lies outside [0, num_atoms)");
   });
   return out;
+}
+
+// Encode in one pass: aectorch::pursuit's codes; for each signal, as soon as its pursuit ends (the
+// signal still in cache), reconstruct_error's reconstruction and error; after every signal,
+// pooled_power's eq. (3) features of the `groups` consecutive groups of M / groups signals. One
+// OpenMP region instead of three, with the atoms transposed (the reconstructions' rows) inside it
+// rather than by a strided torch copy. The same arithmetic as those three operators: the same bits.
+std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> encode(
+    const at::Tensor& signals, const at::Tensor& dictionary, const at::Tensor& gram, int64_t k,
+    bool orthogonal, int64_t block, int64_t groups) {
+  const auto in = pursuit_inputs("aectorch::encode", signals, dictionary, gram, k);
+  const int64_t m = in.m, n = in.n, p = in.x.size(1);
+  TORCH_CHECK(groups >= 1 && m % groups == 0, "aectorch::encode: groups must be >= 1 and divide the ", m,
+              " signals, got ", groups);
+  auto indices = at::zeros({m, k}, in.x.options().dtype(at::kLong));
+  auto coefficients = at::zeros({m, k}, in.x.options());
+  auto recon = at::empty({m, p}, in.x.options());
+  auto error = at::empty({m}, in.x.options());
+  auto pooled = at::zeros({groups, n}, in.x.options());
+  if (m == 0) return {indices, coefficients, recon, error, pooled};
+  auto atoms_t = at::empty({n, p}, in.x.options());
+  const int64_t patches = m / groups;
+  AT_DISPATCH_FLOATING_TYPES(in.x.scalar_type(), "aectorch_encode", [&] {
+    const scalar_t* xs = in.x.const_data_ptr<scalar_t>();
+    const scalar_t* ds = in.d.const_data_ptr<scalar_t>();
+    scalar_t* ts = atoms_t.data_ptr<scalar_t>();
+    int64_t* idx = indices.data_ptr<int64_t>();
+    scalar_t* coef = coefficients.data_ptr<scalar_t>();
+    scalar_t* rs = recon.data_ptr<scalar_t>();
+    scalar_t* es = error.data_ptr<scalar_t>();
+    scalar_t* os = pooled.data_ptr<scalar_t>();
+    pursue<scalar_t>(
+        in, k, orthogonal, block, idx, coef,
+        [&] {
+          _Pragma("omp for schedule(static)")  // (its implicit barrier: every atom's row is ready)
+          for (int64_t c = 0; c < n; ++c)
+            for (int64_t r = 0; r < p; ++r) ts[c * p + r] = ds[r * n + c];
+        },
+        [&](int64_t row) {  // (the pursuit's indices always lie in [0, N))
+          reconstruct_row(xs + row * p, ts, n, p, idx + row * k, coef + row * k, k, rs + row * p, es + row);
+        },
+        [&] {
+          _Pragma("omp for schedule(static)")
+          for (int64_t g = 0; g < groups; ++g)
+            pool_group(idx + g * patches * k, coef + g * patches * k, patches, k, n, os + g * n);
+        });
+  });
+  return {indices, coefficients, recon, error, pooled};
 }
 
 // The coder's patches of reduced image pairs in one pass (aectorch.coding.patches._cut): images
@@ -709,6 +799,8 @@ int64_t kernel_threads() { return aectorch_kernel_threads(); }
 TORCH_LIBRARY(aectorch, m) {
   m.def("pursuit(Tensor signals, Tensor dictionary, Tensor gram, int k, bool orthogonal, int block)"
         " -> (Tensor, Tensor)");
+  m.def("encode(Tensor signals, Tensor dictionary, Tensor gram, int k, bool orthogonal, int block, int groups)"
+        " -> (Tensor, Tensor, Tensor, Tensor, Tensor)");
   m.def("reconstruct_error(Tensor signals, Tensor atoms_t, Tensor indices, Tensor coefficients) -> (Tensor, Tensor)");
   m.def("sparse_gradient(Tensor signals, Tensor reconstruction, Tensor indices, Tensor coefficients, int num_atoms)"
         " -> Tensor");
@@ -722,6 +814,7 @@ TORCH_LIBRARY(aectorch, m) {
 
 TORCH_LIBRARY_IMPL(aectorch, CPU, m) {
   m.impl("pursuit", &pursuit);
+  m.impl("encode", &encode);
   m.impl("reconstruct_error", &reconstruct_error);
   m.impl("sparse_gradient", &sparse_gradient);
   m.impl("gram", &gram);
