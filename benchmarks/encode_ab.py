@@ -1,10 +1,11 @@
-"""Encoding in one pass (``aectorch::encode``) against the three kernels it replaced, interleaved.
+"""Encoding in one pass (``aectorch::encode``) against the four kernels it replaced, interleaved.
 
-`SparseDictionary.forward_pooled` runs the pursuit, the reconstructions with their eq. (4) errors and
-the pooled activities as one fused kernel (one OpenMP region, the atoms transposed inside it); before,
-they were three operators (``aectorch::pursuit``, ``aectorch::reconstruct_error`` after a torch copy of
-the transposed atoms, ``aectorch::pooled_power``). Both give the same bits
-(``tests/test_native.py``), so one learner can switch between them mid-run.
+`SparseDictionary.forward_pooled` runs the Gram matrix, the pursuit, the reconstructions with their
+eq. (4) errors and the pooled activities as one fused kernel (one OpenMP region, the atoms
+transposed inside it); before, they were four operators (``aectorch::gram``, ``aectorch::pursuit``,
+``aectorch::reconstruct_error`` after a torch copy of the transposed atoms,
+``aectorch::pooled_power``). Both give the same bits (``tests/test_native.py``), so one learner can
+switch between them mid-run.
 
 1. One dictionary (288 atoms, 200-dimensional patches, k = 10 MP), the 32 x 49 patches of one
    scale at B = 32: ``--repeats`` interleaved timings of each, medians.
@@ -38,13 +39,13 @@ from aectorch.coding.dictionary import SparseDictionary  # noqa: E402
 ONE_PASS = SparseDictionary.forward_pooled
 
 
-def three_kernels(self, signals, *, check=True, reduction="sum"):
-    """What `forward_pooled` did before: `forward` (pursuit, then reconstruct_error), then pooled_power."""
+def four_kernels(self, signals, *, check=True, reduction="sum"):
+    """What `forward_pooled` did before: `forward` (gram, pursuit, reconstruct_error), then pooled_power."""
     out = self(signals, check=check)
     return out, self.pooled_activity(out.code, reduction=reduction)
 
 
-VARIANTS = {"one pass (aectorch::encode)": ONE_PASS, "three kernels": three_kernels}
+VARIANTS = {"one pass (aectorch::encode)": ONE_PASS, "four kernels": four_kernels}
 
 
 def summary(values: dict[str, list[float]]) -> dict:

@@ -182,13 +182,19 @@ def test_encode_in_one_pass_gives_the_bits_of_the_three_kernels_on_any_number_of
                 plain = d(x)
                 plain_features = d.pooled_activity(plain.code, reduction="mean")
             ops = {e.key for e in prof.key_averages()}
-            assert "aectorch::encode" in ops and "aectorch::reconstruct_error" not in ops
+            assert "aectorch::encode" in ops and not ops & {"aectorch::gram", "aectorch::pursuit",
+                                                            "aectorch::reconstruct_error", "aectorch::pooled_power"}
             for got, expected in zip((*out.code, out.reconstruction, out.error, features),
                                      (*plain.code, plain.reconstruction, plain.error, plain_features)):
                 assert got.shape == expected.shape and torch.equal(got, expected)
     finally:
         native.set_threads(before)
     assert features.shape == (*lead, d.num_atoms)
+    # a Gram matrix given to the kernel: the same codes as the one it computes
+    atoms = d.atoms.detach()
+    given = torch.ops.aectorch.encode(x.reshape(-1, 40), atoms, torch.ops.aectorch.gram(atoms), 6,
+                                      algorithm == "omp", 512, max(1, x[..., 0, 0].numel()))
+    assert torch.equal(given[0], out.code.indices.reshape(-1, 6)) and torch.equal(given[4].reshape(features.shape) / x.shape[-2], features)
     # with a graph to build, or on torch's backend: the unfused path, the same numbers
     out_graph, features_graph = d.forward_pooled(x, reduction="sum")
     assert out_graph.error.requires_grad
@@ -208,7 +214,7 @@ def test_encode_checks_its_groups_and_has_shapes_for_torch_compile():
     with pytest.raises(RuntimeError, match="groups must be >= 1 and divide"):
         torch.ops.aectorch.encode(x.reshape(-1, 40)[:7], atoms, gram, 6, False, 512, 2)
     with FakeTensorMode():
-        outs = torch.ops.aectorch.encode(torch.empty(12, 40), torch.empty(40, 96), torch.empty(96, 96), 6, True, 512, 3)
+        outs = torch.ops.aectorch.encode(torch.empty(12, 40), torch.empty(40, 96), None, 6, True, 512, 3)
     assert [tuple(o.shape) for o in outs] == [(12, 6), (12, 6), (12, 40), (12,), (3, 96)]
     assert outs[0].dtype == torch.long
 

@@ -211,8 +211,9 @@ class SparseDictionary(nn.Module):
         `(DictionaryOutput, features [..., N])` for signals `[..., n_patches, P]`.
 
         The same numbers as ``out = self(signals); self.pooled_activity(out.code, reduction=...)``.
-        Without a graph to build, on CPU all of it (the pursuit, the reconstructions, their errors
-        and the pooling) is one fused kernel (``aectorch::encode``), one pass over the signals.
+        Without a graph to build, on CPU all of it (the Gram matrix, the pursuit, the
+        reconstructions, their errors and the pooling) is one fused kernel (``aectorch::encode``),
+        one pass over the signals.
 
         Example:
             >>> import torch
@@ -232,11 +233,11 @@ class SparseDictionary(nn.Module):
             out = self(signals, check=check)
             return out, self.pooled_activity(out.code, reduction=reduction)
         detached = atoms.detach()
-        gram = gram_matrix(detached)
-        _validate(signals, detached, self.sparsity, gram, check, _default_backend_name())
+        _validate(signals, detached, self.sparsity, None, check, _default_backend_name())
         patches, p, k = signals.shape[-2], self.dim, self.sparsity
+        # (gram None: the kernel computes it, as aectorch::gram does, in the same pass)
         indices, coefficients, reconstruction, error, features = torch.ops.aectorch.encode(
-            signals.reshape(-1, p), detached, gram, k, self.algorithm == "omp", DEFAULT_BLOCK_SIZE,
+            signals.reshape(-1, p), detached, None, k, self.algorithm == "omp", DEFAULT_BLOCK_SIZE,
             max(1, lead.numel()))
         code = SparseCode(indices.reshape(*signals.shape[:-1], k), coefficients.reshape(*signals.shape[:-1], k))
         out = DictionaryOutput(code, reconstruction.reshape(signals.shape), error.reshape(signals.shape[:-1]))

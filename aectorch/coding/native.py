@@ -256,7 +256,7 @@ def _register_fake() -> None:
         return signals.new_empty(m, k, dtype=torch.long), signals.new_empty(m, k)
 
     @torch.library.register_fake("aectorch::encode")
-    def _(signals, dictionary, gram, k, orthogonal, block, groups):
+    def _(signals, dictionary, gram, k, orthogonal, block, groups):  # gram: None, or [N, N]
         m, n = signals.shape[0], dictionary.shape[1]
         return (signals.new_empty(m, k, dtype=torch.long), signals.new_empty(m, k), signals.new_empty(signals.shape),
                 signals.new_empty(m), signals.new_empty(groups, n))

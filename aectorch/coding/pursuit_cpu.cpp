@@ -303,24 +303,39 @@ void omp_row(T* alpha, const T* gram, int64_t n, int64_t k, int64_t* idx, T* coe
   }
 }
 
-// The checks and the contiguous operands of pursuit and encode.
+// The Gram matrix D^T D of atoms [P, N] (contiguous) is computed in `gram_blocks(N)` blocks of rows,
+// each a BLAS product D[:, block]^T D (`gram_block`): two blocks (one when N < 64) on up to two
+// threads. The blocks do not depend on the number of threads, so neither does the result.
+inline int64_t gram_blocks(int64_t n) { return n >= 64 ? 2 : 1; }
+
+inline void gram_block(at::Tensor& out, const at::Tensor& d, int64_t b, int64_t blocks) {
+  const int64_t n = d.size(1), lo = n * b / blocks, hi = n * (b + 1) / blocks;
+  auto part = out.narrow(0, lo, hi - lo);
+  at::mm_out(part, d.narrow(1, lo, hi - lo).t(), d);
+}
+
+// The checks and the contiguous operands of pursuit and encode. Without a gram, `g` is memory for
+// the caller to fill (`gram_block`) before the pursuits read it.
 struct PursuitInputs {
   at::Tensor x, d, g;
   int64_t m, n;
+  bool gram_given;
 };
 
 PursuitInputs pursuit_inputs(const char* op, const at::Tensor& signals, const at::Tensor& dictionary,
-                             const at::Tensor& gram, int64_t k) {
-  TORCH_CHECK(signals.dim() == 2 && dictionary.dim() == 2 && gram.dim() == 2,
+                             const std::optional<at::Tensor>& gram, int64_t k) {
+  TORCH_CHECK(signals.dim() == 2 && dictionary.dim() == 2 && (!gram.has_value() || gram->dim() == 2),
               op, " expects signals [M, P], dictionary [P, N] and gram [N, N]");
   TORCH_CHECK(signals.scalar_type() == dictionary.scalar_type() &&
-                  signals.scalar_type() == gram.scalar_type(),
+                  (!gram.has_value() || signals.scalar_type() == gram->scalar_type()),
               op, ": signals, dictionary and gram must share one dtype");
   // Detached: the codes are not differentiable (the torch code's support is a constant too), and a
   // worker thread must not see an input that requires grad in an out= product.
-  PursuitInputs in{signals.detach().contiguous(), dictionary.detach().contiguous(), gram.detach().contiguous(), 0, 0};
+  PursuitInputs in{signals.detach().contiguous(), dictionary.detach().contiguous(), at::Tensor(), 0, 0,
+                   gram.has_value()};
   in.m = in.x.size(0);
   in.n = in.d.size(1);
+  in.g = gram.has_value() ? gram->detach().contiguous() : at::empty({in.n, in.n}, in.d.options());
   TORCH_CHECK(in.x.size(1) == in.d.size(0) && in.g.size(0) == in.n && in.g.size(1) == in.n,
               op, ": shapes do not match");
   TORCH_CHECK(k >= 1 && k <= in.n, op, ": k must be in [1, N]");
@@ -380,7 +395,7 @@ void pursue(const PursuitInputs& in, int64_t k, bool orthogonal, int64_t block, 
 std::tuple<at::Tensor, at::Tensor> pursuit(
     const at::Tensor& signals, const at::Tensor& dictionary, const at::Tensor& gram, int64_t k,
     bool orthogonal, int64_t block) {
-  const auto in = pursuit_inputs("aectorch::pursuit", signals, dictionary, gram, k);
+  const auto in = pursuit_inputs("aectorch::pursuit", signals, dictionary, std::optional<at::Tensor>(gram), k);
   auto indices = at::zeros({in.m, k}, in.x.options().dtype(at::kLong));
   auto coefficients = at::zeros({in.m, k}, in.x.options());
   if (in.m == 0) return {indices, coefficients};
@@ -392,23 +407,19 @@ std::tuple<at::Tensor, at::Tensor> pursuit(
   return {indices, coefficients};
 }
 
-// The Gram matrix D^T D of atoms [P, N]: its rows in two blocks (one when N < 64), each a BLAS
-// product D[:, block]^T D, on up to two of the kernels' threads. The blocks do not depend on the
-// number of threads, so neither does the result.
+// The Gram matrix D^T D of atoms [P, N] (`gram_block`), on up to two of the kernels' threads.
 at::Tensor gram(const at::Tensor& atoms) {
   TORCH_CHECK(atoms.dim() == 2, "aectorch::gram expects atoms [P, N]");
   const auto d = atoms.detach().contiguous();
   const int64_t n = d.size(1);
   auto out = at::empty({n, n}, d.options());
-  const int64_t blocks = n >= 64 ? 2 : 1;
+  const int64_t blocks = gram_blocks(n);
   const int threads = static_cast<int>(std::min<int64_t>(blocks, aectorch_kernel_threads()));
   const at::ThreadLocalState caller_state;
   _Pragma("omp parallel for num_threads(threads) schedule(static)")
   for (int64_t b = 0; b < blocks; ++b) {
     at::ThreadLocalStateGuard state_guard(caller_state);
-    const int64_t lo = n * b / blocks, hi = n * (b + 1) / blocks;
-    auto part = out.narrow(0, lo, hi - lo);
-    at::mm_out(part, d.narrow(1, lo, hi - lo).t(), d);
+    gram_block(out, d, b, blocks);
   }
   return out;
 }
@@ -647,15 +658,16 @@ at::Tensor pooled_power(const at::Tensor& indices, const at::Tensor& coefficient
   return out;
 }
 
-// Encode in one pass: aectorch::pursuit's codes; for each signal, as soon as its pursuit ends (the
-// signal still in cache), reconstruct_error's reconstruction and error; after every signal,
-// pooled_power's eq. (3) features of the `groups` consecutive groups of M / groups signals. One
-// OpenMP region instead of three, with the atoms transposed (the reconstructions' rows) inside it
-// rather than by a strided torch copy. The same arithmetic as those three operators: the same bits.
+// Encode in one pass: the Gram matrix (unless given; aectorch::gram's blocks), aectorch::pursuit's
+// codes; for each signal, as soon as its pursuit ends (the signal still in cache), reconstruct_error's
+// reconstruction and error; after every signal, pooled_power's eq. (3) features of the `groups`
+// consecutive groups of M / groups signals. One OpenMP region instead of four, with the atoms
+// transposed (the reconstructions' rows) inside it rather than by a strided torch copy. The same
+// arithmetic as those operators: the same bits.
 std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> encode(
-    const at::Tensor& signals, const at::Tensor& dictionary, const at::Tensor& gram, int64_t k,
+    const at::Tensor& signals, const at::Tensor& dictionary, const std::optional<at::Tensor>& gram, int64_t k,
     bool orthogonal, int64_t block, int64_t groups) {
-  const auto in = pursuit_inputs("aectorch::encode", signals, dictionary, gram, k);
+  auto in = pursuit_inputs("aectorch::encode", signals, dictionary, gram, k);
   const int64_t m = in.m, n = in.n, p = in.x.size(1);
   TORCH_CHECK(groups >= 1 && m % groups == 0, "aectorch::encode: groups must be >= 1 and divide the ", m,
               " signals, got ", groups);
@@ -666,6 +678,7 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> encode(
   auto pooled = at::zeros({groups, n}, in.x.options());
   if (m == 0) return {indices, coefficients, recon, error, pooled};
   auto atoms_t = at::empty({n, p}, in.x.options());
+  const int64_t blocks = in.gram_given ? 0 : gram_blocks(n);  // the Gram matrix's blocks to compute
   const int64_t patches = m / groups;
   AT_DISPATCH_FLOATING_TYPES(in.x.scalar_type(), "aectorch_encode", [&] {
     const scalar_t* xs = in.x.const_data_ptr<scalar_t>();
@@ -679,7 +692,9 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> encode(
     pursue<scalar_t>(
         in, k, orthogonal, block, idx, coef,
         [&] {
-          _Pragma("omp for schedule(static)")  // (its implicit barrier: every atom's row is ready)
+          _Pragma("omp for schedule(static) nowait")
+          for (int64_t b = 0; b < blocks; ++b) gram_block(in.g, in.d, b, blocks);
+          _Pragma("omp for schedule(static)")  // (its implicit barrier: the Gram matrix and every atom's row are ready)
           for (int64_t c = 0; c < n; ++c)
             for (int64_t r = 0; r < p; ++r) ts[c * p + r] = ds[r * n + c];
         },
@@ -799,7 +814,7 @@ int64_t kernel_threads() { return aectorch_kernel_threads(); }
 TORCH_LIBRARY(aectorch, m) {
   m.def("pursuit(Tensor signals, Tensor dictionary, Tensor gram, int k, bool orthogonal, int block)"
         " -> (Tensor, Tensor)");
-  m.def("encode(Tensor signals, Tensor dictionary, Tensor gram, int k, bool orthogonal, int block, int groups)"
+  m.def("encode(Tensor signals, Tensor dictionary, Tensor? gram, int k, bool orthogonal, int block, int groups)"
         " -> (Tensor, Tensor, Tensor, Tensor, Tensor)");
   m.def("reconstruct_error(Tensor signals, Tensor atoms_t, Tensor indices, Tensor coefficients) -> (Tensor, Tensor)");
   m.def("sparse_gradient(Tensor signals, Tensor reconstruction, Tensor indices, Tensor coefficients, int num_atoms)"
