@@ -6,8 +6,8 @@ depth MLP's Levenberg-Marquardt refits). ``JointLearner.iteration`` with B envir
 env-iterations. Measured with the learner of the recorded tables (``--learner recorded``, the
 defaults of the morning of 2026-12-01: MP, 288 atoms, the paper's two scales, 13 actions, no cue
 symmetries), the two-scale defaults until 2026-12-02 (``--learner two-scale``: the same with the
-symmetries) or today's defaults (``--learner default``, ``LearnerConfig()``: three scales, 11
-actions, the symmetries) for every combination of:
+symmetries) or today's defaults (``--learner default``, ``LearnerConfig()``: PPO on four scales,
+11 actions, the symmetries) for every combination of:
 
   * B (``--batches``, default 1, 16, 64, 256);
   * ``eager`` or ``compile`` (``train.compile=true``: ``torch.compile`` of both encoders and of

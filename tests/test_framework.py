@@ -424,3 +424,23 @@ def test_a_cue_added_by_its_config_and_its_environment_runs_through_learner_metr
     held = JointLearner(LearnerConfig(cues=cues, active_cues=["parallax", "stereo"]),
                         generator=torch.Generator().manual_seed(0))
     assert float(held.iteration(env).errors_deg["torsion"].abs().max()) == 0.0
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+@pytest.mark.parametrize("agent", ["ppo", "nac"])
+def test_the_default_learner_learns_on_cuda_with_its_cpu_generator(agent):
+    """The learner's generator stays on CPU (checkpoints hold its state); its draws reach a CUDA run:
+    the actions' uniform numbers are the CPU generator's, moved (a CUDA run once stopped at the
+    first action: a CPU generator cannot draw CUDA numbers)."""
+    from aectorch.control import draw_uniform
+
+    env = ActiveDepthEnv(4, seed=0, device="cuda")
+    learner = JointLearner(LearnerConfig(cues=default_cues(agent=agent)), generator=torch.Generator().manual_seed(0),
+                           device="cuda")
+    for _ in range(32):  # past the first fixation's end (30 iterations): the agents learn
+        record = learner.iteration(env)
+    for cue in record.cues.values():
+        assert cue.actions.device.type == "cuda" and bool(torch.isfinite(cue.reward).all())
+    g, h = torch.Generator().manual_seed(5), torch.Generator().manual_seed(5)
+    u = draw_uniform((3, 1), g, torch.zeros(1, device="cuda"))
+    assert u.device.type == "cuda" and torch.equal(u.cpu(), torch.rand(3, 1, generator=h))

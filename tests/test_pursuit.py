@@ -714,8 +714,10 @@ def test_cuda_matches_cpu(random_problem, photos, fn):
         gpu = fn(xt.cuda(), dt.cuda(), K)
         assert gpu.indices.is_cuda and gpu.coefficients.is_cuda
         gpu_dense, cpu_dense = gpu.to_dense(N).cpu(), cpu.to_dense(N)
-        assert torch.equal(gpu_dense != 0, cpu_dense != 0)
         torch.testing.assert_close(gpu_dense, cpu_dense, rtol=0, atol=1e-10)
+        # The same support above that tolerance: where plain MP picks an atom again for what is left
+        # of its own coefficient, the sum can be exactly 0 on one device and ~1e-17 on the other.
+        assert torch.equal(gpu_dense.abs() > 1e-10, cpu_dense.abs() > 1e-10)
     tie_d, tie_x = _tie_dictionary(np.float32), _tie_signals(100, seed=17, dtype=np.float32)
     gpu = fn(torch.from_numpy(tie_x).cuda(), torch.from_numpy(tie_d).cuda(), K)
     np.testing.assert_array_equal(gpu.indices.cpu().numpy(), _stable_selection(tie_x, K))

@@ -183,7 +183,10 @@ def test_torch_renderer_on_cuda_matches_cpu(scene, head):
     index = torch.tensor([0, 1, 2])
     cpu = TorchPlaneRenderer(scene)(poses, plane_x, index, CROPS)
     gpu = TorchPlaneRenderer(scene).cuda()(poses.cuda(), plane_x.cuda(), index.cuda(), CROPS)
-    torch.testing.assert_close(gpu.cpu(), cpu, atol=1e-5, rtol=0)
+    # float32 roundings differ between the devices: on an H200, 93 of 98,304 pixels differed by more
+    # than 1e-5, at most by 2.1e-5 (images in [0, 1])
+    torch.testing.assert_close(gpu.cpu(), cpu, atol=1e-4, rtol=0)
+    assert float((gpu.cpu() - cpu).abs().gt(1e-5).float().mean()) < 0.01
 
 
 # --- agreement with pyrender ----------------------------------------------------------------------

@@ -3,11 +3,11 @@ algorithm 3) and PPO, that choose pan increments from a cue's features."""
 
 from aectorch.control.actor_critic import ActorCriticConfig, NaturalActorCritic, UpdateOutput
 from aectorch.control.agent import (
-    DEFAULT_ACTIONS_DEG, PAPER_ACTIONS_DEG, ActOutput, Agent, LearnOutput, Transitions, sample_actions,
+    DEFAULT_ACTIONS_DEG, PAPER_ACTIONS_DEG, ActOutput, Agent, LearnOutput, Transitions, draw_uniform, sample_actions,
 )
 from aectorch.control.factory import AGENTS, agent_config, make_agent
 from aectorch.control.ppo import PPO, PPOConfig
 
 __all__ = ["AGENTS", "DEFAULT_ACTIONS_DEG", "PAPER_ACTIONS_DEG", "PPO", "ActOutput", "ActorCriticConfig", "Agent",
            "LearnOutput", "NaturalActorCritic", "PPOConfig", "Transitions", "UpdateOutput", "agent_config",
-           "make_agent", "sample_actions"]
+           "draw_uniform", "make_agent", "sample_actions"]

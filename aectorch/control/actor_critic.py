@@ -53,7 +53,8 @@ from torch import nn
 from aectorch._checks import check_bool, check_finite, check_int, is_int, is_real
 from aectorch.control.features import merge_moments, scale_to_norm, standardize
 from aectorch.control.agent import (
-    DEFAULT_ACTIONS_DEG, PAPER_ACTIONS_DEG, ActOutput, LearnOutput, Reduce, Transitions, entropy, sample_actions,
+    DEFAULT_ACTIONS_DEG, PAPER_ACTIONS_DEG, ActOutput, LearnOutput, Reduce, Transitions, draw_uniform, entropy,
+    sample_actions,
 )
 
 __all__ = ["ActOutput", "ActorCriticConfig", "NaturalActorCritic", "UpdateOutput"]
@@ -484,7 +485,7 @@ class NaturalActorCritic(nn.Module):
             actions = logp.argmax(dim=-1)
         else:
             if uniform is None:
-                u = torch.rand(x.shape[0], generator=generator, dtype=x.dtype, device=x.device)
+                u = draw_uniform(x.shape[0], generator, x)
             else:
                 self._per_env(uniform, "uniform", x.shape[0])
                 u = uniform.to(x.dtype)

@@ -21,7 +21,7 @@ from typing import Callable, NamedTuple, Protocol, Sequence, runtime_checkable
 import torch
 from torch import Tensor
 
-__all__ = ["DEFAULT_ACTIONS_DEG", "PAPER_ACTIONS_DEG", "ActOutput", "Agent", "LearnOutput", "Reduce", "Transitions", "entropy", "sample_actions"]
+__all__ = ["DEFAULT_ACTIONS_DEG", "PAPER_ACTIONS_DEG", "ActOutput", "Agent", "LearnOutput", "Reduce", "Transitions", "draw_uniform", "entropy", "sample_actions"]
 
 #: The paper's action set A of pan increments in degrees (sec. 2.3).
 PAPER_ACTIONS_DEG = (-0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2)
@@ -120,6 +120,21 @@ class Agent(Protocol):
     def state_dict(self, *args, **kwargs) -> dict: ...
 
     def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False): ...
+
+
+def draw_uniform(shape, generator: torch.Generator | None, like: Tensor) -> Tensor:
+    """Numbers uniform in [0, 1) of ``like``'s dtype and device, drawn by ``generator`` on the
+    generator's own device: a CPU generator (the learner's, whose state checkpoints hold) drives a
+    CUDA run too, with the numbers it draws on CPU.
+
+    Example:
+        >>> g = torch.Generator().manual_seed(0)
+        >>> u = draw_uniform((2, 3), g, torch.zeros(1, dtype=torch.float64))
+        >>> u.shape, u.dtype, bool(((0 <= u) & (u < 1)).all())
+        (torch.Size([2, 3]), torch.float64, True)
+    """
+    device = like.device if generator is None else generator.device
+    return torch.rand(shape, generator=generator, dtype=like.dtype, device=device).to(like.device)
 
 
 def sample_actions(logp: Tensor, uniform: Tensor) -> Tensor:

@@ -31,7 +31,8 @@ import torch
 from torch import Tensor, nn
 
 from aectorch._checks import check_bool, check_int, check_real
-from aectorch.control.agent import DEFAULT_ACTIONS_DEG, ActOutput, LearnOutput, Reduce, Transitions, entropy, sample_actions
+from aectorch.control.agent import (DEFAULT_ACTIONS_DEG, ActOutput, LearnOutput, Reduce, Transitions, draw_uniform,
+                                    entropy, sample_actions)
 from aectorch.control.features import merge_moments, scale_to_norm, standardize
 
 __all__ = ["PPO", "PPOConfig"]
@@ -250,7 +251,7 @@ class PPO(nn.Module):
             actions = logp.argmax(dim=-1)
         else:
             if uniform is None:
-                uniform = torch.rand(features.shape[0], generator=generator, dtype=logp.dtype, device=logp.device)
+                uniform = draw_uniform(features.shape[0], generator, logp)
             actions = sample_actions(logp, uniform.to(logp.dtype))
         return ActOutput(actions, self.actions_deg[actions], logp.gather(-1, actions[:, None]).squeeze(-1),
                          entropy(logp))

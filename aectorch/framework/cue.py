@@ -17,7 +17,7 @@ from torch import Tensor, nn
 
 from aectorch.choices import Features, Readout, Reward
 from aectorch.coding import BinocularEncoder
-from aectorch.control import Agent, Transitions, make_agent
+from aectorch.control import Agent, Transitions, draw_uniform, make_agent
 from aectorch.framework.config import CueConfig
 from aectorch.framework.shard import Shard
 from aectorch.profiling import stage
@@ -139,8 +139,7 @@ class CueLearner(nn.Module):
                 out = out._replace(increments_deg=mean)
             return out
         # The numbers one process with the whole batch would draw; this process's rows.
-        u = torch.rand(self.shard.whole_batch(features.shape[0]), 1, generator=self.generator, dtype=features.dtype,
-                       device=features.device)
+        u = draw_uniform((self.shard.whole_batch(features.shape[0]), 1), self.generator, features)
         return self.agent.act(features, uniform=self.shard.draw(u)[:, 0])
 
     def forget(self) -> None:

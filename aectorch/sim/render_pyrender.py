@@ -75,6 +75,12 @@ def import_pyrender(platform: str | None = None):
             )
         _opengl.set_platform(platform)
     try:
+        if platform == "egl":
+            # pyrender's viewer subclasses pyglet's window at import: without an X server's libraries
+            # (a GPU server) pyglet's headless (EGL) windowing is the one that loads.
+            import pyglet
+
+            pyglet.options["headless"] = True
         import pyrender  # noqa: F401
         from OpenGL import GL  # noqa: F401
     except (ImportError, OSError, AttributeError) as error:  # pragma: no cover - depends on system
