@@ -103,6 +103,9 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=20)
     parser.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "results" / "encode_ab.json")
     args = parser.parse_args()
+    if min(args.repeats, args.rounds) < 2:
+        parser.error(f"--repeats and --rounds must be at least 2 (quartiles of the paired ratios), got "
+                     f"{args.repeats} and {args.rounds}")
     from aectorch.runtime.builders import set_threads
     from benchmarks.machine import machine_info
 

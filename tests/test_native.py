@@ -282,6 +282,26 @@ def test_fused_dictionary_kernels_give_the_same_bits_on_any_number_of_threads(op
     assert all(torch.equal(results[0], r) for r in results[1:])
 
 
+def test_the_sparse_gradient_of_many_signals_gives_the_same_bits_on_any_number_of_threads():
+    # from 2^20 signal values the kernel splits the atoms over threads (below, one thread runs)
+    g = torch.Generator().manual_seed(7)
+    m, p, k, n = 6000, 200, 10, 288
+    x, reconstruction = torch.randn(m, p, generator=g), torch.randn(m, p, generator=g)
+    indices, coefficients = torch.randint(0, n, (m, k), generator=g), torch.randn(m, k, generator=g)
+    before = native.get_threads()
+    try:
+        results = []
+        for threads in (1, 2, 3):
+            native.set_threads(threads)
+            results.append(torch.ops.aectorch.sparse_gradient(x, reconstruction, indices, coefficients, n))
+    finally:
+        native.set_threads(before)
+    assert all(torch.equal(results[0], r) for r in results[1:])
+    weighted = (x - reconstruction) / x.square().sum(-1, keepdim=True)
+    dense = torch.zeros(m, n).scatter_add_(1, indices, coefficients)
+    torch.testing.assert_close(results[0], dense.t() @ weighted, rtol=1e-4, atol=1e-4)
+
+
 def test_fused_dictionary_kernels_have_shapes_for_torch_compile():
     from torch._subclasses.fake_tensor import FakeTensorMode
 

@@ -590,7 +590,14 @@ at::Tensor sparse_gradient(const at::Tensor& signals, const at::Tensor& reconstr
   const int64_t m = x.size(0), p = x.size(1), k = idx_t.size(1), n = num_atoms;
   auto out = at::zeros({n, p}, x.options());
   auto weighted = at::empty({m, p}, x.options());
-  const int threads = static_cast<int>(std::max<int64_t>(1, std::min<int64_t>(aectorch_kernel_threads(), n)));
+  // Every thread reads all M k indices to find its atoms' entries: below kThreadedGradient values of
+  // signals, one thread is faster (B = 32's 1,568 x 200 patches of a scale: the training loop took
+  // 0.935x and 0.969x the CPU time, 0.967x and 0.985x the wall time, with the dictionary step on one
+  // thread; two runs of 30 interleaved rounds, benchmarks/gradient_threads_ab.py); at B = 256 two
+  // threads are faster (docs/performance.md, the stage tables).
+  constexpr int64_t kThreadedGradient = int64_t(1) << 20;
+  const int threads = m * p < kThreadedGradient
+      ? 1 : static_cast<int>(std::max<int64_t>(1, std::min<int64_t>(aectorch_kernel_threads(), n)));
   AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "aectorch_sparse_gradient", [&] {
     const scalar_t* xs = x.const_data_ptr<scalar_t>();
     const scalar_t* recs = rec.const_data_ptr<scalar_t>();
