@@ -13,8 +13,8 @@ import torch
 from torch import nn
 
 from aectorch._checks import check_int
-from aectorch.coding.pursuit import DEFAULT_BLOCK_SIZE, _default_backend_name, _validate, fused_kernels_apply, \
-    gram_matrix, matching_pursuit, omp
+from aectorch.coding.pursuit import DEFAULT_BLOCK_SIZE, _validate, fused_kernels_apply, gram_matrix, \
+    matching_pursuit, omp
 from aectorch.coding.sparse_code import SparseCode
 
 __all__ = ["SparseDictionary", "DictionaryOutput", "pooled_activity", "reconstruction_error"]
@@ -233,7 +233,8 @@ class SparseDictionary(nn.Module):
             out = self(signals, check=check)
             return out, self.pooled_activity(out.code, reduction=reduction)
         detached = atoms.detach()
-        _validate(signals, detached, self.sparsity, None, check, _default_backend_name())
+        # (the kernels apply, so "auto" is what any backend setting other than "torch" checks)
+        _validate(signals, detached, self.sparsity, None, check, "auto")
         patches, p, k = signals.shape[-2], self.dim, self.sparsity
         # (gram None: the kernel computes it, as aectorch::gram does, in the same pass)
         indices, coefficients, reconstruction, error, features = torch.ops.aectorch.encode(

@@ -179,11 +179,6 @@ def _native_ok(signals: torch.Tensor) -> bool:
     return signals.device.type == "cpu" and signals.dtype in (torch.float32, torch.float64) and _native_loaded()
 
 
-def _default_backend_name() -> str:
-    """The backend that `omp` and `matching_pursuit` use without ``backend=`` (see `use_backend`)."""
-    return _default_backend
-
-
 def fused_kernels_apply(tensor: torch.Tensor) -> bool:
     """Whether library code uses the fused CPU kernels for ``tensor`` (a CPU float32/float64
     tensor, the kernels loaded, and no ``use_backend("torch")`` around the call)."""
