@@ -71,7 +71,12 @@ def one_dictionary(repeats: int) -> dict:
     return summary(times)
 
 
-def loop(rounds: int, iterations: int) -> dict:
+def loop(rounds: int, iterations: int, owner: type = SparseDictionary, attribute: str = "forward_pooled",
+         variants: dict | None = None) -> dict:
+    """Interleaved rounds of the default learner's iterations with ``owner.attribute`` set to each
+    of ``variants`` (default: `VARIANTS` of ``SparseDictionary.forward_pooled``) in turn."""
+    variants = VARIANTS if variants is None else variants
+    original = getattr(owner, attribute)
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from loop_ops import build
 
@@ -79,12 +84,12 @@ def loop(rounds: int, iterations: int) -> dict:
     env, learner = build(32)
     for _ in range(30):
         learner.iteration(env)
-    wall: dict[str, list[float]] = {name: [] for name in VARIANTS}
-    cpu: dict[str, list[float]] = {name: [] for name in VARIANTS}
+    wall: dict[str, list[float]] = {name: [] for name in variants}
+    cpu: dict[str, list[float]] = {name: [] for name in variants}
     try:
         for r in range(rounds):
-            for name in (list(VARIANTS) if r % 2 == 0 else list(VARIANTS)[::-1]):
-                SparseDictionary.forward_pooled = VARIANTS[name]
+            for name in (list(variants) if r % 2 == 0 else list(variants)[::-1]):
+                setattr(owner, attribute, variants[name])
                 start, start_cpu = time.perf_counter(), time.process_time()
                 for _ in range(iterations):
                     learner.iteration(env)
@@ -92,7 +97,7 @@ def loop(rounds: int, iterations: int) -> dict:
                 cpu[name].append(1000 * (time.process_time() - start_cpu) / iterations)
             print(f"round {r + 1} of {rounds}", file=sys.stderr, flush=True)
     finally:
-        SparseDictionary.forward_pooled = ONE_PASS
+        setattr(owner, attribute, original)
     return {"wall": summary(wall), "cpu (both threads)": summary(cpu)}
 
 
@@ -112,16 +117,20 @@ def main() -> None:
     set_threads(0, 1)  # as train.threads's default: the kernels on every core, torch on one thread
     report = {"benchmark": "encode_ab", "one_dictionary_32x49_patches": one_dictionary(args.repeats),
               "training_loop_B32": loop(args.rounds, args.iterations), "machine": machine_info()}
-    for label, part in (("one dictionary, 32 x 49 patches, ms per call", report["one_dictionary_32x49_patches"]),
-                        ("training loop, ms per iteration (wall)", report["training_loop_B32"]["wall"]),
+    write(report, "one dictionary, 32 x 49 patches, ms per call", report["one_dictionary_32x49_patches"], args.json)
+
+
+def write(report: dict, label: str, part: dict, path: Path) -> None:
+    """Print the medians and paired ratios of ``part`` and the training loop's, then write ``report``."""
+    for label, part in ((label, part), ("training loop, ms per iteration (wall)", report["training_loop_B32"]["wall"]),
                         ("training loop, CPU ms per iteration", report["training_loop_B32"]["cpu (both threads)"])):
         medians = ", ".join(f"{k} {v:.3f}" for k, v in part["median_ms"].items())
         (key, ratio), = [(k, v) for k, v in part.items() if k.startswith("ratio")]
         print(f"{label}: {medians}; {key}: median {ratio['median']:.3f}, quartiles "
               f"{ratio['quartiles'][0]:.3f}-{ratio['quartiles'][2]:.3f}")
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(report, indent=2) + "\n")
-    print(f"wrote {args.json}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(report, indent=2) + "\n")
+    print(f"wrote {path}")
 
 
 if __name__ == "__main__":

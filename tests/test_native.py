@@ -367,3 +367,46 @@ def test_fused_dictionary_step_matches_torch(mirrored, dtype):
     if mirrored:
         atoms = d.atoms.detach()
         torch.testing.assert_close(atoms[d.mirror][:, d.partner], atoms, **tol)
+
+
+@pytest.mark.parametrize("mirrored", [False, True])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_dictionaries_learn_together_with_the_bits_of_learning_one_by_one(mirrored, dtype):
+    """`learn_together_` (aectorch::learn_steps_: the dictionaries spread over the kernels' threads,
+    each on one) against `SparseDictionary.learn_` of each in turn, on 1-3 threads; an index out of
+    range changes no dictionary."""
+    import copy
+
+    from aectorch.coding import SparseDictionary, patch_permutation
+    from aectorch.coding.dictionary import learn_together_
+
+    mirror = patch_permutation(4) if mirrored else None
+    g = torch.Generator().manual_seed(0)
+    # unequal work: 2, 40, 90 and 25 signals
+    dicts = [SparseDictionary(64, 32, 5, "mp", generator=g, mirror=mirror, dtype=dtype) for _ in range(4)]
+    xs = [torch.randn(m, 32, generator=g, dtype=dtype) for m in (2, 40, 90, 25)]
+    with torch.no_grad():
+        outs = [d(x) for d, x in zip(dicts, xs)]
+    reference = copy.deepcopy(dicts)
+    for d, x, out in zip(reference, xs, outs):
+        d.learn_(x, out, 0.3)
+    threads = native.get_threads()
+    try:
+        for count in (1, 2, 3):
+            native.set_threads(count)
+            together = copy.deepcopy(dicts)
+            versions = [d.atoms._version for d in together]
+            learn_together_(together, xs, outs, 0.3)
+            for d, r, version in zip(together, reference, versions):
+                assert torch.equal(d.atoms, r.atoms), count
+                assert d.atoms._version > version  # autograd sees the in-place change
+    finally:
+        native.set_threads(threads)
+    broken = copy.deepcopy(dicts)
+    bad = outs[2]._replace(code=outs[2].code._replace(indices=outs[2].code.indices.clone().fill_(64)))
+    with pytest.raises(RuntimeError, match="outside .0, num_atoms.; no dictionary was changed"):
+        learn_together_(broken, xs, outs[:2] + [bad] + outs[3:], 0.3)
+    for d, before in zip(broken, dicts):
+        assert torch.equal(d.atoms, before.atoms)
+    with pytest.raises(ValueError, match="one signals and one output per dictionary"):
+        learn_together_(broken, xs[:3], outs, 0.3)

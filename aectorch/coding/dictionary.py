@@ -7,7 +7,7 @@ gradient with the support and coefficients held fixed, then are renormalised.
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple
+from typing import Callable, NamedTuple, Sequence
 
 import torch
 from torch import nn
@@ -17,7 +17,7 @@ from aectorch.coding.pursuit import DEFAULT_BLOCK_SIZE, _validate, fused_kernels
     matching_pursuit, omp
 from aectorch.coding.sparse_code import SparseCode
 
-__all__ = ["SparseDictionary", "DictionaryOutput", "pooled_activity", "reconstruction_error"]
+__all__ = ["SparseDictionary", "DictionaryOutput", "learn_together_", "pooled_activity", "reconstruction_error"]
 
 _ALGORITHMS = {"omp": omp, "mp": matching_pursuit}
 
@@ -318,6 +318,52 @@ class SparseDictionary(nn.Module):
         self.symmetrize_()
         self.renormalize_()
         return grad
+
+
+@torch.no_grad()
+def learn_together_(dictionaries: Sequence[SparseDictionary], signals: Sequence[torch.Tensor],
+                    outputs: Sequence[DictionaryOutput], lr: float, *,
+                    reduce: Callable[[torch.Tensor], torch.Tensor] | None = None) -> None:
+    """`SparseDictionary.learn_` of several dictionaries (a coder's scales), each on its own signals.
+
+    On CPU with the fused kernels and no ``reduce``, one call of ``aectorch::learn_steps_`` spreads
+    the dictionaries over the kernels' threads (each dictionary's gradient and step on one thread:
+    the same bits as `SparseDictionary.learn_`, one after the other); otherwise they learn one by one.
+
+    Example:
+        >>> import torch
+        >>> g = torch.Generator().manual_seed(0)
+        >>> dicts = [SparseDictionary(16, 8, 2, generator=g) for _ in range(2)]
+        >>> xs = [torch.randn(5, 8, generator=g) for _ in dicts]
+        >>> with torch.no_grad():
+        ...     outs = [d(x) for d, x in zip(dicts, xs)]
+        >>> learn_together_(dicts, xs, outs, 0.1)
+        >>> [round(float(d.atoms.norm(dim=0).mean()), 4) for d in dicts]
+        [1.0, 1.0]
+    """
+    if not lr >= 0:
+        raise ValueError(f"lr must be a non-negative float, got {lr!r}")
+    if not len(dictionaries) == len(signals) == len(outputs):
+        raise ValueError(f"learn_together_ needs one signals and one output per dictionary, got {len(dictionaries)} "
+                         f"dictionaries, {len(signals)} signals and {len(outputs)} outputs")
+    xs = [x.reshape(-1, d.dim) for d, x in zip(dictionaries, signals)]
+    fused = reduce is None and all(
+        d.atoms.is_contiguous() and fused_kernels_apply(d.atoms) and x.shape[0] > 0
+        and x.dtype == out.reconstruction.dtype == out.code.coefficients.dtype == d.atoms.dtype
+        for d, x, out in zip(dictionaries, xs, outputs))
+    if not fused:
+        for d, x, out in zip(dictionaries, signals, outputs):
+            d.learn_(x, out, lr, reduce=reduce)
+        return
+    ks = [out.code.indices.shape[-1] for out in outputs]
+    torch.ops.aectorch.learn_steps_(
+        [d.atoms.detach() for d in dictionaries], xs,
+        [out.reconstruction.detach().reshape(-1, d.dim) for d, out in zip(dictionaries, outputs)],
+        [out.code.indices.reshape(-1, k) for out, k in zip(outputs, ks)],
+        [out.code.coefficients.reshape(-1, k) for out, k in zip(outputs, ks)],
+        float(lr), [d.mirror for d in dictionaries], [d.partner for d in dictionaries])
+    for d in dictionaries:
+        torch.autograd.graph.increment_version(d.atoms)
 
 
 def _check_mirror(mirror: torch.Tensor, dim: int, num_atoms: int) -> torch.Tensor:

@@ -19,7 +19,7 @@ from torch import Tensor, nn
 
 from aectorch._checks import check_bool, check_choice, check_finite, check_int, check_real, is_real
 from aectorch.choices import Algorithm, DictionaryStart, Pooling
-from aectorch.coding.dictionary import DictionaryOutput, SparseDictionary
+from aectorch.coding.dictionary import DictionaryOutput, SparseDictionary, learn_together_
 from aectorch.coding.patches import (
     DEFAULT_SCALES, WINDOW, Scale, as_scale, patch_permutation, scale_patches, window_patches,
 )
@@ -299,8 +299,8 @@ class BinocularEncoder(nn.Module):
         the mean runs over all of them.
         """
         lr = self.rate() if lr is None else lr
-        for scale, x, out in zip(self.scales, output.patches, output.codes):
-            self.dictionaries[scale.name].learn_(x, out, lr, reduce=reduce)
+        learn_together_([self.dictionaries[scale.name] for scale in self.scales], output.patches, output.codes, lr,
+                        reduce=reduce)
         self.steps += 1
         return self
 

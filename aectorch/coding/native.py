@@ -281,6 +281,10 @@ def _register_fake() -> None:
     def _(images, offset, p, stride, g, eps, rounding):
         return images.new_empty(images.shape[0] // 2, g * g, 2 * p * p)
 
+    @torch.library.register_fake("aectorch::learn_steps_")
+    def _(atoms, signals, reconstructions, indices, coefficients, lr, mirrors, partners):
+        return None
+
     @torch.library.register_fake("aectorch::render_trilinear")
     def _(poses, plane_x, texture_index, atlas, xs, ys, steps, scene, tex_h, tex_w, levels, lod_bias, samples):
         return poses.new_empty(poses.shape[0], poses.shape[1], xs.shape[0])

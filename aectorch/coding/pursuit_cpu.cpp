@@ -27,7 +27,9 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <tuple>
 #include <type_traits>
+#include <utility>
 #include <optional>
 #include <vector>
 
@@ -484,6 +486,18 @@ inline T row_max_abs(const T* __restrict a, int64_t n) {
   return s;
 }
 
+// The rows that a scatter-add visits jump at random over a matrix that does not fit in L1, and the
+// hardware prefetchers do not follow: `prefetch_row` asks for row `row` of [n, p] values at `base`
+// (for writing; nothing when it lies outside) kPrefetchAhead entries before it is added to.
+constexpr int64_t kPrefetchAhead = 4;
+template <typename T>
+inline void prefetch_row(const T* base, int64_t row, int64_t n, int64_t p) {
+  if (row < 0 || row >= n) return;
+  const char* start = reinterpret_cast<const char*>(base + row * p);
+  const char* end = reinterpret_cast<const char*>(base + (row + 1) * p);
+  for (const char* c = start; c < end; c += 64) __builtin_prefetch(c, 1, 3);
+}
+
 // y += c x over a row (a function of its own: inlined, its loop vectorises on restrict pointers).
 template <typename T>
 inline void axpy(T* __restrict y, const T* __restrict x, T c, int64_t n) {
@@ -570,6 +584,13 @@ std::tuple<at::Tensor, at::Tensor> reconstruct_error(
   return {recon, error};
 }
 
+// One signal's weighted residual w = (x - r) / ||x||^2 (||x||^2 at least the smallest normal number).
+template <typename T>
+inline void weighted_residual(const T* __restrict xr, const T* __restrict rr, T* __restrict w, int64_t p) {
+  const T energy = std::max(row_sum_squares(xr, p), std::numeric_limits<T>::min());
+  for (int64_t q = 0; q < p; ++q) w[q] = (xr[q] - rr[q]) / energy;  // (as torch's r / e rounds)
+}
+
 // sum_i c_ij (x_i - r_i) / ||x_i||^2 into row indices_ij of an [N, P] result: the gradient of eq. (4)
 // from the active atoms only (k per signal) instead of a dense [P, M] x [M, N] product. First the
 // weighted residuals, row by row; then each thread adds into the rows of its own atoms, visiting
@@ -613,8 +634,7 @@ at::Tensor sparse_gradient(const at::Tensor& signals, const at::Tensor& reconstr
         const scalar_t* __restrict xr = xs + row * p;
         const scalar_t* __restrict rr = recs + row * p;
         scalar_t* __restrict w = ws + row * p;
-        const scalar_t energy = std::max(row_sum_squares(xr, p), std::numeric_limits<scalar_t>::min());
-        for (int64_t q = 0; q < p; ++q) w[q] = (xr[q] - rr[q]) / energy;  // (as torch's r / e rounds)
+        weighted_residual(xr, rr, w, p);
       }
       // (the implicit barrier of the loop above: every weighted row is ready)
       int nthreads = 1, me = 0;
@@ -763,50 +783,161 @@ at::Tensor pair_patches(const at::Tensor& images, int64_t offset, int64_t p, int
   return out;
 }
 
-// One dictionary step in place, atoms [P, N] (row-major: atom n is column n): D <- D - lr G (the
-// gradient given as grad_t [N, P], what sparse_gradient returns), then, with a mirror, the mirror
-// pairs' projection D <- (D + D[mirror][:, partner]) / 2, then every column scaled to unit norm (a
-// zero column stays zero). The column norms sum over the rows in order, for all columns at once.
+// One dictionary step in place on atoms d [P, N] (row-major: atom n is column n): D <- D - lr G (the
+// gradient given as gs [N, P]), then, with a mirror (ms [P], ps [N], checked), the mirror pairs'
+// projection D <- (D + D[mirror][:, partner]) / 2, then every column scaled to unit norm (a zero
+// column stays zero). The column norms sum over the rows in order, for all columns at once.
+template <typename T>
+void step_atoms(T* d, const T* gs, T rate, int64_t p, int64_t n, const int64_t* ms, const int64_t* ps) {
+  for (int64_t r = 0; r < p; ++r)
+    for (int64_t c = 0; c < n; ++c) d[r * n + c] -= rate * gs[c * p + r];
+  if (ms != nullptr) {
+    std::vector<T> work(d, d + p * n);
+    for (int64_t r = 0; r < p; ++r) {
+      const T* other = work.data() + ms[r] * n;
+      for (int64_t c = 0; c < n; ++c) d[r * n + c] = (work[r * n + c] + other[ps[c]]) * T(0.5);
+    }
+  }
+  std::vector<T> sq(n, T(0));
+  for (int64_t r = 0; r < p; ++r)
+    for (int64_t c = 0; c < n; ++c) sq[c] += d[r * n + c] * d[r * n + c];
+  for (int64_t c = 0; c < n; ++c) sq[c] = std::max(std::sqrt(sq[c]), std::numeric_limits<T>::min());
+  for (int64_t r = 0; r < p; ++r)
+    for (int64_t c = 0; c < n; ++c) d[r * n + c] /= sq[c];
+}
+
+// A mirror [P] and partner [N] as contiguous int64, checked to lie in range (undefined tensors
+// without a mirror).
+std::pair<at::Tensor, at::Tensor> mirror_pair(const char* op, const std::optional<at::Tensor>& mirror,
+                                              const std::optional<at::Tensor>& partner, int64_t p, int64_t n) {
+  TORCH_CHECK(mirror.has_value() == partner.has_value(), op, ": mirror and partner go together");
+  if (!mirror.has_value()) return {};
+  auto mir = mirror->to(at::kLong).contiguous();
+  auto par = partner->to(at::kLong).contiguous();
+  TORCH_CHECK(mir.numel() == p && par.numel() == n, op, ": mirror [P] and partner [N]");
+  const int64_t* ms = mir.const_data_ptr<int64_t>();
+  const int64_t* ps = par.const_data_ptr<int64_t>();
+  for (int64_t r = 0; r < p; ++r) TORCH_CHECK(ms[r] >= 0 && ms[r] < p, op, ": bad mirror");
+  for (int64_t c = 0; c < n; ++c) TORCH_CHECK(ps[c] >= 0 && ps[c] < n, op, ": bad partner");
+  return {mir, par};
+}
+
+// One dictionary step in place, atoms [P, N] (row-major: atom n is column n), the gradient given as
+// grad_t [N, P] (what sparse_gradient returns): `step_atoms`.
 void dictionary_step_(at::Tensor& atoms, const at::Tensor& grad_t, double lr, const std::optional<at::Tensor>& mirror,
                       const std::optional<at::Tensor>& partner) {
   TORCH_CHECK(atoms.dim() == 2 && atoms.is_contiguous(), "aectorch::dictionary_step_ expects contiguous atoms [P, N]");
   TORCH_CHECK(grad_t.dim() == 2 && grad_t.size(0) == atoms.size(1) && grad_t.size(1) == atoms.size(0) &&
                   grad_t.scalar_type() == atoms.scalar_type(),
               "aectorch::dictionary_step_: grad_t must be [N, P] of the atoms' dtype");
-  TORCH_CHECK(mirror.has_value() == partner.has_value(), "aectorch::dictionary_step_: mirror and partner go together");
   const int64_t p = atoms.size(0), n = atoms.size(1);
   const auto g = grad_t.contiguous();
-  at::Tensor mir, par;
-  if (mirror.has_value()) {
-    mir = mirror->to(at::kLong).contiguous();
-    par = partner->to(at::kLong).contiguous();
-    TORCH_CHECK(mir.numel() == p && par.numel() == n, "aectorch::dictionary_step_: mirror [P] and partner [N]");
-  }
+  const auto [mir, par] = mirror_pair("aectorch::dictionary_step_", mirror, partner, p, n);
   AT_DISPATCH_FLOATING_TYPES(atoms.scalar_type(), "aectorch_dictionary_step", [&] {
-    scalar_t* d = atoms.data_ptr<scalar_t>();
-    const scalar_t* gs = g.const_data_ptr<scalar_t>();
-    const scalar_t rate = static_cast<scalar_t>(lr);
-    for (int64_t r = 0; r < p; ++r)
-      for (int64_t c = 0; c < n; ++c) d[r * n + c] -= rate * gs[c * p + r];
-    std::vector<scalar_t> work;
-    if (mirror.has_value()) {
-      const int64_t* ms = mir.const_data_ptr<int64_t>();
-      const int64_t* ps = par.const_data_ptr<int64_t>();
-      for (int64_t r = 0; r < p; ++r) TORCH_CHECK(ms[r] >= 0 && ms[r] < p, "aectorch::dictionary_step_: bad mirror");
-      for (int64_t c = 0; c < n; ++c) TORCH_CHECK(ps[c] >= 0 && ps[c] < n, "aectorch::dictionary_step_: bad partner");
-      work.assign(d, d + p * n);
-      for (int64_t r = 0; r < p; ++r) {
-        const scalar_t* other = work.data() + ms[r] * n;
-        for (int64_t c = 0; c < n; ++c) d[r * n + c] = (work[r * n + c] + other[ps[c]]) * scalar_t(0.5);
+    step_atoms(atoms.data_ptr<scalar_t>(), g.const_data_ptr<scalar_t>(), static_cast<scalar_t>(lr), p, n,
+               mir.defined() ? mir.const_data_ptr<int64_t>() : nullptr,
+               par.defined() ? par.const_data_ptr<int64_t>() : nullptr);
+  });
+}
+
+// The dictionary steps of several dictionaries (a coder's scales) in one OpenMP region: for each, the
+// sparse gradient of its M signals on one thread (sparse_gradient's arithmetic: the weighted
+// residuals, then each entry added in order), scaled by -2 / M (as torch's `grad * (-2 / M)` rounds),
+// then `step_atoms`: the same bits as sparse_gradient, the scaling and dictionary_step_ one after
+// the other. The dictionaries are spread over the kernels' threads, the largest first, each to the
+// thread with the least work so far. Every gradient is computed, and its indices checked, before
+// any dictionary changes.
+void learn_steps_(at::TensorList atoms, at::TensorList signals, at::TensorList reconstructions, at::TensorList indices,
+                  at::TensorList coefficients, double lr, const c10::List<std::optional<at::Tensor>>& mirrors,
+                  const c10::List<std::optional<at::Tensor>>& partners) {
+  const int64_t count = static_cast<int64_t>(atoms.size());
+  TORCH_CHECK(signals.size() == atoms.size() && reconstructions.size() == atoms.size() &&
+                  indices.size() == atoms.size() && coefficients.size() == atoms.size() &&
+                  mirrors.size() == atoms.size() && partners.size() == atoms.size(),
+              "aectorch::learn_steps_: one signals, reconstructions, indices, coefficients, mirrors and partners "
+              "entry per dictionary");
+  if (count == 0) return;
+  const auto dtype = atoms[0].scalar_type();
+  std::vector<at::Tensor> xs(count), recs(count), idxs(count), coefs(count), mirs(count), pars(count), grads(count),
+      weighted(count);
+  std::vector<int64_t> work(count);
+  for (int64_t i = 0; i < count; ++i) {
+    const auto& a = atoms[i];
+    TORCH_CHECK(a.dim() == 2 && a.is_contiguous() && a.scalar_type() == dtype,
+                "aectorch::learn_steps_ expects contiguous atoms [P, N] of one dtype");
+    const int64_t p = a.size(0), n = a.size(1);
+    const auto& x = signals[i];
+    TORCH_CHECK(x.dim() == 2 && x.size(1) == p && x.size(0) >= 1 && reconstructions[i].sizes() == x.sizes() &&
+                    indices[i].dim() == 2 && coefficients[i].sizes() == indices[i].sizes() &&
+                    indices[i].size(0) == x.size(0),
+                "aectorch::learn_steps_ expects signals and reconstructions [M, P], indices and coefficients [M, k] "
+                "for atoms [P, N]");
+    TORCH_CHECK(x.scalar_type() == dtype && reconstructions[i].scalar_type() == dtype &&
+                    coefficients[i].scalar_type() == dtype && indices[i].scalar_type() == at::kLong,
+                "aectorch::learn_steps_: signals, reconstructions and coefficients of the atoms' dtype, int64 indices");
+    xs[i] = x.detach().contiguous();
+    recs[i] = reconstructions[i].detach().contiguous();
+    idxs[i] = indices[i].contiguous();
+    coefs[i] = coefficients[i].detach().contiguous();
+    std::tie(mirs[i], pars[i]) = mirror_pair("aectorch::learn_steps_", mirrors.get(i), partners.get(i), p, n);
+    grads[i] = at::zeros({n, p}, a.options());
+    weighted[i] = at::empty({x.size(0), p}, a.options());
+    work[i] = x.size(0) * (idxs[i].size(1) + 1) * p;
+  }
+  const int threads = static_cast<int>(std::max<int64_t>(1, std::min<int64_t>(aectorch_kernel_threads(), count)));
+  std::vector<int> owner(count, 0);
+  {
+    std::vector<int64_t> order(count), load(threads, 0);
+    for (int64_t i = 0; i < count; ++i) order[i] = i;
+    std::stable_sort(order.begin(), order.end(), [&](int64_t a, int64_t b) { return work[a] > work[b]; });
+    for (const int64_t i : order) {
+      const int t = static_cast<int>(std::min_element(load.begin(), load.end()) - load.begin());
+      owner[i] = t;
+      load[t] += work[i];
+    }
+  }
+  std::atomic<bool> bad{false};
+  AT_DISPATCH_FLOATING_TYPES(dtype, "aectorch_learn_steps", [&] {
+    _Pragma("omp parallel num_threads(threads)")
+    {
+      int me = 0;
+#ifdef _OPENMP
+      me = omp_get_thread_num();
+#endif
+      for (int64_t i = 0; i < count; ++i) {
+        if (owner[i] != me) continue;
+        const int64_t m = xs[i].size(0), p = xs[i].size(1), k = idxs[i].size(1), n = grads[i].size(0);
+        const scalar_t* x = xs[i].const_data_ptr<scalar_t>();
+        const scalar_t* r = recs[i].const_data_ptr<scalar_t>();
+        const int64_t* is = idxs[i].const_data_ptr<int64_t>();
+        const scalar_t* cs = coefs[i].const_data_ptr<scalar_t>();
+        scalar_t* ws = weighted[i].data_ptr<scalar_t>();
+        scalar_t* gs = grads[i].data_ptr<scalar_t>();
+        for (int64_t row = 0; row < m; ++row) weighted_residual(x + row * p, r + row * p, ws + row * p, p);
+        for (int64_t e = 0; e < m * k; ++e) {
+          const int64_t atom = is[e];
+          if (atom < 0 || atom >= n) {
+            bad = true;
+            continue;
+          }
+          if (e + kPrefetchAhead < m * k) prefetch_row(gs, is[e + kPrefetchAhead], n, p);
+          axpy(gs + atom * p, ws + (e / k) * p, cs[e], p);
+        }
+        const scalar_t scale = static_cast<scalar_t>(-2.0 / static_cast<double>(m));
+        for (int64_t q = 0; q < n * p; ++q) gs[q] *= scale;
+      }
+      _Pragma("omp barrier")
+      if (!bad.load()) {
+        for (int64_t i = 0; i < count; ++i) {
+          if (owner[i] != me) continue;
+          step_atoms(atoms[i].data_ptr<scalar_t>(), grads[i].const_data_ptr<scalar_t>(), static_cast<scalar_t>(lr),
+                     atoms[i].size(0), atoms[i].size(1), mirs[i].defined() ? mirs[i].const_data_ptr<int64_t>() : nullptr,
+                     pars[i].defined() ? pars[i].const_data_ptr<int64_t>() : nullptr);
+        }
       }
     }
-    std::vector<scalar_t> sq(n, scalar_t(0));
-    for (int64_t r = 0; r < p; ++r)
-      for (int64_t c = 0; c < n; ++c) sq[c] += d[r * n + c] * d[r * n + c];
-    for (int64_t c = 0; c < n; ++c) sq[c] = std::max(std::sqrt(sq[c]), std::numeric_limits<scalar_t>::min());
-    for (int64_t r = 0; r < p; ++r)
-      for (int64_t c = 0; c < n; ++c) d[r * n + c] /= sq[c];
   });
+  TORCH_CHECK(!bad.load(), "aectorch::learn_steps_: an index lies outside [0, num_atoms); no dictionary was changed");
 }
 
 }  // namespace
@@ -830,6 +961,8 @@ TORCH_LIBRARY(aectorch, m) {
   m.def("pooled_power(Tensor indices, Tensor coefficients, int num_atoms) -> Tensor");
   m.def("pair_patches(Tensor images, int offset, int p, int stride, int g, float eps, float rounding) -> Tensor");
   m.def("dictionary_step_(Tensor(a!) atoms, Tensor grad_t, float lr, Tensor? mirror, Tensor? partner) -> ()");
+  m.def("learn_steps_(Tensor(a!)[] atoms, Tensor[] signals, Tensor[] reconstructions, Tensor[] indices,"
+        " Tensor[] coefficients, float lr, Tensor?[] mirrors, Tensor?[] partners) -> ()");
   m.def("set_kernel_threads(int threads) -> ()", &set_kernel_threads);
   m.def("kernel_threads() -> int", &kernel_threads);
 }
@@ -843,4 +976,5 @@ TORCH_LIBRARY_IMPL(aectorch, CPU, m) {
   m.impl("pooled_power", &pooled_power);
   m.impl("pair_patches", &pair_patches);
   m.impl("dictionary_step_", &dictionary_step_);
+  m.impl("learn_steps_", &learn_steps_);
 }
