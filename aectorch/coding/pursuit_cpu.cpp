@@ -474,12 +474,22 @@ inline T row_sum_squared_differences(const T* __restrict a, const T* __restrict 
   return s;
 }
 
+// The lanes as one GCC/Clang vector: from an array of lanes the compilers kept std::max's NaN rule
+// (`acc < x ? x : acc`) lane by lane in scalar registers (pair_patches: 419 instead of 463 us for
+// B = 32's coarse patches on one thread). A maximum is exact: the grouping changes no bit.
 template <typename T>
 inline T row_max_abs(const T* __restrict a, int64_t n) {
-  T acc[kLanes] = {};
+  typedef T Lanes __attribute__((vector_size(kLanes * sizeof(T))));
+  Lanes best = {};
   int64_t i = 0;
-  for (; i + kLanes <= n; i += kLanes)
-    for (int l = 0; l < kLanes; ++l) acc[l] = std::max(acc[l], std::abs(a[i + l]));
+  for (; i + kLanes <= n; i += kLanes) {
+    Lanes x;
+    std::memcpy(&x, a + i, sizeof(x));
+    x = x < 0 ? -x : x;  // |x| (-0 stays -0, equal to +0; NaN stays NaN and never wins below)
+    best = best < x ? x : best;
+  }
+  T acc[kLanes];
+  std::memcpy(acc, &best, sizeof(acc));
   T s = 0;
   for (int l = 0; l < kLanes; ++l) s = std::max(s, acc[l]);
   for (; i < n; ++i) s = std::max(s, std::abs(a[i]));
