@@ -338,8 +338,8 @@ def learn_together_(dictionaries: Sequence[SparseDictionary], signals: Sequence[
         >>> with torch.no_grad():
         ...     outs = [d(x) for d, x in zip(dicts, xs)]
         >>> learn_together_(dicts, xs, outs, 0.1)
-        >>> [round(float(d.atoms.norm(dim=0).mean()), 4) for d in dicts]
-        [1.0, 1.0]
+        >>> tuple(round(float(d.atoms.detach().norm(dim=0).mean()), 4) for d in dicts)
+        (1.0, 1.0)
     """
     if not lr >= 0:
         raise ValueError(f"lr must be a non-negative float, got {lr!r}")
