@@ -496,6 +496,57 @@ inline T row_max_abs(const T* __restrict a, int64_t n) {
   return s;
 }
 
+// Two passes of pair_patches fused into one each, with the arithmetic, and so the bits, of the
+// separate passes: `row_sum_max_abs` is row_sum with row_max_abs beside it; `subtract_sum`
+// subtracts c from every value and returns row_sum of the results, and `subtract_sum_squares`
+// row_sum_squares of them (the same lanes, the same order of additions).
+template <typename T>
+inline T row_sum_max_abs(const T* __restrict a, int64_t n, T* max_abs) {
+  typedef T Lanes __attribute__((vector_size(kLanes * sizeof(T))));
+  Lanes best = {}, acc = {};
+  int64_t i = 0;
+  for (; i + kLanes <= n; i += kLanes) {
+    Lanes x;
+    std::memcpy(&x, a + i, sizeof(x));
+    acc += x;
+    x = x < 0 ? -x : x;
+    best = best < x ? x : best;
+  }
+  T lanes[kLanes], top[kLanes];
+  std::memcpy(lanes, &acc, sizeof(lanes));
+  std::memcpy(top, &best, sizeof(top));
+  T s = lanes_total(lanes), m = 0;
+  for (int l = 0; l < kLanes; ++l) m = std::max(m, top[l]);
+  for (; i < n; ++i) {
+    s += a[i];
+    m = std::max(m, std::abs(a[i]));
+  }
+  *max_abs = m;
+  return s;
+}
+
+template <typename T, bool Squares>
+inline T subtract_sum(T* __restrict a, int64_t n, T c) {
+  typedef T Lanes __attribute__((vector_size(kLanes * sizeof(T))));
+  Lanes acc = {};
+  int64_t i = 0;
+  for (; i + kLanes <= n; i += kLanes) {
+    Lanes x;
+    std::memcpy(&x, a + i, sizeof(x));
+    x -= c;
+    std::memcpy(a + i, &x, sizeof(x));
+    acc += Squares ? x * x : x;
+  }
+  T lanes[kLanes];
+  std::memcpy(lanes, &acc, sizeof(lanes));
+  T s = lanes_total(lanes);
+  for (; i < n; ++i) {
+    a[i] -= c;
+    s += Squares ? a[i] * a[i] : a[i];
+  }
+  return s;
+}
+
 // The rows that a scatter-add visits jump at random over a matrix that does not fit in L1, and the
 // hardware prefetchers do not follow: `prefetch_row` asks for row `row` of [n, p] values at `base`
 // (for writing; nothing when it lies outside) kPrefetchAhead entries before it is added to.
@@ -776,12 +827,10 @@ at::Tensor pair_patches(const at::Tensor& images, int64_t offset, int64_t p, int
         const scalar_t* img = xs + (2 * pair + half) * h * w + (offset + gy * stride) * w + offset + gx * stride;
         scalar_t* __restrict o = os + row * 2 * n + half * n;
         for (int64_t r = 0; r < p; ++r) std::memcpy(o + r * p, img + r * w, p * sizeof(scalar_t));
-        const scalar_t amax = row_max_abs(o, n);
-        const scalar_t mean = row_sum(o, n) / static_cast<scalar_t>(n);
-        for (int64_t q = 0; q < n; ++q) o[q] -= mean;
-        const scalar_t mean2 = row_sum(o, n) / static_cast<scalar_t>(n);
-        for (int64_t q = 0; q < n; ++q) o[q] -= mean2;
-        const scalar_t norm = std::sqrt(row_sum_squares(o, n));
+        scalar_t amax;
+        const scalar_t mean = row_sum_max_abs(o, n, &amax) / static_cast<scalar_t>(n);
+        const scalar_t mean2 = subtract_sum<scalar_t, false>(o, n, mean) / static_cast<scalar_t>(n);
+        const scalar_t norm = std::sqrt(subtract_sum<scalar_t, true>(o, n, mean2));
         if (norm <= e + rnd * amax) {
           std::fill(o, o + n, scalar_t(0));
         } else {
