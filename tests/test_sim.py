@@ -843,6 +843,45 @@ def test_scale_observations_have_the_pyramids_smoothness(head):
         assert blurred < 0.008 and blurred < 0.5 * unblurred, (s.name, blurred, unblurred)
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_pyramid_blur_kernel_gives_the_torch_codes_bits_on_any_number_of_threads(dtype):
+    """``aectorch::pyramid_blur`` (CPU, no gradient) computes what the torch code computes, operation by
+    operation (bit for bit, on 1-3 threads), and both are scipy's 3-tap correlation of the valid region."""
+    from scipy.ndimage import correlate1d
+
+    from aectorch.coding import native
+    from aectorch.sim.env import pyramid_blur
+
+    if not native.available():
+        pytest.skip("the fused CPU kernels are not available")
+    g = torch.Generator().manual_seed(0)
+    before = native.get_threads()
+    try:
+        for shape in [(32, 2, 10, 10), (40, 2, 42, 42), (3, 5, 7), (2, 3, 3), (1, 2, 3, 9, 4)]:
+            for levels in (1, 3):
+                images = torch.rand(*shape, generator=g, dtype=dtype) * 3 - 1
+                torch_code = pyramid_blur(images.clone().requires_grad_(True), levels).detach()  # (a graph: torch)
+                kernels = []
+                for threads in (1, 2, 3):
+                    native.set_threads(threads)
+                    kernels.append(pyramid_blur(images, levels))
+                assert all(torch.equal(k, torch_code) for k in kernels), (shape, levels)
+                a = (5.0 / 12.0 * (1.0 - 4.0 ** -levels) - 1.0 / 12.0) / 2.0
+                weights = [a, 1.0 - 2.0 * a, a]
+                expected = correlate1d(correlate1d(images.double().numpy(), weights, axis=-1), weights, axis=-2)
+                torch.testing.assert_close(kernels[0], torch.from_numpy(expected)[..., 1:-1, 1:-1].to(dtype))
+        strided = torch.rand(2, 12, 15, generator=g, dtype=dtype)[..., 1:-2]  # not contiguous
+        assert torch.equal(pyramid_blur(strided, 2), pyramid_blur(strided.clone().requires_grad_(True), 2).detach())
+    finally:
+        native.set_threads(before)
+    from torch._subclasses.fake_tensor import FakeTensorMode
+
+    with FakeTensorMode():
+        assert torch.ops.aectorch.pyramid_blur(torch.empty(5, 12, 9), 0.8, 0.1).shape == (5, 10, 7)
+    with pytest.raises(RuntimeError, match="expects images"):
+        torch.ops.aectorch.pyramid_blur(torch.empty(5, 2, 9), 0.8, 0.1)
+
+
 def test_both_renderers_satisfy_the_renderer_protocol_and_close_closes_both(bank):
     """Issue 22: the renderers' shared interface is stated (`aectorch.sim.Renderer`), and
     `ActiveDepthEnv.close()` frees the crops' renderer and the foveal scales' renderer."""

@@ -285,6 +285,10 @@ def _register_fake() -> None:
     def _(atoms, signals, reconstructions, indices, coefficients, lr, mirrors, partners):
         return None
 
+    @torch.library.register_fake("aectorch::pyramid_blur")
+    def _(images, centre, side):
+        return images.new_empty(images.shape[0], images.shape[1] - 2, images.shape[2] - 2)
+
     @torch.library.register_fake("aectorch::render_trilinear")
     def _(poses, plane_x, texture_index, atlas, xs, ys, steps, scene, tex_h, tex_w, levels, lod_bias, samples):
         return poses.new_empty(poses.shape[0], poses.shape[1], xs.shape[0])

@@ -661,12 +661,64 @@ at::Tensor render_trilinear(const at::Tensor& poses, const at::Tensor& plane_x, 
   return out;
 }
 
+// aectorch.sim.env.pyramid_blur's 3-tap kernel [side, centre, side] along the rows and then the
+// columns of images [N, H, W] (contiguous) over the valid region: [N, H - 2, W - 2]. Each value is
+// torch's arithmetic, operation by operation (x * centre + (left + right) * side, each product and
+// sum rounded to T, no fused multiply-add: -ffp-contract=off), so the bits are those of the
+// eleven torch operations it replaces. Images are split over the threads when there are enough.
+at::Tensor pyramid_blur(const at::Tensor& images, double centre, double side) {
+  TORCH_CHECK(images.dim() == 3 && images.size(1) >= 3 && images.size(2) >= 3,
+              "aectorch::pyramid_blur expects images [N, H, W] with H, W >= 3, got ", images.sizes());
+  const auto x = images.detach().contiguous();
+  const int64_t n = x.size(0), h = x.size(1), w = x.size(2), oh = h - 2, ow = w - 2;
+  auto out = at::empty({n, oh, ow}, x.options());
+  const int threads = static_cast<int>(std::max<int64_t>(
+      1, std::min<int64_t>({static_cast<int64_t>(aectorch_kernel_threads()), n, n * h * w / 65536 + 1})));
+  AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "aectorch_pyramid_blur", [&] {
+    const scalar_t c = static_cast<scalar_t>(centre), a = static_cast<scalar_t>(side);
+    const scalar_t* xs = x.const_data_ptr<scalar_t>();
+    scalar_t* os = out.data_ptr<scalar_t>();
+    _Pragma("omp parallel num_threads(threads)")  // (in a macro argument: _Pragma, not #pragma)
+    {
+      std::vector<scalar_t> rows(h * ow);  // the first pass: along each row, [H, W - 2]
+      _Pragma("omp for schedule(static)")
+      for (int64_t i = 0; i < n; ++i) {
+        const scalar_t* img = xs + i * h * w;
+        for (int64_t r = 0; r < h; ++r) {
+          const scalar_t* __restrict in = img + r * w;
+          scalar_t* __restrict o = rows.data() + r * ow;
+          for (int64_t q = 0; q < ow; ++q) {
+            const scalar_t centred = in[q + 1] * c, sides = (in[q] + in[q + 2]) * a;
+            o[q] = centred + sides;
+          }
+        }
+        scalar_t* dst = os + i * oh * ow;
+        for (int64_t r = 0; r < oh; ++r) {
+          const scalar_t* __restrict up = rows.data() + r * ow;
+          const scalar_t* __restrict mid = up + ow;
+          const scalar_t* __restrict down = mid + ow;
+          scalar_t* __restrict o = dst + r * ow;
+          for (int64_t q = 0; q < ow; ++q) {
+            const scalar_t centred = mid[q] * c, sides = (up[q] + down[q]) * a;
+            o[q] = centred + sides;
+          }
+        }
+      }
+    }
+  });
+  return out;
+}
+
 }  // namespace
 
 TORCH_LIBRARY_FRAGMENT(aectorch, m) {
   m.def("render_trilinear(Tensor poses, Tensor plane_x, Tensor texture_index, Tensor atlas, Tensor xs, "
         "Tensor ys, Tensor steps, float[] scene, int tex_h, int tex_w, int levels, float lod_bias, int samples)"
         " -> Tensor");
+  m.def("pyramid_blur(Tensor images, float centre, float side) -> Tensor");
 }
 
-TORCH_LIBRARY_IMPL(aectorch, CPU, m) { m.impl("render_trilinear", &render_trilinear); }
+TORCH_LIBRARY_IMPL(aectorch, CPU, m) {
+  m.impl("render_trilinear", &render_trilinear);
+  m.impl("pyramid_blur", &pyramid_blur);
+}
