@@ -71,13 +71,17 @@ def watchdog_check(learner, repeats: int) -> dict:
     def before():
         return torch.stack([t.detach().isfinite().all() for t in tensors]).tolist()
 
+    def each_sum():  # session 3's form: each sum checked and moved on its own
+        return torch.stack([t.detach().sum().isfinite() for t in tensors]).tolist()
+
     def after():
         return _all_finite(tensors)
 
-    assert before() == after()
-    times: dict[str, list[float]] = {"isfinite().all() per tensor": [], "a sum per tensor": []}
+    assert before() == each_sum() == after()
+    times: dict[str, list[float]] = {"isfinite().all() per tensor": [], "a sum per tensor, each checked": [],
+                                     "the sums stacked, checked at once (_all_finite)": []}
     for _ in range(repeats):
-        for label, fn in zip(times, (before, after)):
+        for label, fn in zip(times, (before, each_sum, after)):
             start = time.perf_counter()
             for _ in range(20):
                 fn()
