@@ -163,7 +163,8 @@ def pyramid_blur(images: Tensor, levels: int) -> Tensor:
     a = (5.0 / 12.0 * (1.0 - 4.0 ** -levels) - 1.0 / 12.0) / 2.0
     if _native_blur(images):
         # On CPU without a gradient: one fused kernel (``aectorch::pyramid_blur``, render_cpu.cpp),
-        # the same operations as below and so the same bits, instead of eleven small torch operations.
+        # the same operations as below and so the same bits, instead of eight small torch
+        # operations (and six slices).
         flat = images.reshape(-1, *images.shape[-2:])
         blurred = torch.ops.aectorch.pyramid_blur(flat, 1.0 - 2.0 * a, a)
         return blurred.reshape(*images.shape[:-2], *blurred.shape[-2:])

@@ -665,7 +665,7 @@ at::Tensor render_trilinear(const at::Tensor& poses, const at::Tensor& plane_x, 
 // columns of images [N, H, W] (contiguous) over the valid region: [N, H - 2, W - 2]. Each value is
 // torch's arithmetic, operation by operation (x * centre + (left + right) * side, each product and
 // sum rounded to T, no fused multiply-add: -ffp-contract=off), so the bits are those of the
-// eleven torch operations it replaces. Images are split over the threads when there are enough.
+// eight elementwise torch operations it replaces. Images are split over the threads when there are enough.
 at::Tensor pyramid_blur(const at::Tensor& images, double centre, double side) {
   TORCH_CHECK(images.dim() == 3 && images.size(1) >= 3 && images.size(2) >= 3,
               "aectorch::pyramid_blur expects images [N, H, W] with H, W >= 3, got ", images.sizes());
