@@ -665,7 +665,9 @@ at::Tensor render_trilinear(const at::Tensor& poses, const at::Tensor& plane_x, 
 // columns of images [N, H, W] (contiguous) over the valid region: [N, H - 2, W - 2]. Each value is
 // torch's arithmetic, operation by operation (x * centre + (left + right) * side, each product and
 // sum rounded to T, no fused multiply-add: -ffp-contract=off), so the bits are those of the
-// eight elementwise torch operations it replaces. Images are split over the threads when there are enough.
+// eight elementwise torch operations it replaces. Images are split over the threads from 2^20
+// values (B = 32's largest call has 113k: there a second thread cost more than it saved,
+// benchmarks/kernels_ab.py).
 at::Tensor pyramid_blur(const at::Tensor& images, double centre, double side) {
   TORCH_CHECK(images.dim() == 3 && images.size(1) >= 3 && images.size(2) >= 3,
               "aectorch::pyramid_blur expects images [N, H, W] with H, W >= 3, got ", images.sizes());
@@ -673,7 +675,7 @@ at::Tensor pyramid_blur(const at::Tensor& images, double centre, double side) {
   const int64_t n = x.size(0), h = x.size(1), w = x.size(2), oh = h - 2, ow = w - 2;
   auto out = at::empty({n, oh, ow}, x.options());
   const int threads = static_cast<int>(std::max<int64_t>(
-      1, std::min<int64_t>({static_cast<int64_t>(aectorch_kernel_threads()), n, n * h * w / 65536 + 1})));
+      1, std::min<int64_t>({static_cast<int64_t>(aectorch_kernel_threads()), n, n * h * w / (1 << 20) + 1})));
   AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "aectorch_pyramid_blur", [&] {
     const scalar_t c = static_cast<scalar_t>(centre), a = static_cast<scalar_t>(side);
     const scalar_t* xs = x.const_data_ptr<scalar_t>();
