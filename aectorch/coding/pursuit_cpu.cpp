@@ -253,6 +253,30 @@ void mp_row(T* alpha, const T* gram, int64_t n, int64_t k, int64_t* idx, T* coef
   }
 }
 
+// mp_row of two rows, their steps taken in turn: each step ends in a chain of reductions (the lanes'
+// maximum, then its index) that the next step waits for, and the other row's step fills that wait
+// (out-of-order execution overlaps them). Each row's arithmetic is mp_row's: the same codes.
+template <typename T>
+void mp_rows2(T* alpha0, T* alpha1, const T* gram, int64_t n, int64_t k, int64_t* idx0, T* coef0, int64_t* idx1,
+              T* coef1) {
+  T c0, c1;
+  int64_t lam0 = argmax_abs(alpha0, n, &c0);
+  int64_t lam1 = argmax_abs(alpha1, n, &c1);
+  for (int64_t i = 0; i < k; ++i) {
+    idx0[i] = lam0;
+    coef0[i] = c0;
+    idx1[i] = lam1;
+    coef1[i] = c1;
+    if (i + 1 < k) {
+      const T* row0 = gram + lam0 * n;
+      const T* row1 = gram + lam1 * n;
+      const T s0 = c0, s1 = c1;
+      lam0 = update_argmax_abs(alpha0, &row0, &s0, 1, -1, n, &c0);
+      lam1 = update_argmax_abs(alpha1, &row1, &s1, 1, -1, n, &c1);
+    }
+  }
+}
+
 // Batch-OMP with the inverse Cholesky factor Linv of G[I, I] (row-major, k x k, lower).
 // work: k * k + 4 * k values of T; rows: k pointers.
 template <typename T>
@@ -380,7 +404,17 @@ void pursue(const PursuitInputs& in, int64_t k, bool orthogonal, int64_t block, 
       auto tile = alpha.narrow(0, 0, rows);
       at::mm_out(tile, in.x.narrow(0, start, rows), in.d);
       T* a = tile.data_ptr<T>();
-      for (int64_t r = 0; r < rows; ++r) {
+      int64_t r = 0;
+      if (!orthogonal) {  // MP: two rows at a time (mp_rows2), the same codes as one at a time
+        for (; r + 1 < rows; r += 2) {
+          const int64_t row = start + r;
+          mp_rows2(a + r * n, a + (r + 1) * n, g, n, k, idx + row * k, coef + row * k, idx + (row + 1) * k,
+                   coef + (row + 1) * k);
+          row_done(row);
+          row_done(row + 1);
+        }
+      }
+      for (; r < rows; ++r) {
         const int64_t row = start + r;
         if (orthogonal) {
           omp_row(a + r * n, g, n, k, idx + row * k, coef + row * k, work.data(), gram_rows.data());
