@@ -1,5 +1,5 @@
-"""Two commits' patch-cutting and scale-blurring side by side: ``aectorch::pair_patches`` and
-`aectorch.sim.env.pyramid_blur`, each commit's own code, interleaved rounds.
+"""Two commits' patch cutting, encoding and scale blurring side by side: ``aectorch::pair_patches``,
+``aectorch::encode`` and `aectorch.sim.env.pyramid_blur`, each commit's own code, interleaved rounds.
 
 Each round runs, for every commit in turn (the order alternates), a fresh process with that
 commit's checkout first on ``sys.path`` (a git worktree beside this one, made once, as
@@ -8,6 +8,8 @@ commit's checkout first on ``sys.path`` (a git worktree beside this one, made on
 
 * ``pair_patches``: the coarse scale's 7 x 7 patches of 10 x 10 pixels from 16 x 16 image pairs and
   the fine scale's 8 x 8 (stride 4) from 40 x 40 pairs, the default coder's geometry;
+* ``encode``: ``aectorch::encode`` of the fine scale's 2048 patches (B = 32) with 288 atoms, MP,
+  k = 10 (the Gram matrix, the pursuit, reconstructions, errors, pooling);
 * ``pyramid_blur``: what the environment blurs per stereo frame, ``[32, 2, 42, 42]`` (the fine and
   full scales, 2 levels) and ``[32, 2, 18, 18]`` (coarse, 3 levels): the torch code before
   ``aectorch::pyramid_blur``, the kernel after (the same bits: ``tests/test_sim.py``).
@@ -67,6 +69,16 @@ for name, (shape, levels) in {"pyramid_blur [32, 2, 42, 42]": ((32, 2, 42, 42), 
     for _ in range(calls):
         start = time.perf_counter(); f(); times.append(time.perf_counter() - start)
     out[name] = 1e6 * statistics.median(times)
+atoms = torch.randn(200, 288, generator=g)
+atoms = atoms / atoms.norm(dim=0)
+signals = torch.randn(2048, 200, generator=g)
+f = lambda: torch.ops.aectorch.encode(signals, atoms, None, 10, False, 512, 32)
+for _ in range(10):
+    f()
+times = []
+for _ in range(calls):
+    start = time.perf_counter(); f(); times.append(time.perf_counter() - start)
+out["encode fine (2048 x 288 atoms, MP k = 10)"] = 1e6 * statistics.median(times)
 print(json.dumps(out))
 """
 
