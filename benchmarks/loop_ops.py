@@ -5,8 +5,9 @@ around it: torch's NaN fill of new tensors in deterministic mode and the watchdo
    deterministic NaN fill on (what ``train.deterministic`` gave before it was switched off) and
    once off: each operator's self CPU time per iteration and calls per iteration.
 2. The watchdog's check of every floating-point state tensor of the learner: ``isfinite().all()``
-   per tensor (before) against a sum per tensor (`aectorch.runtime.watchdog._all_finite`),
-   interleaved, medians of ``--repeats``.
+   per tensor (before session 3), a sum per tensor checked on its own (session 3) and the sums
+   stacked and checked at once (`aectorch.runtime.watchdog._all_finite`, session 5), interleaved,
+   medians of ``--repeats``.
 
 Usage:
     python benchmarks/loop_ops.py                      # B = 32, the defaults
