@@ -46,39 +46,31 @@ assert native.load(), "the fused kernels did not build"
 native.set_threads(int(sys.argv[2]))
 calls = int(sys.argv[3])
 g = torch.Generator().manual_seed(0)
-work = {
-    "pair_patches coarse (32 x 49 patches)": (torch.rand(64, 16, 16, generator=g), 0, 10, 1, 7),
-    "pair_patches fine (32 x 64 patches)": (torch.rand(64, 40, 40, generator=g), 0, 10, 4, 8),
-}
-out = {}
-for name, (images, offset, p, stride, grid) in work.items():
-    f = lambda: torch.ops.aectorch.pair_patches(images, offset, p, stride, grid, 1e-6, 1e-5)
+
+
+def timed(f):
     for _ in range(20):
         f()
     times = []
     for _ in range(calls):
         start = time.perf_counter(); f(); times.append(time.perf_counter() - start)
-    out[name] = 1e6 * statistics.median(times)
+    return 1e6 * statistics.median(times)
+
+
+out = {}
+for name, (images, offset, p, stride, grid) in {
+        "pair_patches coarse (32 x 49 patches)": (torch.rand(64, 16, 16, generator=g), 0, 10, 1, 7),
+        "pair_patches fine (32 x 64 patches)": (torch.rand(64, 40, 40, generator=g), 0, 10, 4, 8)}.items():
+    out[name] = timed(lambda: torch.ops.aectorch.pair_patches(images, offset, p, stride, grid, 1e-6, 1e-5))
 for name, (shape, levels) in {"pyramid_blur [32, 2, 42, 42]": ((32, 2, 42, 42), 2),
                               "pyramid_blur [32, 2, 18, 18]": ((32, 2, 18, 18), 3)}.items():
     images = torch.rand(*shape, generator=g)
-    f = lambda: pyramid_blur(images, levels)
-    for _ in range(20):
-        f()
-    times = []
-    for _ in range(calls):
-        start = time.perf_counter(); f(); times.append(time.perf_counter() - start)
-    out[name] = 1e6 * statistics.median(times)
+    out[name] = timed(lambda: pyramid_blur(images, levels))
 atoms = torch.randn(200, 288, generator=g)
 atoms = atoms / atoms.norm(dim=0)
 signals = torch.randn(2048, 200, generator=g)
-f = lambda: torch.ops.aectorch.encode(signals, atoms, None, 10, False, 512, 32)
-for _ in range(10):
-    f()
-times = []
-for _ in range(calls):
-    start = time.perf_counter(); f(); times.append(time.perf_counter() - start)
-out["encode fine (2048 x 288 atoms, MP k = 10)"] = 1e6 * statistics.median(times)
+out["encode fine (2048 x 288 atoms, MP k = 10)"] = timed(
+    lambda: torch.ops.aectorch.encode(signals, atoms, None, 10, False, 512, 32))
 print(json.dumps(out))
 """
 
