@@ -47,6 +47,7 @@ from torch import Tensor
 from aectorch._checks import check_distances, check_int, is_real
 from aectorch.choices import RendererName
 from aectorch.coding.patches import WINDOW
+from aectorch.coding.pursuit import fused_kernels_apply
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.hoap3 import HOAP3Head
 from aectorch.sim.scene import PlaneScene
@@ -174,13 +175,11 @@ def pyramid_blur(images: Tensor, levels: int) -> Tensor:
 
 
 def _native_blur(images: Tensor) -> bool:
-    """Whether `pyramid_blur` can run as the fused CPU kernel (see ``_native_trilinear``)."""
-    if images.device.type != "cpu" or images.dtype not in (torch.float32, torch.float64) or images.ndim < 2 \
-            or images.numel() == 0 or torch.is_grad_enabled() and images.requires_grad:
-        return False
-    from aectorch.coding import native
-
-    return native._state.get("ok") is True if torch.compiler.is_compiling() else native.available()
+    """Whether `pyramid_blur` runs as the fused CPU kernel: where the coder's kernels apply
+    (`aectorch.coding.pursuit.fused_kernels_apply`: a CPU float tensor, the kernels loaded, no
+    ``use_backend("torch")``), on images of at least 3 x 3 pixels, and no gradient is wanted."""
+    return images.ndim >= 2 and min(images.shape[-2:]) >= 3 and images.numel() > 0 \
+        and not (torch.is_grad_enabled() and images.requires_grad) and fused_kernels_apply(images)
 
 
 def _block_mean(images: Tensor, k: int) -> Tensor:
