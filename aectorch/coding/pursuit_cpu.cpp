@@ -238,41 +238,26 @@ inline int64_t update_argmax_abs(T* __restrict alpha, const T* const* rows, cons
   return at;
 }
 
-template <typename T>
-void mp_row(T* alpha, const T* gram, int64_t n, int64_t k, int64_t* idx, T* coef) {
-  T c;
-  int64_t lam = argmax_abs(alpha, n, &c);
+// MP of R consecutive rows of correlations alpha [R, n], their codes into idx, coef [R, k]. The rows'
+// steps are taken in turn: each step ends in a chain of reductions (the lanes' maximum, then its
+// index) that the row's next step waits for, and the other rows' steps fill that wait (out-of-order
+// execution overlaps them). Each row's arithmetic is the same for any R: the same codes.
+template <typename T, int R>
+void mp_rows(T* alpha, const T* gram, int64_t n, int64_t k, int64_t* idx, T* coef) {
+  T c[R];
+  int64_t lam[R];
+  for (int r = 0; r < R; ++r) lam[r] = argmax_abs(alpha + r * n, n, &c[r]);
   for (int64_t i = 0; i < k; ++i) {
-    idx[i] = lam;
-    coef[i] = c;
-    if (i + 1 < k) {  // alpha -= c G[lam], and the next selection
-      const T* row = gram + lam * n;
-      const T s = c;
-      lam = update_argmax_abs(alpha, &row, &s, 1, -1, n, &c);
+    for (int r = 0; r < R; ++r) {
+      idx[r * k + i] = lam[r];
+      coef[r * k + i] = c[r];
     }
-  }
-}
-
-// mp_row of two rows, their steps taken in turn: each step ends in a chain of reductions (the lanes'
-// maximum, then its index) that the next step waits for, and the other row's step fills that wait
-// (out-of-order execution overlaps them). Each row's arithmetic is mp_row's: the same codes.
-template <typename T>
-void mp_rows2(T* alpha0, T* alpha1, const T* gram, int64_t n, int64_t k, int64_t* idx0, T* coef0, int64_t* idx1,
-              T* coef1) {
-  T c0, c1;
-  int64_t lam0 = argmax_abs(alpha0, n, &c0);
-  int64_t lam1 = argmax_abs(alpha1, n, &c1);
-  for (int64_t i = 0; i < k; ++i) {
-    idx0[i] = lam0;
-    coef0[i] = c0;
-    idx1[i] = lam1;
-    coef1[i] = c1;
     if (i + 1 < k) {
-      const T* row0 = gram + lam0 * n;
-      const T* row1 = gram + lam1 * n;
-      const T s0 = c0, s1 = c1;
-      lam0 = update_argmax_abs(alpha0, &row0, &s0, 1, -1, n, &c0);
-      lam1 = update_argmax_abs(alpha1, &row1, &s1, 1, -1, n, &c1);
+      for (int r = 0; r < R; ++r) {  // alpha -= c G[lam], and the next selection
+        const T* row = gram + lam[r] * n;
+        const T s = c[r];
+        lam[r] = update_argmax_abs(alpha + r * n, &row, &s, 1, -1, n, &c[r]);
+      }
     }
   }
 }
@@ -405,11 +390,10 @@ void pursue(const PursuitInputs& in, int64_t k, bool orthogonal, int64_t block, 
       at::mm_out(tile, in.x.narrow(0, start, rows), in.d);
       T* a = tile.data_ptr<T>();
       int64_t r = 0;
-      if (!orthogonal) {  // MP: two rows at a time (mp_rows2), the same codes as one at a time
+      if (!orthogonal) {  // MP: two rows at a time (mp_rows), the same codes as one at a time
         for (; r + 1 < rows; r += 2) {
           const int64_t row = start + r;
-          mp_rows2(a + r * n, a + (r + 1) * n, g, n, k, idx + row * k, coef + row * k, idx + (row + 1) * k,
-                   coef + (row + 1) * k);
+          mp_rows<T, 2>(a + r * n, g, n, k, idx + row * k, coef + row * k);
           row_done(row);
           row_done(row + 1);
         }
@@ -419,7 +403,7 @@ void pursue(const PursuitInputs& in, int64_t k, bool orthogonal, int64_t block, 
         if (orthogonal) {
           omp_row(a + r * n, g, n, k, idx + row * k, coef + row * k, work.data(), gram_rows.data());
         } else {
-          mp_row(a + r * n, g, n, k, idx + row * k, coef + row * k);
+          mp_rows<T, 1>(a + r * n, g, n, k, idx + row * k, coef + row * k);
         }
         row_done(row);
       }
@@ -473,17 +457,6 @@ inline T lanes_total(const T* acc) {
 }
 
 template <typename T>
-inline T row_sum(const T* __restrict a, int64_t n) {
-  T acc[kLanes] = {};
-  int64_t i = 0;
-  for (; i + kLanes <= n; i += kLanes)
-    for (int l = 0; l < kLanes; ++l) acc[l] += a[i + l];
-  T s = lanes_total(acc);
-  for (; i < n; ++i) s += a[i];
-  return s;
-}
-
-template <typename T>
 inline T row_sum_squares(const T* __restrict a, int64_t n) {
   T acc[kLanes] = {};
   int64_t i = 0;
@@ -508,32 +481,12 @@ inline T row_sum_squared_differences(const T* __restrict a, const T* __restrict 
   return s;
 }
 
-// The lanes as one GCC/Clang vector: from an array of lanes the compilers kept std::max's NaN rule
-// (`acc < x ? x : acc`) lane by lane in scalar registers (pair_patches: 419 instead of 463 us for
-// B = 32's coarse patches on one thread). A maximum is exact: the grouping changes no bit.
-template <typename T>
-inline T row_max_abs(const T* __restrict a, int64_t n) {
-  typedef T Lanes __attribute__((vector_size(kLanes * sizeof(T))));
-  Lanes best = {};
-  int64_t i = 0;
-  for (; i + kLanes <= n; i += kLanes) {
-    Lanes x;
-    std::memcpy(&x, a + i, sizeof(x));
-    x = x < 0 ? -x : x;  // |x| (-0 stays -0, equal to +0; NaN stays NaN and never wins below)
-    best = best < x ? x : best;
-  }
-  T acc[kLanes];
-  std::memcpy(acc, &best, sizeof(acc));
-  T s = 0;
-  for (int l = 0; l < kLanes; ++l) s = std::max(s, acc[l]);
-  for (; i < n; ++i) s = std::max(s, std::abs(a[i]));
-  return s;
-}
-
-// Two passes of pair_patches fused into one each, with the arithmetic, and so the bits, of the
-// separate passes: `row_sum_max_abs` is row_sum with row_max_abs beside it; `subtract_sum`
-// subtracts c from every value and returns row_sum of the results, and `subtract_sum_squares`
-// row_sum_squares of them (the same lanes, the same order of additions).
+// pair_patches' passes over a half, two at a time. `row_sum_max_abs`: the sum of a row in the 8 lanes
+// (lanes_total's order) and, beside it, its largest magnitude; `subtract_sum`: c subtracted from
+// every value in place, and the sum of the results (of their squares with `Squares`) in the same
+// lanes and order. The lanes are one GCC/Clang vector: from an array of lanes the compilers had
+// kept std::max's NaN rule (`acc < x ? x : acc`) lane by lane in scalar registers. A maximum is
+// exact, and the sums add in the order of separate passes: the same bits as one pass each.
 template <typename T>
 inline T row_sum_max_abs(const T* __restrict a, int64_t n, T* max_abs) {
   typedef T Lanes __attribute__((vector_size(kLanes * sizeof(T))));
@@ -543,7 +496,7 @@ inline T row_sum_max_abs(const T* __restrict a, int64_t n, T* max_abs) {
     Lanes x;
     std::memcpy(&x, a + i, sizeof(x));
     acc += x;
-    x = x < 0 ? -x : x;
+    x = x < 0 ? -x : x;  // |x| (-0 stays -0, equal to +0; NaN stays NaN and never wins below)
     best = best < x ? x : best;
   }
   T lanes[kLanes], top[kLanes];
