@@ -11,15 +11,16 @@ timed with :class:`aectorch.profiling.StageTimer` (with the heap frozen, as the 
     counted; the dictionary step's are those of the sparse gradient it runs, ``2 M k P`` per
     dictionary, not the dense product of the torch backend) and the **floor** they imply at this machine's sustained float32 matmul rate
     (measured in the same process on the loop's largest product, on as many threads as the
-    kernels use); rendering has no matrix products: its row gives the rendered pixels and bilinear
+    kernels use, the faster of torch's product (MKL) and oneDNN's, which the fused kernels call:
+    on an AMD CPU with AVX-512 oneDNN's runs at about twice MKL's rate); rendering has no matrix products: its row gives the rendered pixels and bilinear
     lookups per env-iteration instead;
   * the process's peak resident memory rise over the imports (``VmHWM``), whose slope against B
     is the memory per environment.
 
 ``--isa avx2`` runs the same on what a CPU without AVX-512 would execute: the fused kernels built
 for ``x86-64-v3`` (AVX2, ``AECTORCH_NATIVE_MARCH``), torch's own kernels dispatched at AVX2
-(``ATEN_CPU_CAPABILITY=avx2``) and MKL limited to AVX2 (``MKL_ENABLE_INSTRUCTIONS=AVX2``): the
-instruction set of an AVX2 machine, on this machine's cores and caches.
+(``ATEN_CPU_CAPABILITY=avx2``), MKL and oneDNN limited to AVX2 (``MKL_ENABLE_INSTRUCTIONS=AVX2``,
+``ONEDNN_MAX_CPU_ISA=AVX2``): the instruction set of an AVX2 machine, on this machine's cores and caches.
 
 Usage:
     python benchmarks/stages.py [--batches 32 256] [--kernel-threads 1 2] [--isa native avx2] [--repeats 5] [--json benchmarks/results/stages.json]
@@ -41,7 +42,8 @@ STAGES = ("render", "encode", "dictionary", "rl", "env", "metrics", "depth")
 #: Environment of a worker per instruction set (``--isa``).
 ISAS = {
     "native": {},
-    "avx2": {"AECTORCH_NATIVE_MARCH": "x86-64-v3", "ATEN_CPU_CAPABILITY": "avx2", "MKL_ENABLE_INSTRUCTIONS": "AVX2"},
+    "avx2": {"AECTORCH_NATIVE_MARCH": "x86-64-v3", "ATEN_CPU_CAPABILITY": "avx2", "MKL_ENABLE_INSTRUCTIONS": "AVX2",
+             "ONEDNN_MAX_CPU_ISA": "AVX2"},
 }
 
 
@@ -104,14 +106,20 @@ def worker(batch: int, kernel_threads: int, iterations: int, warmup: int) -> dic
     threads = kernel_threads
     torch.set_num_threads(threads)  # the matmul rate on the kernels' thread count
     a, b = torch.randn(batch * 122, 200), torch.randn(200, 288)
-    out = torch.empty(batch * 122, 288)
-    times = []
-    for _ in range(12):
-        t = time.perf_counter()
-        for _ in range(5):
-            torch.mm(a, b, out=out)
-        times.append((time.perf_counter() - t) / 5)
-    rate = 2 * a.shape[0] * 200 * 288 / statistics.median(times[2:])
+    out, b_t = torch.empty(batch * 122, 288), b.t().contiguous()
+    products = {"mm": lambda: torch.mm(a, b, out=out)}  # torch's product: MKL on x86
+    if hasattr(torch.ops.mkldnn, "_linear_pointwise"):  # oneDNN's, which the fused kernels call
+        products["onednn"] = lambda: torch.ops.mkldnn._linear_pointwise(a, b_t, None, "none", [], "")
+    rates = {}
+    for name, product in products.items():
+        times = []
+        for _ in range(12):
+            t = time.perf_counter()
+            for _ in range(5):
+                product()
+            times.append((time.perf_counter() - t) / 5)
+        rates[name] = 2 * a.shape[0] * 200 * 288 / statistics.median(times[2:])
+    rate = max(rates.values())  # the floor: the faster of the two
     scales = learner.parallax.encoder.scales
     pixels = sum(((s.crop + 2 * s.downsample) * _finer(s.downsample) // s.downsample) ** 2 for s in scales)
     # The dictionary step runs the sparse gradient (aectorch::sparse_gradient: k atoms per patch), not
@@ -128,6 +136,7 @@ def worker(batch: int, kernel_threads: int, iterations: int, warmup: int) -> dic
         "ms_per_env_iteration": {k: 1e3 * timer.seconds.get(k, 0.0) / iterations / batch for k in STAGES},
         "flops_per_env_iteration": {k: flops.flops.get(k, 0) / batch for k in STAGES},
         "matmul_flops_per_s": rate,
+        "matmul_flops_per_s_by_library": rates,
         # eye images per iteration: 3 (parallax second, stereo pair), less the reused ones
         "rendered_pixels_per_eye_image": pixels,
         "peak_rss_rise_mb": peak,

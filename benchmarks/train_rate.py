@@ -18,8 +18,8 @@ variable of that configuration's processes (``AVX2`` below). ``@short/long`` aft
 its iteration counts (default ``--short``/``--long``).
 
 ``AVX2`` runs what a CPU without AVX-512 executes, on this machine's cores: the fused kernels built
-for x86-64-v3, torch's kernels dispatched at AVX2 and MKL limited to it, e.g.
-``"defaults, AVX2=new:env:AECTORCH_NATIVE_MARCH=x86-64-v3,env:ATEN_CPU_CAPABILITY=avx2,env:MKL_ENABLE_INSTRUCTIONS=AVX2"``.
+for x86-64-v3, torch's kernels dispatched at AVX2, MKL and oneDNN limited to it, e.g.
+``"defaults, AVX2=new:env:AECTORCH_NATIVE_MARCH=x86-64-v3,env:ATEN_CPU_CAPABILITY=avx2,env:MKL_ENABLE_INSTRUCTIONS=AVX2,env:ONEDNN_MAX_CPU_ISA=AVX2"``.
 
 Usage:
     python benchmarks/train_rate.py                       # the issue-21 set (about 15 minutes on 2 cores)

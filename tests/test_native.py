@@ -205,6 +205,46 @@ def test_encode_in_one_pass_gives_the_bits_of_the_three_kernels_on_any_number_of
     torch.testing.assert_close(features_torch, features)
 
 
+_PRODUCTS = """
+import torch
+from aectorch.coding import gram_matrix, native
+d = torch.nn.functional.normalize(torch.randn(200, 288, generator=torch.Generator().manual_seed(5)), dim=0)
+print(native.available(), torch.equal(gram_matrix(d), d.t() @ d),
+      bool(torch.allclose(gram_matrix(d), d.t() @ d, rtol=1e-6, atol=1e-6)))
+"""
+
+
+@pytest.mark.parametrize("onednn", ["1", "0"])
+def test_the_kernels_products_are_onednns_unless_aectorch_onednn_is_0(onednn):
+    """By default the fused kernels' float32 products run in oneDNN: torch's product (MKL) within
+    rounding; ``AECTORCH_ONEDNN=0`` keeps torch's product, bit for bit."""
+    env = dict(os.environ, AECTORCH_ONEDNN=onednn)
+    out = subprocess.run([sys.executable, "-c", _PRODUCTS], env=env, capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out[0] == "True" and out[2] == "True"
+    if onednn == "0":
+        assert out[1] == "True"
+
+
+def test_the_kernels_products_give_the_same_codes_on_any_number_of_torch_and_kernel_threads():
+    """oneDNN runs on torch's threads inside the kernels' own: neither count changes a bit."""
+    g = torch.Generator().manual_seed(6)
+    d = torch.nn.functional.normalize(torch.randn(200, 288, generator=g), dim=0)
+    x = torch.nn.functional.normalize(torch.randn(1568, 200, generator=g), dim=1)
+    kernel_threads, torch_threads = native.get_threads(), torch.get_num_threads()
+    results = []
+    try:
+        for torch_count in (1, 2):
+            for kernel_count in (1, 2, 3):
+                torch.set_num_threads(torch_count)
+                native.set_threads(kernel_count)
+                results.append(torch.ops.aectorch.encode(x, d, None, 10, False, 512, 32))
+    finally:
+        native.set_threads(kernel_threads)
+        torch.set_num_threads(torch_threads)
+    assert all(torch.equal(a, b) for other in results[1:] for a, b in zip(results[0], other))
+
+
 def test_encode_checks_its_groups_and_has_shapes_for_torch_compile():
     from torch._subclasses.fake_tensor import FakeTensorMode
 

@@ -24,6 +24,14 @@ warning that says why; results agree within float rounding (tests/test_pursuit.p
 (``-march=native``); ``AECTORCH_NATIVE_MARCH`` names another target, e.g. ``x86-64-v3`` (AVX2,
 no AVX-512) to measure what a machine without AVX-512 would run (``benchmarks/stages.py --isa``).
 
+The kernels' float32 matrix products (the pursuit's correlations, the Gram matrix) run in oneDNN
+(torch's ``mkldnn::_linear_pointwise``), not in torch's ``@`` (MKL on x86): on an AMD CPU with
+AVX-512, MKL runs its AVX2 code and oneDNN about twice as fast (at AVX2 they ran at about the
+same rate; ``benchmarks/stages.py`` records both rates). The two libraries sum in different
+orders, so the codes agree with the torch code's within rounding (and are the same bits on any
+number of threads). ``AECTORCH_ONEDNN=0`` keeps torch's product (read once per process); float64
+always uses it.
+
 Example:
     >>> from aectorch.coding import native
     >>> isinstance(native.available(), bool)

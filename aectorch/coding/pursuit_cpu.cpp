@@ -5,7 +5,8 @@
 // over the tile. Here one signal's whole pursuit runs in one loop nest while its N correlations
 // sit in L1: select (max |alpha|, first index on ties, exactly torch.argmax's rule), record,
 // and update through one (MP) or i (OMP) rows of the Gram matrix, which stays in L2.
-// The correlations X D are a BLAS product per tile of rows (at::mm), threads split the rows.
+// The correlations X D are a BLAS product per tile of rows (oneDNN for float32, else at::mm), threads
+// split the rows.
 //
 // The algorithm is the one documented in pursuit.py (same stops as scikit-learn's
 // orthogonal_mp_gram); only the order of floating-point sums differs.
@@ -16,6 +17,7 @@
 #include <ATen/ATen.h>
 #include <ATen/Parallel.h>
 #include <ATen/ThreadLocalState.h>
+#include <ATen/core/dispatch/Dispatcher.h>
 #include <torch/library.h>
 
 #include <algorithm>
@@ -25,6 +27,7 @@
 #include <atomic>
 #include <pthread.h>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <tuple>
@@ -315,20 +318,56 @@ void omp_row(T* alpha, const T* gram, int64_t n, int64_t k, int64_t* idx, T* coe
 }
 
 // The Gram matrix D^T D of atoms [P, N] (contiguous) is computed in `gram_blocks(N)` blocks of rows,
-// each a BLAS product D[:, block]^T D (`gram_block`): two blocks (one when N < 64) on up to two
-// threads. The blocks do not depend on the number of threads, so neither does the result.
+// each a BLAS product D[:, block]^T D (`gram_block`, oneDNN's or torch's as below): two blocks (one
+// when N < 64) on up to two threads. The blocks do not depend on the number of threads, so neither does the result.
 inline int64_t gram_blocks(int64_t n) { return n >= 64 ? 2 : 1; }
 
-inline void gram_block(at::Tensor& out, const at::Tensor& d, int64_t b, int64_t blocks) {
+// float32 products through oneDNN (torch's mkldnn::_linear_pointwise, x W^T), unless torch lacks it
+// or AECTORCH_ONEDNN=0: torch's at::mm calls MKL, which on AMD CPUs runs its AVX2 code even where
+// the CPU has AVX-512 (half of oneDNN's rate on an AMD EPYC with AVX-512; at AVX2 the two ran at
+// about the same rate: benchmarks/stages.py records both). The products sum in another order than MKL's: not the same bits as torch's `x @ d`, but the same on any
+// number of threads (each product's operands do not depend on it).
+using LinearFn = at::Tensor(const at::Tensor&, const at::Tensor&, const std::optional<at::Tensor>&,
+                            c10::string_view, c10::List<std::optional<at::Scalar>>,
+                            std::optional<c10::string_view>);
+
+const c10::TypedOperatorHandle<LinearFn>* onednn_linear() {
+  static const std::optional<c10::TypedOperatorHandle<LinearFn>> handle = []() -> std::optional<c10::TypedOperatorHandle<LinearFn>> {
+    const char* flag = std::getenv("AECTORCH_ONEDNN");
+    if (flag != nullptr && std::string(flag) == "0") return std::nullopt;
+    auto found = c10::Dispatcher::singleton().findSchema({"mkldnn::_linear_pointwise", ""});
+    if (!found.has_value()) return std::nullopt;
+    return found->typed<LinearFn>();
+  }();
+  return handle.has_value() ? &*handle : nullptr;
+}
+
+// Whether the products of `x`'s dtype run in oneDNN.
+inline bool onednn_products(const at::Tensor& x) {
+  return x.scalar_type() == at::kFloat && onednn_linear() != nullptr;
+}
+
+// x w^T in oneDNN, for x [R, P] and w [N, P] (both contiguous).
+inline at::Tensor linear_t(const at::Tensor& x, const at::Tensor& w) {
+  return onednn_linear()->call(x, w, std::nullopt, "none", c10::List<std::optional<at::Scalar>>(), std::nullopt);
+}
+
+// The Gram block of rows [lo, hi): D[:, lo:hi]^T D of atoms `d` [P, N], or (oneDNN) of their
+// transpose `dt` [N, P].
+inline void gram_block(at::Tensor& out, const at::Tensor& d, const at::Tensor& dt, int64_t b, int64_t blocks) {
   const int64_t n = d.size(1), lo = n * b / blocks, hi = n * (b + 1) / blocks;
   auto part = out.narrow(0, lo, hi - lo);
-  at::mm_out(part, d.narrow(1, lo, hi - lo).t(), d);
+  if (onednn_products(d)) {
+    part.copy_(linear_t(dt.narrow(0, lo, hi - lo), dt));
+  } else {
+    at::mm_out(part, d.narrow(1, lo, hi - lo).t(), d);
+  }
 }
 
 // The checks and the contiguous operands of pursuit and encode. Without a gram, `g` is memory for
 // the caller to fill (`gram_block`) before the pursuits read it.
 struct PursuitInputs {
-  at::Tensor x, d, g;
+  at::Tensor x, d, g, dt;  // dt: memory for the atoms transposed, [N, P] (pursue fills it)
   int64_t m, n;
   bool gram_given;
 };
@@ -342,11 +381,12 @@ PursuitInputs pursuit_inputs(const char* op, const at::Tensor& signals, const at
               op, ": signals, dictionary and gram must share one dtype");
   // Detached: the codes are not differentiable (the torch code's support is a constant too), and a
   // worker thread must not see an input that requires grad in an out= product.
-  PursuitInputs in{signals.detach().contiguous(), dictionary.detach().contiguous(), at::Tensor(), 0, 0,
-                   gram.has_value()};
+  PursuitInputs in{signals.detach().contiguous(), dictionary.detach().contiguous(), at::Tensor(), at::Tensor(),
+                   0, 0, gram.has_value()};
   in.m = in.x.size(0);
   in.n = in.d.size(1);
   in.g = gram.has_value() ? gram->detach().contiguous() : at::empty({in.n, in.n}, in.d.options());
+  in.dt = at::empty({in.n, in.d.size(0)}, in.d.options());
   TORCH_CHECK(in.x.size(1) == in.d.size(0) && in.g.size(0) == in.n && in.g.size(1) == in.n,
               op, ": shapes do not match");
   TORCH_CHECK(k >= 1 && k <= in.n, op, ": k must be in [1, N]");
@@ -378,16 +418,30 @@ void pursue(const PursuitInputs& in, int64_t k, bool orthogonal, int64_t block, 
   {
     // The caller's grad / inference mode and dispatch state, as at::parallel_for passes them on.
     at::ThreadLocalStateGuard state_guard(caller_state);
+    {  // the atoms transposed (the products' weights, the reconstructions' rows), before `before`
+      const int64_t p = in.d.size(0);
+      const T* ds = in.d.const_data_ptr<T>();
+      T* ts = in.dt.data_ptr<T>();
+      _Pragma("omp for schedule(static)")  // (its implicit barrier: every atom's row is ready)
+      for (int64_t c = 0; c < n; ++c)
+        for (int64_t r = 0; r < p; ++r) ts[c * p + r] = ds[r * n + c];
+    }
     before();
-    auto alpha = at::empty({block, n}, in.x.options());
+    const bool onednn = onednn_products(in.x);
+    auto alpha = onednn ? at::Tensor() : at::empty({block, n}, in.x.options());
     std::vector<T> work(orthogonal ? k * k + 4 * k : 0);
     std::vector<const T*> gram_rows(orthogonal ? k : 0);
     _Pragma("omp for schedule(static)")
     for (int64_t t = 0; t < tiles; ++t) {
       const int64_t start = t * block;
       const int64_t rows = std::min(block, m - start);
-      auto tile = alpha.narrow(0, 0, rows);
-      at::mm_out(tile, in.x.narrow(0, start, rows), in.d);
+      at::Tensor tile;
+      if (onednn) {
+        tile = linear_t(in.x.narrow(0, start, rows), in.dt);
+      } else {
+        tile = alpha.narrow(0, 0, rows);
+        at::mm_out(tile, in.x.narrow(0, start, rows), in.d);
+      }
       T* a = tile.data_ptr<T>();
       int64_t r = 0;
       if (!orthogonal) {  // MP: two rows at a time (mp_rows), the same codes as one at a time
@@ -434,12 +488,13 @@ at::Tensor gram(const at::Tensor& atoms) {
   const int64_t n = d.size(1);
   auto out = at::empty({n, n}, d.options());
   const int64_t blocks = gram_blocks(n);
+  const auto dt = onednn_products(d) ? d.t().contiguous() : at::Tensor();
   const int threads = static_cast<int>(std::min<int64_t>(blocks, aectorch_kernel_threads()));
   const at::ThreadLocalState caller_state;
   _Pragma("omp parallel for num_threads(threads) schedule(static)")
   for (int64_t b = 0; b < blocks; ++b) {
     at::ThreadLocalStateGuard state_guard(caller_state);
-    gram_block(out, d, b, blocks);
+    gram_block(out, d, dt, b, blocks);
   }
   return out;
 }
@@ -752,13 +807,11 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> encode(
   auto error = at::empty({m}, in.x.options());
   auto pooled = at::zeros({groups, n}, in.x.options());
   if (m == 0) return {indices, coefficients, recon, error, pooled};
-  auto atoms_t = at::empty({n, p}, in.x.options());
   const int64_t blocks = in.gram_given ? 0 : gram_blocks(n);  // the Gram matrix's blocks to compute
   const int64_t patches = m / groups;
   AT_DISPATCH_FLOATING_TYPES(in.x.scalar_type(), "aectorch_encode", [&] {
     const scalar_t* xs = in.x.const_data_ptr<scalar_t>();
-    const scalar_t* ds = in.d.const_data_ptr<scalar_t>();
-    scalar_t* ts = atoms_t.data_ptr<scalar_t>();
+    const scalar_t* ts = in.dt.const_data_ptr<scalar_t>();  // (pursue transposes the atoms first)
     int64_t* idx = indices.data_ptr<int64_t>();
     scalar_t* coef = coefficients.data_ptr<scalar_t>();
     scalar_t* rs = recon.data_ptr<scalar_t>();
@@ -767,11 +820,8 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> encode(
     pursue<scalar_t>(
         in, k, orthogonal, block, idx, coef,
         [&] {
-          _Pragma("omp for schedule(static) nowait")
-          for (int64_t b = 0; b < blocks; ++b) gram_block(in.g, in.d, b, blocks);
-          _Pragma("omp for schedule(static)")  // (its implicit barrier: the Gram matrix and every atom's row are ready)
-          for (int64_t c = 0; c < n; ++c)
-            for (int64_t r = 0; r < p; ++r) ts[c * p + r] = ds[r * n + c];
+          _Pragma("omp for schedule(static)")  // (its implicit barrier: the Gram matrix is ready)
+          for (int64_t b = 0; b < blocks; ++b) gram_block(in.g, in.d, in.dt, b, blocks);
         },
         [&](int64_t row) {  // (the pursuit's indices always lie in [0, N))
           reconstruct_row(xs + row * p, ts, n, p, idx + row * k, coef + row * k, k, rs + row * p, es + row);
