@@ -12,15 +12,16 @@ timed with :class:`aectorch.profiling.StageTimer` (with the heap frozen, as the 
     dictionary, not the dense product of the torch backend) and the **floor** they imply at this machine's sustained float32 matmul rate
     (measured in the same process on the loop's largest product, on as many threads as the
     kernels use, the faster of torch's product (MKL) and oneDNN's, which the fused kernels call:
-    on an AMD CPU with AVX-512 oneDNN's runs at about twice MKL's rate); rendering has no matrix products: its row gives the rendered pixels and bilinear
-    lookups per env-iteration instead;
+    on an AMD CPU with AVX-512 oneDNN's runs at about twice MKL's rate); rendering has no matrix
+    products: its row gives the rendered pixels and bilinear lookups per env-iteration instead;
   * the process's peak resident memory rise over the imports (``VmHWM``), whose slope against B
     is the memory per environment.
 
 ``--isa avx2`` runs the same on what a CPU without AVX-512 would execute: the fused kernels built
 for ``x86-64-v3`` (AVX2, ``AECTORCH_NATIVE_MARCH``), torch's own kernels dispatched at AVX2
 (``ATEN_CPU_CAPABILITY=avx2``), MKL and oneDNN limited to AVX2 (``MKL_ENABLE_INSTRUCTIONS=AVX2``,
-``ONEDNN_MAX_CPU_ISA=AVX2``): the instruction set of an AVX2 machine, on this machine's cores and caches.
+``ONEDNN_MAX_CPU_ISA=AVX2``): the instruction set of an AVX2 machine, on this machine's cores and
+caches.
 
 Usage:
     python benchmarks/stages.py [--batches 32 256] [--kernel-threads 1 2] [--isa native avx2] [--repeats 5] [--json benchmarks/results/stages.json]

@@ -319,20 +319,23 @@ void omp_row(T* alpha, const T* gram, int64_t n, int64_t k, int64_t* idx, T* coe
 
 // The Gram matrix D^T D of atoms [P, N] (contiguous) is computed in `gram_blocks(N)` blocks of rows,
 // each a BLAS product D[:, block]^T D (`gram_block`, oneDNN's or torch's as below): two blocks (one
-// when N < 64) on up to two threads. The blocks do not depend on the number of threads, so neither does the result.
+// when N < 64) on up to two threads. The blocks do not depend on the number of threads, so neither
+// does the result.
 inline int64_t gram_blocks(int64_t n) { return n >= 64 ? 2 : 1; }
 
 // float32 products through oneDNN (torch's mkldnn::_linear_pointwise, x W^T), unless torch lacks it
 // or AECTORCH_ONEDNN=0: torch's at::mm calls MKL, which on AMD CPUs runs its AVX2 code even where
 // the CPU has AVX-512 (half of oneDNN's rate on an AMD EPYC with AVX-512; at AVX2 the two ran at
-// about the same rate: benchmarks/stages.py records both). The products sum in another order than MKL's: not the same bits as torch's `x @ d`, but the same on any
-// number of threads (each product's operands do not depend on it).
+// about the same rate: benchmarks/stages.py records both). The products sum in another order than
+// MKL's: not the same bits as torch's `x @ d`, but the same on any number of threads (each
+// product's operands do not depend on it).
 using LinearFn = at::Tensor(const at::Tensor&, const at::Tensor&, const std::optional<at::Tensor>&,
                             c10::string_view, c10::List<std::optional<at::Scalar>>,
                             std::optional<c10::string_view>);
 
 const c10::TypedOperatorHandle<LinearFn>* onednn_linear() {
-  static const std::optional<c10::TypedOperatorHandle<LinearFn>> handle = []() -> std::optional<c10::TypedOperatorHandle<LinearFn>> {
+  using Handle = std::optional<c10::TypedOperatorHandle<LinearFn>>;
+  static const Handle handle = []() -> Handle {
     const char* flag = std::getenv("AECTORCH_ONEDNN");
     if (flag != nullptr && std::string(flag) == "0") return std::nullopt;
     auto found = c10::Dispatcher::singleton().findSchema({"mkldnn::_linear_pointwise", ""});
@@ -349,7 +352,8 @@ inline bool onednn_products(const at::Tensor& x) {
 
 // x w^T in oneDNN, for x [R, P] and w [N, P] (both contiguous).
 inline at::Tensor linear_t(const at::Tensor& x, const at::Tensor& w) {
-  return onednn_linear()->call(x, w, std::nullopt, "none", c10::List<std::optional<at::Scalar>>(), std::nullopt);
+  return onednn_linear()->call(x, w, std::nullopt, "none", c10::List<std::optional<at::Scalar>>(),
+                               std::nullopt);
 }
 
 // The Gram block of rows [lo, hi): D[:, lo:hi]^T D of atoms `d` [P, N], or (oneDNN) of their
