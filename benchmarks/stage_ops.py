@@ -6,8 +6,9 @@ and the pursuit kernel beside the matrix products it calls.
    ``--kernel-threads``, the heap frozen as in training), each stage of
    :mod:`aectorch.profiling` marked as a ``record_function`` range: per stage (``--stages``), its
    time per iteration under the profiler, the self CPU time of the operators inside it (the rest
-   is Python: the learner's and TorchRL's own code), how many operator calls that is, and the
-   ``--top`` operators.
+   is Python: the learner's and TorchRL's own code, and the profiler's), how many operator calls
+   that is, and the ``--top`` operators. Operators that the fused kernels call from their worker
+   threads (the encoder's products) have no parent range there: only the calling thread's count.
 2. The encoder's pursuit split in two, on one thread: ``aectorch::pursuit`` (OMP, k = 10, the
    default scale's P = 200, N = 288, on M = ``--rows`` random signals and a random unit-norm
    dictionary) against its correlations alone (the same product in oneDNN, as the kernel calls
