@@ -11,8 +11,8 @@ and the pursuit kernel beside the matrix products it calls.
    threads (the encoder's products) have no parent range there: only the calling thread's count.
 2. The encoder's pursuit split in two, on one thread: ``aectorch::pursuit`` (OMP, k = 10, the
    default scale's P = 200, N = 288, on M = ``--rows`` random signals and a random unit-norm
-   dictionary) against its correlations alone (the same product in oneDNN, as the kernel calls
-   it, or torch's where oneDNN is missing); the difference is the selection steps (each reads up
+   dictionary, in tiles of 512 rows) against its correlations alone (the same products, tile by
+   tile, in oneDNN as the kernel calls them, or torch's where oneDNN is missing); the difference is the selection steps (each reads up
    to k rows of the Gram matrix), which the stage table's matmul floor does not count. Medians of
    ``--repeats``.
 
@@ -46,21 +46,14 @@ from machine import machine_info  # noqa: E402
 
 def stage_profile(num_envs: int, kernel_threads: int, warmup: int, iterations: int, stages: list[str],
                   top: int) -> dict:
-    from omegaconf import OmegaConf
-
     from aectorch import profiling
     from aectorch.coding import native
-    from aectorch.framework import Shard
-    from aectorch.runtime import prepare_run
-    from aectorch.runtime.builders import build_env, build_learner
-    from aectorch.runtime.config import ExperimentConfig, to_experiment_config
     from aectorch.runtime.loop import frozen_heap
+    from loop_ops import build  # train.py's default environments and learner at B = num_envs
 
-    raw = OmegaConf.merge(OmegaConf.structured(ExperimentConfig), OmegaConf.from_dotlist([f"env.num_envs={num_envs}"]))
-    cfg, _ = prepare_run(to_experiment_config(raw))
+    env, learner = build(num_envs)
     torch.set_num_threads(1)
     native.set_threads(kernel_threads)
-    env, learner = build_env(cfg, Shard.single(num_envs)), build_learner(cfg)
     for _ in range(warmup):
         learner.iteration(env)
 
@@ -127,15 +120,18 @@ def pursuit_split(rows: int, repeats: int) -> dict:
     x = torch.randn(rows, p, generator=g)
     d_t = d.T.contiguous()
     onednn = hasattr(torch.ops.mkldnn, "_linear_pointwise")
-    if onednn:
-        def products():
-            return torch.ops.mkldnn._linear_pointwise(x, d_t, None, "none", [], "")
-    else:
-        def products():
-            return x @ d
+    block = 512  # the kernel's tiles: one product per tile of at most `block` rows
+
+    def products():
+        for start in range(0, rows, block):
+            tile = x[start:start + block]
+            if onednn:
+                torch.ops.mkldnn._linear_pointwise(tile, d_t, None, "none", [], "")
+            else:
+                torch.mm(tile, d)
 
     def pursuit():
-        return torch.ops.aectorch.pursuit(x, d, gram, k, True, 512)
+        return torch.ops.aectorch.pursuit(x, d, gram, k, True, block)
 
     def median_ms(fn) -> float:
         for _ in range(3):
