@@ -9,9 +9,12 @@ checkpoint.pt, figures/, evaluation.json and summary.json. See docs/training.md.
     python train.py env.num_envs=64 train.iterations=500 seed=3 hydra.run.dir=/tmp/x
     python train.py preset=paper +experiment=roll_perturbation
     python train.py train.resume=/tmp/x train.iterations=1000   # continue a run in place
+    python train.py train.resume=auto hydra.run.dir=/tmp/x     # resume /tmp/x if it holds a run, else start
     python train.py -m seed=0,1,2                     # multirun sweep
     torchrun --standalone --nproc_per_node=2 train.py env.num_envs=16   # 2 processes x 16 envs
 
+A new run into a folder that holds a run's checkpoint.pt stops before writing anything, with status 2
+and one line (`aectorch.runtime.launch`): give ``train.resume``, another folder, or ``train.overwrite=true``.
 Invalid values and bad files exit with status 2 and one ``error: ...`` line, a run stopped by
 the watchdog (`aectorch.runtime.watchdog`) with status 3, and one interrupted by Ctrl-C or SIGTERM, after
 writing its checkpoint and printing how to resume, with status 130; set ``AECTORCH_DEBUG=1`` for
@@ -74,12 +77,19 @@ def _log_to_stderr() -> None:
     logger.propagate = False  # not also into Hydra's own log handlers
 
 
+def _run_dir() -> Path:
+    """This run's folder: Hydra's; on the other ranks of a torchrun run, the folder rank 0 writes
+    (`_other_ranks_write_elsewhere`), so that ``train.resume=auto`` finds the same checkpoint."""
+    shared = os.environ.get(_RUN_DIR_VAR) if int(os.environ.get("RANK", "0")) > 0 else None
+    return Path(shared) if shared else Path(HydraConfig.get().runtime.output_dir)
+
+
 @hydra.main(version_base=None, config_name="train")
 def main(raw: DictConfig) -> dict:
     _log_to_stderr()
     try:
         # Validate everything before any work; on resume, the run's own config and checkpoint.
-        cfg, checkpoint = prepare_run(to_experiment_config(raw), _command_line_keys())
+        cfg, checkpoint = prepare_run(to_experiment_config(raw), _command_line_keys(), _run_dir())
     except (ValueError, OmegaConfBaseException) as err:  # a value rejected by the configs' checks
         if _debug():
             raise
@@ -125,13 +135,24 @@ def _one_line(err: BaseException) -> str:
     return text
 
 
+_RUN_DIR_VAR = "AECTORCH_RUN_DIR"
+
+
 def _other_ranks_write_elsewhere() -> None:
     """Under torchrun only rank 0 writes the run folder (aectorch.runtime.distributed): Hydra's own folder
-    and files of the other ranks go to a temporary folder, so a run makes one folder."""
+    and files of the other ranks go to a temporary folder, so a run makes one folder. The run folder
+    given (``hydra.run.dir``) is kept in ``AECTORCH_RUN_DIR`` for ``train.resume=auto``, which a
+    multi-process run can only use with that folder given (every process must find the same run)."""
     import tempfile
 
-    rank = int(os.environ.get("RANK", "0"))
+    rank, world = int(os.environ.get("RANK", "0")), int(os.environ.get("WORLD_SIZE", "1"))
+    given = [a.split("=", 1)[1] for a in sys.argv if a.startswith("hydra.run.dir=")]
+    if world > 1 and "train.resume=auto" in sys.argv and not given:
+        _fail("train.resume=auto with several processes needs hydra.run.dir=<folder>, the same on every "
+              "process (torchrun restarts them with the same command, and they must find the same run)")
     if rank > 0:
+        if given:
+            os.environ[_RUN_DIR_VAR] = given[-1]
         sys.argv = [a for a in sys.argv if not a.startswith(("hydra.run.dir=", "hydra.output_subdir="))]
         sys.argv += [f"hydra.run.dir={tempfile.mkdtemp(prefix=f'aectorch-rank{rank}-')}", "hydra.output_subdir=null"]
 

@@ -2,15 +2,18 @@
 
     .venv/bin/python scripts/soak.py runs/soak                    # 100,000 iterations, defaults
     .venv/bin/python scripts/soak.py runs/soak --iterations 200000  # longer (resumes if it can)
+    .venv/bin/python scripts/soak.py runs/soak48k --iterations 48000 env.num_envs=8   # key=value overrides
 
 Runs `aectorch.runtime.run_experiment` with the default `ExperimentConfig` (the watchdog on,
-in mode ``stop``), except ``train.iterations``, no final evaluation and figures only at the end.
-If the folder already holds a checkpoint the run is resumed, so a soak can be spread over
-several sessions (Ctrl-C or SIGTERM leaves a checkpoint). Every ``--memory-every`` iterations
-the process's resident set (VmRSS) is appended to ``memory.jsonl`` in the run folder;
-``--report`` prints a summary of both logs (non-finite metrics, the ranges of the TD errors,
-errors and entropies, and the resident memory and its growth per 10k iterations for every
-process of the run);
+in mode ``stop``), except ``train.iterations``, the ``key=value`` overrides given, no final
+evaluation and figures only at the end. ``train.resume=auto``: if the folder already holds a
+checkpoint the run is resumed, so a soak can be spread over several sessions (Ctrl-C or SIGTERM
+leaves a checkpoint). Every ``--memory-every`` iterations the process's resident set (VmRSS) and
+the run folder's size are appended to ``memory.jsonl`` in the run folder; ``--report`` prints a
+summary of both logs (non-finite metrics, the ranges of the TD errors, errors and entropies, the
+resident memory and its growth per 10k iterations for every process of the run, the growth after
+the first tenth of the run, the folder's size, and the training window's errors over the run's
+quarters);
 ``--plot <png>`` also draws the curves (errors, rewards, entropies, TD errors, resident memory).
 """
 
@@ -78,6 +81,21 @@ def _range(lines: list[dict], key: str, since: int = 0) -> list[float] | None:
     return [min(values), max(values)] if values else None
 
 
+def folder_mb(run: Path) -> float:
+    """The run folder's size on disk (its files' sizes), MB."""
+    return sum(p.stat().st_size for p in run.rglob("*") if p.is_file()) / 2**20
+
+
+def _quarters(lines: list[dict], key: str) -> list[float | None]:
+    """The mean of ``key`` over each quarter of the run's metrics lines (the learning curve, coarse)."""
+    out = []
+    for q in range(4):
+        part = lines[q * len(lines) // 4:(q + 1) * len(lines) // 4]
+        values = [line[key] for line in part if isinstance(line.get(key), float) and math.isfinite(line[key])]
+        out.append(sum(values) / len(values) if values else None)
+    return out
+
+
 def report(run: Path, since: int = 10_000) -> dict:
     """Summary of a soak folder: iterations, non-finite metrics, the ranges of the health signals
     (over the whole run, and the errors and entropies from iteration ``since`` on), and the
@@ -93,7 +111,8 @@ def report(run: Path, since: int = 10_000) -> dict:
            f"from_iteration_{since}": {key: _range(lines, key, since) for key in (
                "pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m", "parallax/entropy", "stereo/entropy")},
            "last": {key: lines[-1].get(key) for key in ("pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m")}
-           if lines else {}}
+           if lines else {},
+           "quarters": {key: _quarters(lines, key) for key in ("pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m")}}
     if memory:
         # Single samples jump by tens of MB when a depth refit's Jacobian workspace is held by the
         # allocator, and every process starts at its own level: slopes are per process.
@@ -102,6 +121,15 @@ def report(run: Path, since: int = 10_000) -> dict:
             "rss_min_max_mb": [min(m["rss_mb"] for m in part), max(m["rss_mb"] for m in part)],
             "growth_mb_per_10k": _slope_per_10k([(m["iteration"], m["rss_mb"]) for m in part]),
         } for part in processes(memory, session_starts(run))]
+        # Growth after the first tenth: the last sample against the first one past a tenth of the run.
+        tenth = memory[-1]["iteration"] / 10
+        after = [m for m in memory if m["iteration"] >= tenth]
+        if after:
+            out["rss_growth_after_first_tenth_pct"] = 100 * (after[-1]["rss_mb"] / after[0]["rss_mb"] - 1)
+        sized = [m for m in memory if "folder_mb" in m]
+        if sized:
+            out["folder_mb"] = {"after_first_tenth": next(m["folder_mb"] for m in sized if m["iteration"] >= tenth),
+                                "end": sized[-1]["folder_mb"]}
     return out
 
 
@@ -148,7 +176,8 @@ def main() -> None:
     parser.add_argument("--memory-every", type=int, default=500)
     parser.add_argument("--report", action="store_true", help="only print the summary of the folder")
     parser.add_argument("--plot", type=Path, default=None, help="with --report: draw the curves into this PNG")
-    args = parser.parse_args()
+    parser.add_argument("overrides", nargs="*", help="key=value overrides of the config (e.g. env.num_envs=8)")
+    args = parser.parse_intermixed_args()
     if args.report:
         print(json.dumps(report(args.run), indent=2))
         if args.plot is not None:
@@ -162,16 +191,15 @@ def main() -> None:
     from aectorch.runtime import run_experiment
 
     overrides = [f"train.iterations={args.iterations}", "eval.enabled=false", "train.checkpoint_every=1000",
-                 "train.log_every=100"]
-    if (args.run / "checkpoint.pt").exists():
-        overrides.append(f"train.resume={args.run}")
+                 "train.log_every=100", "train.resume=auto", *args.overrides]
     cfg = to_experiment_config(OmegaConf.from_dotlist(overrides))
     args.run.mkdir(parents=True, exist_ok=True)
     memory = (args.run / "memory.jsonl").open("a")
 
     def sample(done: int, record) -> None:
         if done % args.memory_every == 0:
-            memory.write(json.dumps({"iteration": done, "rss_mb": rss_mb(), "time": time.time()}) + "\n")
+            memory.write(json.dumps({"iteration": done, "rss_mb": rss_mb(), "folder_mb": folder_mb(args.run),
+                                     "time": time.time()}) + "\n")
             memory.flush()
 
     try:

@@ -81,11 +81,9 @@ def test_two_processes_with_b_envs_match_one_process_with_2b(tmp_path, textures)
     assert a["iteration"] == b["iteration"] == 12
     _close(a["learner"], b["learner"], "learner")  # dictionaries, policies, critics, depth data and MLP
     _close(a["metrics"], b["metrics"], "metrics")
-    # the environments: rank 0 holds envs 0-2 of the whole batch, rank 1 envs 3-5
-    assert isinstance(a["env"], list) and len(a["env"]) == 2
-    for key in ("texture_index", "distance_m", "pan_deg", "q_deg"):
-        joined = torch.cat([a["env"][0][key], a["env"][1][key]])
-        _close(joined, b["env"][key], f"env.{key}")
+    # the environments: the checkpoint holds the whole batch (rank 0's envs 0-2, then rank 1's 3-5)
+    assert a["env"]["num_envs"] == 6
+    _close(a["env"], b["env"], "env")
     lines_a, lines_b = _without_time(_lines(split)), _without_time(_lines(whole))
     assert [line["env_iterations"] for line in lines_a] == [line["env_iterations"] for line in lines_b]
     for x, y in zip(lines_a, lines_b):
@@ -96,13 +94,7 @@ def test_two_processes_with_b_envs_match_one_process_with_2b(tmp_path, textures)
                 assert x[key] == pytest.approx(y[key], rel=1e-4, abs=1e-5), key
     sessions = json.loads((split / "provenance.json").read_text())["sessions"]
     assert sessions[0]["world_size"] == 2
-    # A checkpoint of 2 processes resumes with 2 processes only.
-    done = _single(*_tiny(textures, 3, tmp_path / "x"), f"train.resume={split}", "train.iterations=14", cwd=tmp_path)
-    assert done.returncode == 2 and "resume it with as many" in done.stderr, done.stderr[-2000:]
-    done = _torchrun(*_tiny(textures, 3, tmp_path / "x"), f"train.resume={split}", "train.iterations=14",
-                     cwd=tmp_path)
-    assert done.returncode == 0, done.stderr[-4000:]
-    assert load_checkpoint(split / "checkpoint.pt")["iteration"] == 14
+    # Resuming with another number of processes, and torchrun's restarts: tests/test_restarts.py.
 
 
 def test_multirun_sweep_through_the_submitit_launcher(tmp_path, textures):

@@ -163,6 +163,10 @@ class PPO(nn.Module):
         (torch.Size([4]), True)
     """
 
+    #: The entries of the extra state that belong to each environment (batch first): a checkpoint
+    #: of several processes joins them (`aectorch.framework.batch_state`).
+    BATCH_STATE = ("rollout",)
+
     def __init__(self, num_features: int, actions_deg: Sequence[float] = DEFAULT_ACTIONS_DEG,
                  config: PPOConfig | None = None, *, generator: torch.Generator | None = None,
                  dtype: torch.dtype | None = None, device: torch.device | str | None = None, **options) -> None:

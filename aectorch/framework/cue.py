@@ -49,8 +49,11 @@ class CueLearner(nn.Module):
 
     Attributes:
         previous: the pending transition ``(features, action, reward)`` of the last step, which
-            the next step's reward completes (``None`` after :meth:`forget`).
+            the next step's reward completes (``None`` after :meth:`forget`); per environment,
+            so it is named in ``BATCH_STATE`` (`aectorch.framework.batch_state`).
     """
+
+    BATCH_STATE = ("previous",)
 
     def __init__(self, config: CueConfig, encoder: BinocularEncoder, agent: Agent, *,
                  generator: torch.Generator, shard: Shard) -> None:

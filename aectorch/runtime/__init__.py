@@ -34,6 +34,7 @@ random generators included, are in the checkpoint). Messages go to the ``aectorc
 
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 from typing import Callable
@@ -47,8 +48,9 @@ from aectorch.runtime.builders import (
     trial_options, trial_protocol,
 )
 from aectorch.runtime.checkpoint import (
-    CHECKPOINT_FORMAT, RESUME_KEYS, check_resume_overrides, checkpoint_config, load_checkpoint, load_learner,
-    prepare_run, restore, resume_config, save_checkpoint,
+    AUTO, CHECKPOINT_FORMAT, RESUME_KEYS, RunExists, check_new_run, check_resume_overrides, checkpoint_config,
+    checkpoint_envs, load_checkpoint, load_learner, prepare_run, resolve_resume, restore, resume_config,
+    save_checkpoint,
 )
 from aectorch.runtime.config import ExperimentConfig, to_container, to_experiment_config, validate_resources
 from aectorch.runtime.finish import calibrate_depth, calibration_conditions, finish
@@ -56,14 +58,17 @@ from aectorch.runtime.loop import Callback, TrainingRun, default_callbacks
 from aectorch.runtime.outputs import RunFolder, format_summary
 
 __all__ = [
-    "CHECKPOINT_FORMAT", "RESUME_KEYS", "Callback", "ExperimentConfig", "RunFolder", "TrainingRun", "available_threads",
-    "build_env", "build_learner", "build_textures", "calibrate_depth", "calibration_conditions",
-    "check_resume_overrides", "checkpoint_config", "compile_hot_path", "default_callbacks", "dictionaries", "format_summary",
-    "load_checkpoint", "load_learner", "prepare_run", "restore", "resume_config", "run_experiment",
+    "AUTO", "CHECKPOINT_FORMAT", "RESUME_KEYS", "Callback", "ExperimentConfig", "RunExists", "RunFolder", "TrainingRun",
+    "available_threads", "build_env", "build_learner", "build_textures", "calibrate_depth", "calibration_conditions",
+    "check_new_run", "check_resume_overrides", "checkpoint_config", "checkpoint_envs", "compile_hot_path",
+    "default_callbacks", "dictionaries", "format_summary", "load_checkpoint", "load_learner", "prepare_run",
+    "resolve_resume", "restore", "resume_config", "run_experiment",
     "save_checkpoint", "set_threads", "to_container", "to_experiment_config", "trial_options", "trial_protocol",
     "validate_resources",
 ]
 
+
+log = logging.getLogger("aectorch")
 
 #: ``torch.utils.deterministic.fill_uninitialized_memory`` during a run with ``train.deterministic``.
 #: Deterministic mode would also fill every new tensor's memory with NaN, a guard against reading
@@ -77,6 +82,23 @@ FILL_UNINITIALIZED_MEMORY = False
 _NOT_PREPARED = object()
 
 
+def _agree_on_start(shard, folder: RunFolder, cfg: ExperimentConfig, checkpoint: dict | None) -> None:
+    """Before anything is written: a new run's folder holds no run, unless ``train.overwrite``
+    (checked again under the folder's lock: another process may have written one since
+    `prepare_run`), and every process starts from the same iteration (a restarted ``torchrun``
+    group whose processes found different checkpoints would otherwise train on silently)."""
+    if folder.main and checkpoint is None:
+        check_new_run(folder.path, cfg.train.overwrite)
+        deleted = folder.clear() if cfg.train.overwrite else []
+        if deleted:
+            log.warning("train.overwrite: deleted %s of the run in %s", ", ".join(deleted), folder.path)
+    starts = shard.gather_objects(None if checkpoint is None else int(checkpoint["iteration"]))
+    if len(set(starts)) > 1:
+        raise ValueError(f"the processes of this run start from different iterations ({starts}, in rank order; "
+                         "None: a new run): every process must resume the same checkpoint (give train.resume=<run "
+                         "folder> on all, on a file system they share)")
+
+
 def run_experiment(
     cfg: ExperimentConfig,
     run_dir: str | os.PathLike,
@@ -88,8 +110,11 @@ def run_experiment(
 
     Args:
         cfg: the experiment. With ``cfg.train.resume`` set, the run continues in that folder
-            (``run_dir`` is ignored) with its stored config (see `resume_config`).
-        run_dir: the run folder (created if needed).
+            (``run_dir`` is ignored) with its stored config (see `resume_config`);
+            ``train.resume=auto`` continues ``run_dir``'s run if it holds one.
+        run_dir: the run folder (created if needed). One that holds a run's ``checkpoint.pt`` is
+            refused for a new run (`RunExists`, a ``ValueError``) unless ``train.overwrite``, which
+            deletes that run's files (`aectorch.runtime.outputs.RUN_FILES`) first.
         callback: called as ``callback(iteration, record)`` after every learner iteration
             (1-based count of completed iterations); an exception it raises stops the run, which
             keeps the last checkpoint written (`aectorch.runtime.loop`).
@@ -98,7 +123,7 @@ def run_experiment(
             given: `run_experiment` calls `prepare_run` itself.
     """
     if checkpoint is _NOT_PREPARED:
-        cfg, checkpoint = prepare_run(cfg)
+        cfg, checkpoint = prepare_run(cfg, run_dir=run_dir)
     if checkpoint is not None and cfg.train.resume is None:
         raise ValueError("run_experiment got a checkpoint but cfg.train.resume is null: pass what prepare_run returned")
     previous = (torch.are_deterministic_algorithms_enabled(), torch.is_deterministic_algorithms_warn_only_enabled(),
@@ -112,6 +137,7 @@ def run_experiment(
     try:
         folder = RunFolder(cfg.train.resume if checkpoint is not None else run_dir, main=shard.is_main)
         try:
+            _agree_on_start(shard, folder, cfg, checkpoint)
             run = TrainingRun(cfg, folder, shard, checkpoint, default_callbacks(cfg, folder.main, callback))
             try:
                 run.run()

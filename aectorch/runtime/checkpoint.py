@@ -16,6 +16,7 @@ contradicts the stored config, and validates the resources once.
 
 from __future__ import annotations
 
+import copy
 import os
 import pickle
 import re
@@ -29,12 +30,16 @@ from aectorch.runtime.config import ExperimentConfig, to_container, to_experimen
 from aectorch.runtime.migrations import CHECKPOINT_FORMAT, migrate
 from aectorch.runtime.outputs import atomic_write
 
-__all__ = ["CHECKPOINT_FORMAT", "RESUME_KEYS", "check_resume_overrides", "checkpoint_config", "load_checkpoint",
-           "load_learner", "prepare_run", "restore", "resume_config", "save_checkpoint"]
+__all__ = ["AUTO", "CHECKPOINT_FORMAT", "RESUME_KEYS", "RunExists", "check_new_run", "check_resume_overrides",
+           "checkpoint_config", "checkpoint_envs", "load_checkpoint", "load_learner", "prepare_run", "resolve_resume",
+           "restore", "resume_config", "save_checkpoint"]
+
+#: ``train.resume=auto``: resume the run folder's own checkpoint if there is one, else start there.
+AUTO = "auto"
 
 #: Keys of ``train`` kept from the command line when a run is resumed (and the whole ``watchdog``
 #: and ``record`` sections, which change nothing that is learned); everything else is the run's own.
-RESUME_KEYS = ("iterations", "progress", "resume")
+RESUME_KEYS = ("iterations", "progress", "resume", "overwrite")
 #: Keys of ``train`` that a resume takes from the run unless the command line gives them.
 _RUN_OWN_UNLESS_GIVEN = ("iterations", "progress")
 
@@ -121,6 +126,7 @@ def resume_config(cfg: ExperimentConfig, checkpoint: dict) -> ExperimentConfig:
         stored["train"][key] = getattr(cfg.train, key)
     mine = to_container(cfg)
     stored["watchdog"], stored["record"] = mine["watchdog"], mine["record"]
+    stored["env"]["num_envs"] = cfg.env.num_envs  # this run's share of the batch (`prepare_run` checks it)
     return to_experiment_config(stored)
 
 
@@ -133,26 +139,92 @@ def check_resume_overrides(cfg: ExperimentConfig, stored: ExperimentConfig, give
     mine, theirs = OmegaConf.create(to_container(cfg)), OmegaConf.create(to_container(stored))
     for key in sorted(given):
         if key.startswith(("hydra.", "watchdog", "record")) or key in {f"train.{k}" for k in RESUME_KEYS} \
-                or key in ("preset", "experiment"):
+                or key in ("preset", "experiment", "env.num_envs"):
             continue
         ours, run = OmegaConf.select(mine, key), OmegaConf.select(theirs, key)
         if ours != run:
             raise ValueError(
                 f"{key}={ours!r} contradicts the resumed run's {key}={run!r}: train.resume continues "
-                f"{cfg.train.resume} with its own config (only train.iterations, train.progress, "
+                f"{cfg.train.resume} with its own config (only train.iterations, train.progress, env.num_envs, "
                 "watchdog.* and record.* may be given); start a new run to change it")
 
 
-def prepare_run(cfg: ExperimentConfig, given: set[str] | None = None) -> tuple[ExperimentConfig, dict | None]:
+class RunExists(ValueError):
+    """A new run into a folder that holds a run's ``checkpoint.pt`` (``train.overwrite`` is off)."""
+
+
+def check_new_run(folder: str | os.PathLike, overwrite: bool = False) -> None:
+    """Refuse to start a new run in ``folder`` when it holds a run's ``checkpoint.pt``, unless
+    ``overwrite``: `RunExists`, one line naming the folder, the iteration it holds and the ways on.
+    A rerun of a finished command, a re-launched sweep or a requeued job would otherwise erase the
+    run (``train.py`` calls this before anything is written)."""
+    path = Path(folder) / "checkpoint.pt"
+    if overwrite or not path.is_file():
+        return
+    try:
+        payload = load_checkpoint(path)
+        held = f"iteration {payload['iteration']} of {payload['config']['train']['iterations']}"
+    except ValueError as err:
+        held = f"a checkpoint this aectorch cannot read ({err})"
+    raise RunExists(f"{str(folder)!r} holds a run (checkpoint.pt at {held}); nothing was written. Continue it with "
+                    f"train.resume={folder} (train.resume=auto does so whenever its folder holds a checkpoint), or "
+                    "give another folder (hydra.run.dir=...); train.overwrite=true deletes it and starts afresh")
+
+
+def resolve_resume(cfg: ExperimentConfig, run_dir: str | os.PathLike | None) -> ExperimentConfig:
+    """``cfg`` with ``train.resume=auto`` made definite: ``run_dir`` if it holds a ``checkpoint.pt``,
+    else ``None`` (a new run there). Other values are returned as they are."""
+    if cfg.train.resume != AUTO:
+        return cfg
+    if run_dir is None:
+        raise ValueError("train.resume=auto needs the run folder it resumes (run_experiment's run_dir)")
+    cfg = copy.deepcopy(cfg)
+    cfg.train.resume = str(run_dir) if (Path(run_dir) / "checkpoint.pt").is_file() else None
+    return cfg
+
+
+def checkpoint_envs(checkpoint: dict) -> int:
+    """The environments of the whole batch a checkpoint holds (over all the processes that wrote it)."""
+    env = checkpoint["env"]
+    return sum(int(part["num_envs"]) for part in env) if isinstance(env, list) else int(env["num_envs"])
+
+
+def _resume_num_envs(cfg: ExperimentConfig, checkpoint: dict, given: set[str] | None, path: Path) -> None:
+    """``env.num_envs`` of a resume: the command line's, else the checkpoint's whole batch split over
+    this run's processes; either way the whole batch must be the checkpoint's."""
+    from aectorch.runtime.distributed import world_from_env
+
+    total, world = checkpoint_envs(checkpoint), world_from_env()[1]
+    if given is None or "env.num_envs" not in given:
+        if total % world:
+            raise ValueError(f"env.num_envs: the checkpoint {str(path)!r} holds {total} environments, which "
+                             f"{world} processes cannot share evenly; resume with a number of processes that divides it")
+        cfg.env.num_envs = total // world
+    if cfg.env.num_envs * world != total:
+        raise ValueError(f"env.num_envs={cfg.env.num_envs} with {world} process(es) makes a batch of "
+                         f"{cfg.env.num_envs * world}, but the checkpoint {str(path)!r} holds {total} environments; "
+                         f"give env.num_envs={total // world if total % world == 0 else '...'} (the whole batch "
+                         "stays the run's)")
+
+
+def prepare_run(cfg: ExperimentConfig, given: set[str] | None = None,
+                run_dir: str | os.PathLike | None = None) -> tuple[ExperimentConfig, dict | None]:
     """The config a run uses and the checkpoint it resumes (``None`` for a new run).
 
-    Validates the resources (`validate_resources`) once. With ``cfg.train.resume``, reads the
-    checkpoint once and returns its stored config (:func:`resume_config`). ``given``: the keys
+    Validates the resources (`validate_resources`) once. ``train.resume=auto`` resumes ``run_dir``
+    if it holds a checkpoint (`resolve_resume`). A new run into a ``run_dir`` that holds one is
+    refused unless ``train.overwrite`` (`check_new_run`). With ``cfg.train.resume``, reads the
+    checkpoint once and returns its stored config (:func:`resume_config`), with ``env.num_envs``
+    the command line's or the checkpoint's whole batch split over this run's processes (the
+    whole batch must stay the checkpoint's). ``given``: the keys
     set on the command line (``train.py``); then ``train.iterations`` and ``train.progress`` are
     the run's own unless given, and a given key that contradicts the stored config is an error
     (:func:`check_resume_overrides`). ``ValueError`` naming the key or the file for anything wrong.
     """
+    cfg = resolve_resume(cfg, run_dir)
     if cfg.train.resume is None:
+        if run_dir is not None:
+            check_new_run(run_dir, cfg.train.overwrite)
         validate_resources(cfg)
         return cfg, None
     path = Path(cfg.train.resume) / "checkpoint.pt"
@@ -165,6 +237,7 @@ def prepare_run(cfg: ExperimentConfig, given: set[str] | None = None) -> tuple[E
             if f"train.{key}" not in given:
                 setattr(cfg.train, key, getattr(stored.train, key))
         check_resume_overrides(cfg, stored, given)
+    _resume_num_envs(cfg, checkpoint, given, path)
     cfg = resume_config(cfg, checkpoint)
     validate_resources(cfg)
     return cfg, checkpoint

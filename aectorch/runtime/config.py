@@ -171,7 +171,16 @@ class TrainConfig:
             compiled (`aectorch.runtime.builders.compile_hot_path`).
         resume: a run folder to continue in place from its ``checkpoint.pt`` (until
             ``iterations``); its stored config is used, except ``train.iterations``,
-            ``train.progress`` and ``train.resume`` from the command line.
+            ``train.progress`` and ``train.resume`` from the command line (and ``env.num_envs``,
+            which may change with the number of processes while the whole batch stays the
+            same; without it, the checkpoint's whole batch is split evenly over the processes).
+            ``auto``: resume the run folder's own checkpoint if it holds one, else start a new
+            run there: the setting for jobs that are started again with the same command
+            (``torchrun --max-restarts``, Slurm's ``--requeue``, re-launched Hydra sweeps).
+        overwrite: a new run into a folder that holds a run's ``checkpoint.pt`` deletes that
+            run's files (:data:`aectorch.runtime.outputs.RUN_FILES`) and starts afresh. Off
+            (default), such a run stops before it writes anything, naming the iteration the
+            folder holds and the ways on (``train.resume``, another folder).
         log_every: append a line to ``metrics.jsonl`` and TensorBoard every this many
             iterations (>= 1).
         checkpoint_every: write ``checkpoint.pt`` every this many iterations (>= 1), and always
@@ -211,6 +220,7 @@ class TrainConfig:
     iterations: int = 2400
     compile: bool = False
     resume: Optional[str] = None
+    overwrite: bool = False
     log_every: int = 25
     checkpoint_every: int = 500
     threads: int = 0
@@ -227,10 +237,13 @@ class TrainConfig:
         for name, minimum in (("iterations", 1), ("depth_calibration_trials", 0), ("log_every", 1),
                               ("metrics_window", 1), ("checkpoint_every", 1), ("threads", 0)):
             check_int(getattr(self, name), f"{owner}.{name}", minimum)
-        for name in ("compile", "progress", "figures", "tensorboard", "deterministic", "keep_best"):
+        for name in ("compile", "overwrite", "progress", "figures", "tensorboard", "deterministic", "keep_best"):
             check_bool(getattr(self, name), f"{owner}.{name}")
         if self.resume is not None and (not isinstance(self.resume, str) or not self.resume):
-            raise ValueError(f"{owner}.resume must be null or a run folder, got {self.resume!r}")
+            raise ValueError(f"{owner}.resume must be null, auto or a run folder, got {self.resume!r}")
+        if self.resume is not None and self.overwrite:
+            raise ValueError(f"{owner}.overwrite=true starts a run afresh and {owner}.resume={self.resume} continues "
+                             "one: give one of them")
 
 
 @dataclass
@@ -485,17 +498,21 @@ def _nested(dotted: dict[str, Any]) -> dict:
 @dataclass
 class _TrainNode(ExperimentConfig):
     # Hydra's defaults list: the preset group applies after the schema's own values.
-    defaults: list[Any] = field(default_factory=lambda: ["_self_", {"preset": "default"}])
+    defaults: list[Any] = field(default_factory=lambda: ["_self_", {"preset": "default"}, {"guard": "default"}])
 
 
 def register_configs() -> None:
     """Register the configs with Hydra's ConfigStore: ``train`` and the groups ``preset``
-    (``default``, ``paper``) and ``experiment`` (``roll_perturbation``)."""
+    (``default``, ``paper``), ``experiment`` (``roll_perturbation``) and ``guard`` (``default``: Hydra's
+    callback `aectorch.runtime.launch.RunFolderGuard`, which refuses a new run over an existing
+    one before Hydra writes into its folder)."""
     from hydra.core.config_store import ConfigStore
 
     store = ConfigStore.instance()
     store.store(name="train", node=_TrainNode)
     store.store(group="preset", name="default", node={}, package="_global_")
     store.store(group="preset", name="paper", node=_nested(PAPER_PRESET), package="_global_")
+    store.store(group="guard", name="default", package="_global_",
+                node={"hydra": {"callbacks": {"run_folder_guard": {"_target_": "aectorch.runtime.launch.RunFolderGuard"}}}})
     store.store(group="experiment", name="roll_perturbation", node=_nested(ROLL_PERTURBATION),
                 package="_global_")

@@ -36,6 +36,7 @@ from typing import Callable, Sequence
 import torch
 
 from aectorch.framework import IterationRecord, Shard
+from aectorch.framework.batch_state import gather_rows, take_rows
 from aectorch.runtime.builders import build_env, build_learner, compile_hot_path, dictionaries, set_threads
 from aectorch.runtime.checkpoint import CHECKPOINT_FORMAT, restore, save_checkpoint
 from aectorch.runtime.config import ExperimentConfig, to_container
@@ -342,15 +343,21 @@ class TrainingRun:
 
     def _restore(self, checkpoint: dict) -> None:
         path = self.folder / "checkpoint.pt"
-        restore(self.learner, checkpoint["learner"], path, "learner")
-        env_state = checkpoint["env"]
+        learner_state, env_state = checkpoint["learner"], checkpoint["env"]
         world = self.shard.world_size
-        if world > 1 or isinstance(env_state, list):  # one state per process, in rank order
-            if not isinstance(env_state, list) or len(env_state) != world:
-                raise ValueError(f"the checkpoint {str(path)!r} holds the environments of "
-                                 f"{len(env_state) if isinstance(env_state, list) else 1} process(es); "
-                                 f"resume it with as many (this run has {world})")
+        if isinstance(env_state, list):  # format 3 of several processes: one state per process, in rank order
+            if len(env_state) != world:
+                raise ValueError(f"the checkpoint {str(path)!r} holds the environments of {len(env_state)} "
+                                 f"processes in an earlier layout; resume it with as many (this run has {world})")
             env_state = env_state[self.shard.rank]
+        else:  # the whole batch: this process's rows of it
+            if int(env_state["num_envs"]) != self.shard.total:
+                raise ValueError(f"the checkpoint {str(path)!r} holds {env_state['num_envs']} environments; this run "
+                                 f"has {world} process(es) x {self.env.num_envs}: give env.num_envs so that the "
+                                 "whole batch stays the same")
+            env_state = type(self.env).state_rows(env_state, self.shard.start, self.shard.stop)
+            learner_state = take_rows(self.learner, learner_state, self.shard.start, self.shard.stop, self.shard.total)
+        restore(self.learner, learner_state, path, "learner")
         restore(self.env, env_state, path, "environment")
         restore(self.metrics, checkpoint["metrics"], path, "metrics")
         if "watchdog" in checkpoint:
@@ -365,14 +372,17 @@ class TrainingRun:
     # -- state -------------------------------------------------------------------------------------
     def state(self) -> dict:
         """The state a checkpoint holds, of the iteration just completed (made at most once per iteration).
-        The learners of all processes are identical; the environments are each process's own (one
-        process's checkpoint holds its state itself)."""
+        It is the whole batch's, however many processes hold it: the learners of all processes are
+        identical but for their environments' entries (`aectorch.framework.batch_state`), which are
+        joined in rank order, as are the environments' states (`ActiveDepthEnv.join_states`); so
+        another number of processes can resume it."""
         done = self.iteration_done
         if self._state is None or self._state[0] != done:
             envs = self.shard.gather_objects(self.env.state_dict())
+            learner = gather_rows(self.learner, self.learner.state_dict(), self.shard.gather_objects, self.env.num_envs)
             self._state = (done, {
-                "learner": copy.deepcopy(self.learner.state_dict()),
-                "env": envs[0] if len(envs) == 1 else envs,
+                "learner": copy.deepcopy(learner),
+                "env": type(self.env).join_states(envs),
                 "metrics": self.metrics.state_dict(),
                 "watchdog": self.watchdog.state_dict(),
             })

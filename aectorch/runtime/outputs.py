@@ -9,11 +9,16 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["LOCK_NAME", "RunFolder", "RunFolderBusy", "WriteFailed", "atomic_write", "format_summary", "json_value",
+__all__ = ["LOCK_NAME", "RUN_FILES", "RunFolder", "RunFolderBusy", "WriteFailed", "atomic_write", "format_summary", "json_value",
            "read_lines", "write_json"]
 
 #: The file in a run folder whose lock (``flock``) the training process holds.
 LOCK_NAME = ".lock"
+
+#: What a run writes into its folder; ``train.overwrite=true`` deletes these (and nothing else:
+#: Hydra's ``.hydra/`` and ``train.log`` are Hydra's, rewritten and appended by each start).
+RUN_FILES = ("checkpoint.pt", "best.pt", "calibrated.pt", "metrics.jsonl", "provenance.json", "config.yaml",
+             "summary.json", "evaluation.json", "tb", "figures")
 
 
 class RunFolderBusy(ValueError):
@@ -107,6 +112,27 @@ class RunFolder:
         self.metrics_path = self.path / "metrics.jsonl"
         self._writer = None
 
+    @staticmethod
+    def _busy(path: Path, holder: str) -> RunFolderBusy:
+        return RunFolderBusy(f"run folder {str(path)!r} is in use by process {holder} (another train.py "
+                             f"trains there); wait for it to end, or choose another hydra.run.dir")
+
+    @classmethod
+    def check_free(cls, path: str | os.PathLike) -> None:
+        """`RunFolderBusy` if a process holds ``path``'s lock; writes nothing (``train.py`` asks
+        before Hydra writes into the folder)."""
+        lock_path = Path(path) / LOCK_NAME
+        try:
+            lock = lock_path.open("r")
+        except OSError:  # no lock file: never trained in, or not readable (then _acquire reports it)
+            return
+        with lock:
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                raise cls._busy(Path(path), lock.read().strip() or "unknown") from None
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
     def _acquire(self) -> None:
         """Hold the folder's lock for this process: a second run into the same folder (a new run
         or ``train.resume``) is refused at once, naming the process that trains there. The lock is
@@ -119,13 +145,31 @@ class RunFolder:
             lock.seek(0)
             holder = lock.read().strip() or "unknown"
             lock.close()
-            raise RunFolderBusy(f"run folder {str(self.path)!r} is in use by process {holder} (another train.py "
-                                f"trains there); wait for it to end, or choose another hydra.run.dir") from None
+            raise self._busy(self.path, holder) from None
         lock.seek(0)
         lock.truncate()
         lock.write(f"{os.getpid()}\n")
         lock.flush()
         self._lock = lock
+
+    def clear(self) -> list[str]:
+        """Delete the files of the run this folder holds (:data:`RUN_FILES`), under the folder's
+        lock (``train.overwrite``); returns the names deleted."""
+        import shutil
+
+        if self._lock is None:
+            raise RuntimeError("RunFolder.clear needs the folder's lock (the main process's RunFolder)")
+        deleted = []
+        for name in RUN_FILES:
+            path = self.path / name
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            elif path.exists() or path.is_symlink():
+                path.unlink()
+            else:
+                continue
+            deleted.append(name)
+        return deleted
 
     def release(self) -> None:
         """Let other runs into the folder (at the run's end; the process's end does it too)."""

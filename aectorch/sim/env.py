@@ -700,6 +700,40 @@ class ActiveDepthEnv:
         )
         return state
 
+    @classmethod
+    def join_states(cls, states: list[dict]) -> dict:
+        """The :meth:`state_dict` of the whole batch from those of its parts, in order (the
+        processes of a run, which draw for the whole batch and so share the generator's state).
+        Per-environment tensors are joined along the batch; everything else must agree."""
+        if len(states) == 1:
+            return states[0]
+        first, whole = states[0], dict(states[0])
+        for name, value in first.items():
+            if name == "num_envs":
+                whole[name] = sum(int(s[name]) for s in states)
+            elif name in cls._STATE_TENSORS or name == "first_roll":
+                whole[name] = None if value is None else torch.cat([s[name] for s in states])
+            elif name == "generator":
+                if any(not torch.equal(s[name], value) for s in states):
+                    raise ValueError("the environments' parts have different generator states: they are not "
+                                     "one run's processes")
+            elif any(s[name] != value for s in states):
+                raise ValueError(f"the environments' parts differ in {name!r} ({[s[name] for s in states]})")
+        return whole
+
+    @classmethod
+    def state_rows(cls, state: dict, start: int, stop: int) -> dict:
+        """The :meth:`state_dict` of the environments ``start .. stop - 1`` of a whole batch's state
+        (:meth:`join_states`): a process's share when another number of processes resumes it."""
+        total = int(state["num_envs"])
+        if not 0 <= start < stop <= total:
+            raise ValueError(f"rows {start}..{stop - 1} are not within the {total} environments of the state")
+        rows = dict(state, num_envs=stop - start)
+        for name in (*cls._STATE_TENSORS, "first_roll"):
+            if rows.get(name) is not None:
+                rows[name] = state[name][start:stop].clone()
+        return rows
+
     def load_state_dict(self, state: dict) -> None:
         """Restore a :meth:`state_dict` taken from an environment built with the same arguments."""
         for key, expected in (("num_envs", self.num_envs), ("num_textures", len(self.textures))):
