@@ -25,6 +25,12 @@ def test_tutorial_code_runs_in_order(tmp_path):
                           cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-3000:]
     assert "error" in done.stdout and "mean |disparity|" in done.stdout
+    # Every print marked `# -> <text>` printed <text>, in order.
+    expected = re.findall(r"print\(.*?\)\s*# -> (.*)", "\n".join(blocks))
+    assert len(expected) >= 2
+    printed = done.stdout.splitlines()
+    for line in expected:
+        assert line.strip() in [p.strip() for p in printed], (line, printed)
 
 
 def test_site_builds_strictly(tmp_path):
