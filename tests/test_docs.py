@@ -33,6 +33,19 @@ def test_tutorial_code_runs_in_order(tmp_path):
         assert line.strip() in [p.strip() for p in printed], (line, printed)
 
 
+def test_every_result_file_is_cited_and_every_cited_one_exists():
+    """``benchmarks/results``: a file no page cites is a lab notebook's leftover; a cited path
+    (or glob) that matches nothing is a broken reference."""
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    text = "\n".join(page.read_text() for page in pages)
+    cited = set(re.findall(r"benchmarks/results/([A-Za-z0-9_.*-]+\.json)", text))
+    for pattern in sorted(cited):
+        assert list((ROOT / "benchmarks" / "results").glob(pattern)), f"cited but missing: benchmarks/results/{pattern}"
+    for path in sorted((ROOT / "benchmarks" / "results").iterdir()):
+        assert any(Path(path.name).match(pattern) for pattern in cited) or path.name in text, \
+            f"benchmarks/results/{path.name} is cited by no page of docs/ or the README"
+
+
 def test_site_builds_strictly(tmp_path):
     mkdocs = shutil.which("mkdocs", path=str(Path(sys.executable).parent))
     if mkdocs is None:
