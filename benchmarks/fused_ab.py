@@ -37,7 +37,8 @@ def main() -> None:
 
     import aectorch.coding.dictionary as dictionary
     import aectorch.coding.pursuit as pursuit
-    from aectorch.coding import native
+    import aectorch.ops.backend as backend
+    from aectorch.ops import native
     from aectorch.runtime import build_env, build_learner
     from aectorch.runtime.config import ExperimentConfig
     from benchmarks.machine import machine_info
@@ -47,7 +48,7 @@ def main() -> None:
     env, learner = build_env(ExperimentConfig()), build_learner(ExperimentConfig())
     fused = pursuit.fused_kernels_apply
     off = lambda tensor: False  # noqa: E731
-    variants = {  # (the dictionary's switch, the patches' switch: they read pursuit's at each call)
+    variants = {  # (the dictionary's switch, the patches' and the Gram matrix's: they read backend's and pursuit's)
         "all fused": (fused, fused),
         "no fused dictionary step": (off, fused),
         "no fused patches": (fused, off),
@@ -58,13 +59,14 @@ def main() -> None:
     times: dict[str, list[float]] = {name: [] for name in variants}
     for round_ in range(args.rounds):
         for name, (dictionary_switch, patch_switch) in variants.items():
-            dictionary.fused_kernels_apply, pursuit.fused_kernels_apply = dictionary_switch, patch_switch
+            dictionary.fused_kernels_apply, pursuit.fused_kernels_apply, backend.fused_kernels_apply = \
+                dictionary_switch, patch_switch, patch_switch
             start = time.perf_counter()
             for _ in range(args.iterations):
                 learner.iteration(env)
             times[name].append((time.perf_counter() - start) / args.iterations)
         print(f"round {round_ + 1} of {args.rounds}", file=sys.stderr, flush=True)
-    dictionary.fused_kernels_apply = pursuit.fused_kernels_apply = fused
+    dictionary.fused_kernels_apply = pursuit.fused_kernels_apply = backend.fused_kernels_apply = fused
     batch = env.num_envs
     base = statistics.median(times["neither"])
     rows = []

@@ -2,7 +2,7 @@
 
 ``train.py``'s default learner and environments (B = 32, as `benchmarks/loop_ops.py` builds them,
 the kernels on two threads): ``--rounds`` rounds of ``--iterations`` iterations with the dictionary
-step as the kernels run it, then with it forced onto one thread (``aectorch.coding.native.set_threads(1)``
+step as the kernels run it, then with it forced onto one thread (``aectorch.ops.native.set_threads(1)``
 around `BinocularEncoder.learn_`), the order alternating; wall and CPU time, medians and the quartiles
 of the paired ratios. The kernels give the same bits on any number of threads, so one learner
 switches mid-run.
@@ -33,7 +33,7 @@ from loop_ops import build  # noqa: E402
 
 import torch  # noqa: E402
 
-from aectorch.coding import native  # noqa: E402
+from aectorch.ops import native  # noqa: E402
 from aectorch.coding.encoder import BinocularEncoder  # noqa: E402
 
 AS_RUN = BinocularEncoder.learn_

@@ -39,7 +39,7 @@ CHILD = r"""
 import json, statistics, sys, time
 sys.path.insert(0, sys.argv[1])
 import torch
-from aectorch.coding import native
+from aectorch.ops import native
 from aectorch.sim.env import pyramid_blur
 torch.set_num_threads(1)
 assert native.load(), "the fused kernels did not build"

@@ -7,7 +7,7 @@ The dictionary is random and unit-norm, as at the start of training.
 
 Compared, each in the same process, median of --repeats runs:
   * aectorch ``omp`` and ``matching_pursuit`` with their default backend (the fused C++ kernel,
-    ``aectorch.coding.native``), eager and ``torch.compile``-d (the operator inside the graph);
+    ``aectorch.ops.native``), eager and ``torch.compile``-d (the operator inside the graph);
   * the same with ``backend="torch"`` (``*_torch``: the pure-torch code, the CUDA path and the
     fallback), eager and compiled;
   * scikit-learn ``orthogonal_mp_gram`` with the Gram matrix precomputed

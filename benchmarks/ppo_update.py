@@ -197,7 +197,7 @@ class LegacyPPO(PPO):
 def record():
     """Run the default training until each PPO agent finished its first fixation, then record both
     agents' `learn`/`act` calls over the next fixation. Returns {cue: (state, calls)}."""
-    from aectorch.coding import native
+    from aectorch.ops import native
     from aectorch.runtime import build_env, build_learner
     from aectorch.runtime.config import ExperimentConfig
 

@@ -47,7 +47,7 @@ from machine import machine_info  # noqa: E402
 def stage_profile(num_envs: int, kernel_threads: int, warmup: int, iterations: int, stages: list[str],
                   top: int) -> dict:
     from aectorch import profiling
-    from aectorch.coding import native
+    from aectorch.ops import native
     from aectorch.runtime.loop import frozen_heap
     from loop_ops import build  # train.py's default environments and learner at B = num_envs
 
@@ -106,7 +106,7 @@ def stage_profile(num_envs: int, kernel_threads: int, warmup: int, iterations: i
 
 
 def pursuit_split(rows: int, repeats: int) -> dict:
-    from aectorch.coding import native
+    from aectorch.ops import native
 
     if not native.load():
         return {"skipped": "the fused kernels are not available"}

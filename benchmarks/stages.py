@@ -61,7 +61,8 @@ def worker(batch: int, kernel_threads: int, iterations: int, warmup: int) -> dic
     from torch.utils.flop_counter import FlopCounterMode
 
     from aectorch import profiling
-    from aectorch.coding import native, use_backend
+    from aectorch.coding import use_backend
+    from aectorch.ops import native
     from aectorch.runtime.config import ExperimentConfig
     from aectorch.runtime import build_env, build_learner
     from aectorch.sim.env import _finer

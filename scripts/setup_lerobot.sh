@@ -36,7 +36,7 @@ say "PyOpenGL: upgrading to >=3.1.7 for OSMesa (pip's warning about pyrender's p
 "$VPY" -m pip install "${PIP_FLAGS[@]}" --upgrade-strategy only-if-needed \
     -c "$VENV/.aectorch-torch-constraint.txt" "PyOpenGL>=3.1.7"
 say "kernel: building the fused CPU kernels for torch $TV (cached per machine)"
-"$VPY" -W error::RuntimeWarning -c 'from aectorch.coding import native; native.load()' \
+"$VPY" -W error::RuntimeWarning -c 'from aectorch.ops import native; native.load()' \
     || say "kernel: could not be built; the pursuits use the pure-torch code here"
 printf '%s\n' "$HASH" > "$STAMP"
 say "done: .venv-lerobot ready (torch $TV, lerobot $("$VPY" -c 'import importlib.metadata as m; print(m.version("lerobot"))'))"

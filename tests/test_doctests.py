@@ -12,13 +12,14 @@ import torch
 import aectorch.coding
 import aectorch.control
 import aectorch.depth
+import aectorch.ops
 import aectorch.sim
 
 torch.set_num_threads(1)
 
 # Every submodule of the subpackages (their __init__ only re-exports names and has no examples
 # of its own; doctest does not collect objects defined in other modules).
-PACKAGES = (aectorch.coding, aectorch.sim, aectorch.control, aectorch.depth)
+PACKAGES = (aectorch.ops, aectorch.coding, aectorch.sim, aectorch.control, aectorch.depth)
 MODULES = sorted(
     f"{package.__name__}.{m.name}" for package in PACKAGES for m in pkgutil.iter_modules(package.__path__)
 ) + ["aectorch.framework.joint", "aectorch.figures", "aectorch.profiling", "aectorch.runtime.watchdog",

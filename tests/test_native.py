@@ -1,4 +1,4 @@
-"""The fused CPU pursuit kernel (aectorch.coding.native): built, used, and replaceable.
+"""The fused CPU pursuit kernel (aectorch.ops.native): built, used, and replaceable.
 
 Its results are tested against scikit-learn and the MP reference with every test of
 tests/test_pursuit.py, which runs on both backends."""
@@ -12,7 +12,8 @@ import sys
 import pytest
 import torch
 
-from aectorch.coding import matching_pursuit, native, omp, use_backend
+from aectorch.coding import matching_pursuit, omp, use_backend
+from aectorch.ops import native
 
 
 def test_native_kernel_is_built_and_used():
@@ -52,7 +53,8 @@ def test_backend_argument_is_validated():
 
 _FALLBACK = """
 import warnings, torch
-from aectorch.coding import native, omp
+from aectorch.coding import omp
+from aectorch.ops import native
 with warnings.catch_warnings(record=True) as caught:
     warnings.simplefilter("always")
     d = torch.nn.functional.normalize(torch.randn(30, 60), dim=0)
@@ -207,7 +209,8 @@ def test_encode_in_one_pass_gives_the_bits_of_the_three_kernels_on_any_number_of
 
 _PRODUCTS = """
 import torch
-from aectorch.coding import gram_matrix, native
+from aectorch.coding import gram_matrix
+from aectorch.ops import native
 d = torch.nn.functional.normalize(torch.randn(200, 288, generator=torch.Generator().manual_seed(5)), dim=0)
 print(native.available(), torch.equal(gram_matrix(d), d.t() @ d),
       bool(torch.allclose(gram_matrix(d), d.t() @ d, rtol=1e-6, atol=1e-6)))

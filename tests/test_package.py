@@ -50,3 +50,29 @@ def test_pyrender_osmesa_renders_white_quad():
     assert color[32, 32].min() >= 250, color[32, 32]
     assert color[0, 0].max() <= 5, color[0, 0]
     assert depth[32, 32] > 0 and depth[0, 0] == 0
+
+
+def test_the_wheel_ships_the_fused_kernels_sources(tmp_path):
+    """The kernels are built on the user's machine from the .cpp files next to ``aectorch.ops.native``:
+    the package data must ship them from where the loader reads them."""
+    import shutil
+    import subprocess
+    import sys
+    import zipfile
+    from pathlib import Path
+
+    from aectorch.ops import native
+
+    root = Path(__file__).resolve().parents[1]
+    tree = tmp_path / "tree"
+    shutil.copytree(root / "aectorch", tree / "aectorch", ignore=shutil.ignore_patterns("__pycache__"))
+    for name in ("pyproject.toml", "README.md", "LICENSE"):
+        shutil.copy(root / name, tree / name)
+    done = subprocess.run([sys.executable, "-m", "pip", "wheel", str(tree), "--no-deps", "--no-build-isolation", "-q",
+                           "-w", str(tmp_path / "wheel")], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    (wheel,) = (tmp_path / "wheel").glob("*.whl")
+    shipped = set(zipfile.ZipFile(wheel).namelist())
+    expected = {source.relative_to(root).as_posix() for source in native.SOURCES}
+    assert expected == {"aectorch/ops/pursuit_cpu.cpp", "aectorch/ops/render_cpu.cpp"}
+    assert expected <= shipped, sorted(expected - shipped)

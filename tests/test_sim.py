@@ -333,6 +333,15 @@ def run_iteration(env, pursuit, vergence):
     return parallax, stereo, env.end_iteration()
 
 
+def test_the_window_key_the_env_writes_is_the_one_the_coder_reads(bank):
+    # sim and coding stand side by side (neither imports the other): each names the key itself.
+    from aectorch import coding, sim
+
+    assert sim.WINDOW == coding.WINDOW
+    env = small_env(bank)
+    assert set(env.stereo_observation()) == set(env.parallax_observation()) == {coding.WINDOW}
+
+
 def test_env_protocol_fixations_trials_and_q(bank):
     env = small_env(bank)
     distance = env.distance_m.clone()
@@ -683,7 +692,7 @@ def test_mipmap_levels_are_box_averages():
 @pytest.mark.parametrize("samples", [1, 2])
 def test_native_trilinear_kernel_matches_the_torch_code(scene, head, samples):
     import aectorch.sim.render_torch as render_torch
-    from aectorch.coding import native
+    from aectorch.ops import native
 
     # CI and `make test` must exercise the kernel (tests/test_native.py asserts it builds too).
     assert native.available(), "the fused CPU kernels did not build (see the warning)"
@@ -713,7 +722,7 @@ def test_native_trilinear_simd_blocks_tails_and_misses(scene, head, samples):
     block), pixels on neither plane or behind the camera, magnification (one level), the last level,
     many rows; float64 to 1e-9, float32 to float rounding."""
     import aectorch.sim.render_torch as render_torch
-    from aectorch.coding import native
+    from aectorch.ops import native
     from aectorch.sim.render_torch import pixel_rays
 
     assert native.available(), "the fused CPU kernels did not build (see the warning)"
@@ -849,7 +858,7 @@ def test_pyramid_blur_kernel_gives_the_torch_codes_bits_on_any_number_of_threads
     operation (bit for bit, on 1-3 threads), and both are scipy's 3-tap correlation of the valid region."""
     from scipy.ndimage import correlate1d
 
-    from aectorch.coding import native
+    from aectorch.ops import native
     from aectorch.coding.pursuit import use_backend
     from aectorch.sim.env import pyramid_blur
 

@@ -23,7 +23,7 @@ from aectorch.runtime import load_checkpoint
 from test_reliability import _assert_equal_everywhere
 from test_train import QUIET, ROOT, TINY, textures  # noqa: F401  (shared fixture)
 
-_LOAD = "from aectorch.coding import native; import sys; sys.exit(0 if native.load() else 1)"
+_LOAD = "from aectorch.ops import native; import sys; sys.exit(0 if native.load() else 1)"
 
 
 def _env(cache: Path, **extra) -> dict:

@@ -337,7 +337,8 @@ def test_compile_gives_the_same_run_as_eager(tmp_path, textures):
 def test_compile_leaves_the_fused_cpu_kernels_eager():
     """On CPU the hot paths are the fused kernels: train.compile compiles nothing there (it measured
     0.87x eager), and on the torch backend it compiles both encoders and the renderer."""
-    from aectorch.coding import native, use_backend
+    from aectorch.coding import use_backend
+    from aectorch.ops import native
     from aectorch.runtime.builders import build_env, build_learner, compile_hot_path
 
     cfg = to_experiment_config(OmegaConf.from_dotlist(TINY))

@@ -13,9 +13,9 @@ import torch
 from torch import nn
 
 from aectorch._checks import check_int
-from aectorch.coding.pursuit import DEFAULT_BLOCK_SIZE, _validate, fused_kernels_apply, gram_matrix, \
-    matching_pursuit, omp
+from aectorch.coding.pursuit import DEFAULT_BLOCK_SIZE, _validate, gram_matrix, matching_pursuit, omp
 from aectorch.coding.sparse_code import SparseCode
+from aectorch.ops.backend import fused_kernels_apply
 
 __all__ = ["SparseDictionary", "DictionaryOutput", "learn_together_", "pooled_activity", "reconstruction_error"]
 

@@ -38,8 +38,9 @@ __all__ = [
 ]
 
 #: The key of an observation's whole rendered window, ``[B, 2, H, W]``, beside the scales' entries
-#: ``{scale name: [B, 2, side, side]}`` (`aectorch.sim.ActiveDepthEnv`'s observations): a scale
-#: whose entry is missing is cut from the window (crop and pyramid).
+#: ``{scale name: [B, 2, side, side]}`` (`aectorch.sim.ActiveDepthEnv`'s observations, whose
+#: ``aectorch.sim.WINDOW`` is the same key): a scale whose entry is missing is cut from the window
+#: (crop and pyramid).
 WINDOW = "window"
 
 # Burt & Adelson's 5-tap binomial kernel, the one OpenCV's pyrDown uses. The taps are dyadic
@@ -454,7 +455,7 @@ def _cut(reduced: Tensor, scale: Scale, b: int, eps: float) -> Tensor:
     Without a graph to build, on CPU: one fused kernel (``aectorch::pair_patches``), the same
     arithmetic in one pass instead of about ten of torch's.
     """
-    from aectorch.coding.pursuit import fused_kernels_apply
+    from aectorch.ops.backend import fused_kernels_apply
 
     if not (torch.is_grad_enabled() and reduced.requires_grad) and fused_kernels_apply(reduced):
         rounding = _ROUNDING_ULPS * torch.finfo(reduced.dtype).eps * scale.patch_size

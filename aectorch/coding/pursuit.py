@@ -29,7 +29,7 @@ Implementation notes (why the code looks the way it does):
   Under ``torch.compile`` and on CUDA the whole batch is one block.
 * On CPU (float32/float64) the default ``backend="auto"`` runs instead the fused C++ kernel
   ``torch.ops.aectorch.pursuit`` (``pursuit_cpu.cpp``, built on first use by
-  `aectorch.coding.native`): the same algorithm, one loop per signal over its correlations
+  `aectorch.ops.native`): the same algorithm, one loop per signal over its correlations
   in L1, 2.5-4x faster than the torch code here (docs/performance.md). ``backend="torch"``
   forces the code above, which is also the CUDA path and the fallback when no compiler is
   available. The two agree within float rounding (tests/test_pursuit.py).
@@ -37,54 +37,17 @@ Implementation notes (why the code looks the way it does):
 
 from __future__ import annotations
 
-import contextlib
-from typing import Callable, Iterator, NamedTuple
+from typing import Callable, NamedTuple
 
 import torch
 import torch.nn.functional as F
 
 from aectorch._checks import is_int
-from aectorch.coding import native
+from aectorch.ops.backend import BACKENDS, check_backend, default_backend, fused_kernels_apply, native_loaded, \
+    native_supports, use_backend
 from aectorch.coding.sparse_code import SparseCode
 
 __all__ = ["omp", "matching_pursuit", "gram_matrix", "use_backend", "DEFAULT_BLOCK_SIZE", "BACKENDS"]
-
-#: Values of the ``backend`` argument of `omp` and `matching_pursuit`.
-BACKENDS = ("auto", "native", "torch")
-
-_default_backend = "auto"
-
-
-def _check_backend(backend: str) -> None:
-    if backend not in BACKENDS:
-        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-
-
-@contextlib.contextmanager
-def use_backend(backend: str) -> Iterator[None]:
-    """Within the block, `omp` and `matching_pursuit` called without ``backend=`` use this one.
-
-    Reaches the pursuits that library code runs for you (`SparseDictionary`,
-    `BinocularEncoder`, `aectorch.JointLearner`), e.g. to compare the fused kernel with torch.
-
-    Example:
-        >>> import torch
-        >>> from aectorch.coding import matching_pursuit
-        >>> from aectorch.coding.pursuit import use_backend
-        >>> D = torch.nn.functional.normalize(torch.randn(20, 50, dtype=torch.float64), dim=0)
-        >>> x = torch.randn(8, 20, dtype=torch.float64)
-        >>> with use_backend("torch"):
-        ...     slow = matching_pursuit(x, D, 3)
-        >>> torch.equal(slow.indices, matching_pursuit(x, D, 3).indices)
-        True
-    """
-    global _default_backend
-    _check_backend(backend)
-    previous, _default_backend = _default_backend, backend
-    try:
-        yield
-    finally:
-        _default_backend = previous
 
 #: Rows per block on CPU. 512 x 288 float32 correlations are 0.6 MB: they and the
 #: per-step temporaries fit a 2 MB L2 cache (measured by benchmarks/omp.py).
@@ -143,12 +106,12 @@ def _validate(
             f"sparsity must be in [1, min(P, N)] = [1, {min(dim, num_atoms)}] for a dictionary "
             f"of shape [P={dim}, N={num_atoms}], got {sparsity}"
         )
-    _check_backend(backend)
-    if backend == "native" and not _native_ok(signals):
+    check_backend(backend)
+    if backend == "native" and not native_supports(signals):
         raise ValueError(
             "backend='native' needs float32 or float64 signals on CPU and a built kernel "
-            f"(got {signals.dtype} on {signals.device}; kernel available: {_native_loaded()}); "
-            "see aectorch.coding.native"
+            f"(got {signals.dtype} on {signals.device}; kernel available: {native_loaded()}); "
+            "see aectorch.ops.native"
         )
     if gram is not None and tuple(gram.shape) != (num_atoms, num_atoms):
         raise ValueError(
@@ -166,23 +129,6 @@ def _validate(
                 "dictionary columns must have unit norm (max |norm - 1| = "
                 f"{float(worst):.3g}); normalise them, e.g. SparseDictionary.renormalize_()"
             )
-
-
-@torch.compiler.assume_constant_result
-def _native_loaded() -> bool:
-    # A constant for torch.compile: traced graphs call the operator (or not) without tracing
-    # the loader.
-    return native.load()
-
-
-def _native_ok(signals: torch.Tensor) -> bool:
-    return signals.device.type == "cpu" and signals.dtype in (torch.float32, torch.float64) and _native_loaded()
-
-
-def fused_kernels_apply(tensor: torch.Tensor) -> bool:
-    """Whether library code uses the fused CPU kernels for ``tensor`` (a CPU float32/float64
-    tensor, the kernels loaded, and no ``use_backend("torch")`` around the call)."""
-    return _default_backend != "torch" and _native_ok(tensor)
 
 
 def _reversed_index(num_atoms: int, mask: int, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
@@ -347,7 +293,7 @@ def _run(
     dictionary = dictionary.detach()
     gram = gram_matrix(dictionary) if gram is None else gram.detach()
     m = x.shape[0]
-    if backend != "torch" and _native_ok(x):
+    if backend != "torch" and native_supports(x):
         block = max(m, 1) if block_size is None else block_size
         # The operator itself (not native.pursuit, which loads it): torch.compile traces this.
         code = SparseCode(*torch.ops.aectorch.pursuit(x, dictionary, gram, sparsity, block_fn is _omp_block, block))
@@ -404,7 +350,7 @@ def omp(
         backend: ``"auto"`` (the fused C++ kernel for float32/float64 on CPU when it is
             available, else torch), ``"native"`` (that kernel or a ValueError) or ``"torch"``
             (pure torch ops; the CUDA path). ``None``: the `use_backend` default, ``"auto"``
-            unless changed. See `aectorch.coding.native`.
+            unless changed. See `aectorch.ops.native`.
 
     Returns:
         `SparseCode` with `indices` `[..., k]` (LongTensor) and `coefficients` `[..., k]`.
@@ -418,7 +364,7 @@ def omp(
         >>> sorted(code.indices[0, :2].tolist()), code.coefficients[0, 2:].abs().max().item()
         ([5, 40], 0.0)
     """
-    backend = _default_backend if backend is None else backend
+    backend = default_backend() if backend is None else backend
     _validate(signals, dictionary, sparsity, gram, check, backend)
     return _run(_omp_block, signals, dictionary, sparsity, gram, block_size, backend)
 
@@ -461,6 +407,6 @@ def matching_pursuit(
         >>> code.coefficients.shape
         torch.Size([113, 10])
     """
-    backend = _default_backend if backend is None else backend
+    backend = default_backend() if backend is None else backend
     _validate(signals, dictionary, sparsity, gram, check, backend)
     return _run(_mp_block, signals, dictionary, sparsity, gram, block_size, backend)

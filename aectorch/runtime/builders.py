@@ -21,7 +21,7 @@ def set_threads(threads: int, processes: int = 1) -> None:
     """``train.threads``: N >= 1 gives torch and the fused kernels N threads each; 0 gives the fused
     kernels (render, pursuit) every core of this process's share and torch's own operations one
     (they are too small to pay for a second thread: docs/performance.md)."""
-    from aectorch.coding import native
+    from aectorch.ops import native
 
     torch.set_num_threads(threads or 1)
     native.set_threads(threads or available_threads(processes))
@@ -105,13 +105,13 @@ def compile_hot_path(learner: JointLearner, env: ActiveDepthEnv | None = None) -
     and the torch renderer (about 20 elementwise passes per pixel in eager mode, fused when
     compiled), where that pays: on CUDA, or wherever the fused CPU kernels are not used.
 
-    On CPU with the fused kernels (`aectorch.coding.pursuit.fused_kernels_apply`) those hot paths
+    On CPU with the fused kernels (`aectorch.ops.fused_kernels_apply`) those hot paths
     are the kernels themselves, which ``torch.compile`` can only call as opaque operators:
     compiling the encoders measured 0.87x eager at ``train.py`` level on a
     2-core AMD EPYC (docs/performance.md), so there nothing is compiled and the flag changes
     nothing. Returns the names of what was compiled.
     """
-    from aectorch.coding.pursuit import fused_kernels_apply
+    from aectorch.ops.backend import fused_kernels_apply
 
     probe = next(iter(learner.dictionaries().values()))
     if fused_kernels_apply(probe.detach()):

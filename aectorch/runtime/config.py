@@ -186,7 +186,7 @@ class TrainConfig:
         checkpoint_every: write ``checkpoint.pt`` every this many iterations (>= 1), and always
             at the end or on an interruption.
         threads: CPU threads: N >= 1 gives torch (``torch.set_num_threads``) and the fused
-            kernels (``aectorch.coding.native.set_threads``) N each; 0 (default) gives the fused
+            kernels (``aectorch.ops.native.set_threads``) N each; 0 (default) gives the fused
             kernels (rendering, pursuit) every core this process may use
             (``os.sched_getaffinity``, shared among a ``torchrun`` run's processes) and torch's
             own operations one, which measured fastest (docs/performance.md). ``train.py`` sets

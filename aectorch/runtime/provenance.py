@@ -52,7 +52,7 @@ def cpu_model() -> str:
 def provenance(device: str | torch.device) -> dict:
     """The aectorch, torch and Python versions, the git commit, the device, CPU, threads and host."""
     import aectorch
-    from aectorch.coding import native
+    from aectorch.ops import native
 
     device = torch.device(device)
     info = {

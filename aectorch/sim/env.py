@@ -46,8 +46,7 @@ from torch import Tensor
 
 from aectorch._checks import check_distances, check_int, is_real
 from aectorch.choices import RendererName
-from aectorch.coding.patches import WINDOW
-from aectorch.coding.pursuit import fused_kernels_apply
+from aectorch.ops.backend import fused_kernels_apply
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.hoap3 import HOAP3Head
 from aectorch.sim.scene import PlaneScene
@@ -57,6 +56,11 @@ from aectorch.sim.textures import TextureBank, pink_noise_images
 __all__ = ["ActiveDepthEnv", "CueSpec", "IterationInfo", "RENDERERS", "DEFAULT_DISTANCES_M", "SCALE_FILTER",
            "WINDOW", "make_renderer", "pyramid_blur"]
 
+#: The key of an observation's whole rendered window, ``[B, 2, H, W]``, beside the scales' entries
+#: ``{scale name: [B, 2, side, side]}``. The coder reads the same key (``aectorch.coding.WINDOW``;
+#: the two packages stand side by side and do not import each other; tests/test_sim.py checks
+#: that they agree).
+WINDOW = "window"
 #: The paper's object distances: 1.0 to 3.0 m in 0.1 m steps.
 DEFAULT_DISTANCES_M = tuple(round(1.0 + 0.1 * i, 1) for i in range(21))
 #: Renderer names accepted by ``renderer=``.
@@ -176,7 +180,7 @@ def pyramid_blur(images: Tensor, levels: int) -> Tensor:
 
 def _native_blur(images: Tensor) -> bool:
     """Whether `pyramid_blur` runs as the fused CPU kernel: where the coder's kernels apply
-    (`aectorch.coding.pursuit.fused_kernels_apply`: a CPU float tensor, the kernels loaded, no
+    (`aectorch.ops.fused_kernels_apply`: a CPU float tensor, the kernels loaded, no
     ``use_backend("torch")``), on images of at least 3 x 3 pixels, and no gradient is wanted."""
     return images.ndim >= 2 and min(images.shape[-2:]) >= 3 and images.numel() > 0 \
         and not (torch.is_grad_enabled() and images.requires_grad) and fused_kernels_apply(images)

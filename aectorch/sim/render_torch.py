@@ -369,7 +369,7 @@ def render_rays(
                         f"got {type(atlas).__name__}")
     mip = atlas if trilinear else None
     if trilinear and _native_trilinear(poses, mip, textures, background, scene):
-        from aectorch.coding import native  # noqa: F401 - registers the operator
+        from aectorch.ops import native  # noqa: F401 - registers the operator
 
         (object_w, object_h), (background_w, background_h) = scene.object_size_m, scene.background_size_m
         numbers = [*scene.object_center_yz_m, object_w, object_h, scene.background_x_m,
@@ -447,7 +447,7 @@ def _native_trilinear(poses, mip, textures, background, scene) -> bool:
         return False
     if torch.is_grad_enabled() and any(t is not None and t.requires_grad for t in (poses, textures, background)):
         return False  # the kernel has no backward: the torch code is differentiable
-    from aectorch.coding import native
+    from aectorch.ops import native
 
     # (while tracing: only a kernel loaded already; a build does not belong in a graph)
     return native._state.get("ok") is True if torch.compiler.is_compiling() else native.available()

@@ -1,4 +1,4 @@
-"""The fused CPU kernels (``pursuit_cpu.cpp``, and the renderer's ``sim/render_cpu.cpp``), built on first use.
+"""The fused CPU kernels (``pursuit_cpu.cpp`` for the coder, ``render_cpu.cpp`` for the renderer), built on first use.
 
 `omp` and `matching_pursuit` run on CPU through the operator ``torch.ops.aectorch.pursuit``
 when it is available: one C++ loop per signal instead of ~20-45 tensor ops per pursuit step
@@ -33,7 +33,7 @@ number of threads). ``AECTORCH_ONEDNN=0`` keeps torch's product (read once per p
 always uses it.
 
 Example:
-    >>> from aectorch.coding import native
+    >>> from aectorch.ops import native
     >>> isinstance(native.available(), bool)
     True
 """
@@ -62,7 +62,7 @@ __all__ = ["available", "get_threads", "load", "pursuit", "set_threads", "SOURCE
 #: The C++ source of the pursuit kernel.
 SOURCE = Path(__file__).with_name("pursuit_cpu.cpp")
 #: Every source built into the library: the pursuit and the renderer's trilinear kernel.
-SOURCES = (SOURCE, Path(__file__).parents[1] / "sim" / "render_cpu.cpp")
+SOURCES = (SOURCE, Path(__file__).with_name("render_cpu.cpp"))
 
 _lock = threading.Lock()
 _state: dict[str, object] = {}
@@ -310,5 +310,5 @@ def pursuit(signals: torch.Tensor, dictionary: torch.Tensor, gram: torch.Tensor,
         RuntimeError: the kernel could not be built or loaded (see `load`).
     """
     if not load():
-        raise RuntimeError("the fused CPU pursuit kernel is not available (see aectorch.coding.native.load)")
+        raise RuntimeError("the fused CPU pursuit kernel is not available (see aectorch.ops.native.load)")
     return torch.ops.aectorch.pursuit(signals, dictionary, gram, k, orthogonal, block)

@@ -31,7 +31,7 @@
 // so the result depends neither on the threads nor on the block size.
 //
 // Registered as aectorch::render_trilinear (built with the pursuit kernel by
-// aectorch.coding.native; its fake implementation for torch.compile lives there too).
+// aectorch.ops.native; its fake implementation for torch.compile lives there too).
 
 #include <ATen/ATen.h>
 #include <ATen/Parallel.h>

@@ -1,6 +1,6 @@
 // Fused CPU kernels of aectorch's greedy pursuits (matching pursuit and Batch-OMP).
 //
-// The torch implementation in pursuit.py runs each pursuit step as ~20-45 tensor ops over a
+// The torch implementation in aectorch/coding/pursuit.py runs each pursuit step as ~20-45 tensor ops over a
 // [block, N] tile of correlations; on CPU every op pays dispatch overhead and one more pass
 // over the tile. Here one signal's whole pursuit runs in one loop nest while its N correlations
 // sit in L1: select (max |alpha|, first index on ties, exactly torch.argmax's rule), record,
@@ -8,11 +8,11 @@
 // The correlations X D are a BLAS product per tile of rows (oneDNN for float32, else at::mm), threads
 // split the rows.
 //
-// The algorithm is the one documented in pursuit.py (same stops as scikit-learn's
+// The algorithm is the one documented in coding/pursuit.py (same stops as scikit-learn's
 // orthogonal_mp_gram); only the order of floating-point sums differs.
 //
 // Registered as the operator aectorch::pursuit so that torch.compile traces it (a fake
-// implementation for shapes lives in aectorch/coding/native.py).
+// implementation for shapes lives in aectorch/ops/native.py).
 
 #include <ATen/ATen.h>
 #include <ATen/Parallel.h>
@@ -40,7 +40,7 @@
 #include <omp.h>
 #endif
 
-// Threads of the fused kernels (set by aectorch.coding.native.set_threads; 1 by default): their
+// Threads of the fused kernels (set by aectorch.ops.native.set_threads; 1 by default): their
 // loops split rows over OpenMP threads of their own, so torch's intra-op threads (which do not
 // pay for the many small ops of a training iteration) can stay at 1 while these use every core.
 static std::atomic<int> g_kernel_threads{1};
