@@ -1,7 +1,7 @@
 """A classical matcher: the accuracy anchor every learner's result is read against.
 
 `Matcher` drives the same environment, protocol and trial loop as a `JointLearner`
-(`aectorch.evaluate.evaluate` and `run_trials` take it in the learner's place), but it learns
+(`aectorch.evaluation.evaluate` and `run_trials` take it in the learner's place), but it learns
 nothing: at every step it estimates, for each cue, the horizontal displacement between the two
 images of the cue's pair by normalised cross-correlation (NCC), searched coarse-to-fine over the
 same foveal scales the coder reads (each scale's search centred on the coarser scale's estimate),
@@ -15,7 +15,7 @@ NaN.
 
 Example:
     >>> import torch
-    >>> from aectorch.evaluate import run_trials
+    >>> from aectorch.evaluation import run_trials
     >>> matcher = Matcher()
     >>> out = run_trials(matcher, torch.rand(2, 64, 64), distances_m=[1.0], fixation_iterations=3)
     >>> sorted(out)[:3], out["vergence_deg"].shape

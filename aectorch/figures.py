@@ -12,7 +12,7 @@ with a tight layout, creates the parent folders and returns the :class:`pathlib.
   over training;
 - :func:`plot_perturbation`: Fig. 4, the same around perturbation events;
 - :func:`recovery`: baseline, peak and recovery iteration of an error after a perturbation;
-- :func:`plot_evaluation`: per-distance breakdown of :func:`aectorch.evaluate.evaluate`.
+- :func:`plot_evaluation`: per-distance breakdown of :func:`aectorch.evaluation.evaluate`.
 
 Metric records are dicts with an ``'iteration'`` key; a value that is missing, ``None`` or NaN
 is a gap in the curve (the depth error is NaN before the depth MLP's first fit). The eye
@@ -580,7 +580,7 @@ def recovery(records: Sequence[Mapping], key: str, event_iteration: int, *,
 
 
 def plot_evaluation(result: Mapping, path: str | os.PathLike) -> Path:
-    """Per-distance breakdown of an evaluation result (:func:`aectorch.evaluate.evaluate`).
+    """Per-distance breakdown of an evaluation result (:func:`aectorch.evaluation.evaluate`).
 
     Two panels: (a) each eye movement's MAE in degrees (pursuit blue, vergence red) and (b) depth
     MAE in metres against the object distance; the title gives the overall errors and the number
@@ -645,7 +645,7 @@ def plot_evaluation(result: Mapping, path: str | os.PathLike) -> Path:
 
 
 def plot_offsets(sweeps: Mapping[str, Mapping[str, Tensor]], path: str | os.PathLike) -> Path:
-    """The offset diagnostic (:func:`aectorch.evaluate.offset_sweep`) of each cue: (top) the coding
+    """The offset diagnostic (:func:`aectorch.evaluation.offset_sweep`) of each cue: (top) the coding
     reward against the eye's offset from its optimum, relative to the reward at the optimum
     (median and quartiles over the trials); (bottom) the greedy increment (median and quartiles)
     and the policy's mean increment (mean), with the line that would reach the optimum in one step.

@@ -4,7 +4,7 @@
     .venv/bin/python -m aectorch.evaluate checkpoint=<run>/checkpoint.pt textures=photos/ renderer=pyrender out=pyrender.json
     .venv/bin/python scripts/compare_trials.py torch.json pyrender.json [--tolerance 0.05] [--json out.json]
 
-Both files must hold the same trials (``per_trial`` rows of `aectorch.evaluate`, matched by texture
+Both files must hold the same trials (``per_trial`` rows of `aectorch.evaluation`, matched by texture
 and distance). For pursuit and vergence, at the end of each fixation, it prints the fraction of
 fixation ends whose errors agree within ``--tolerance`` degrees, the largest difference, and the
 trials that differ most.
@@ -21,7 +21,7 @@ from pathlib import Path
 def _rows(path: Path) -> dict[tuple[str, float], dict]:
     result = json.loads(path.read_text())
     if "per_trial" not in result:
-        raise KeyError(f"{path} has no per_trial rows (written by an older aectorch.evaluate?)")
+        raise KeyError(f"{path} has no per_trial rows (written by an older aectorch.evaluation?)")
     return {(r["texture"], round(r["distance_m"], 6)): r for r in result["per_trial"]}
 
 

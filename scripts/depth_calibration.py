@@ -35,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.trials < 10:
         parser.error(f"--trials must be at least 10 (a fit needs 10), got {args.trials}")
 
-    from aectorch.evaluate import evaluate, run_trials
+    from aectorch.evaluation import evaluate, run_trials
     from aectorch.runtime import build_textures, calibration_conditions, load_learner, trial_options
     from aectorch.sim import DEFAULT_DISTANCES_M
 

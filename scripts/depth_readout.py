@@ -113,7 +113,7 @@ def _trials(learner, cfg, sets, calibration: int, cache: str | None, key: str) -
     """The greedy trials of every set (and the calibration trials), from ``cache`` when it has them."""
     from pathlib import Path
 
-    from aectorch.evaluate import run_trials
+    from aectorch.evaluation import run_trials
     from aectorch.runtime import build_textures, calibration_conditions, trial_options
 
     if cache and Path(cache).exists():

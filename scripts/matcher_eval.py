@@ -3,7 +3,7 @@
     .venv/bin/python scripts/matcher_eval.py --textures data/choose-photos --out runs/matcher/choose.json
     .venv/bin/python scripts/matcher_eval.py --depths 1.0 1.5 2.0 2.5 3.0 --out runs/matcher/textures.json
 
-Runs `aectorch.evaluate.evaluate` (same trials, protocol and per-trial rows as
+Runs `aectorch.evaluation.evaluate` (same trials, protocol and per-trial rows as
 ``python -m aectorch.evaluate``) for the matcher restricted to the learner's default action set
 and, with ``--free``, for the unconstrained one (any increment); writes one JSON per variant
 (``<out>`` and ``<out stem>_free.json``) and prints a line each.
@@ -21,7 +21,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 import torch  # noqa: E402
 
 from aectorch.baselines import Matcher  # noqa: E402
-from aectorch.evaluate import evaluate  # noqa: E402
+from aectorch.evaluation import evaluate  # noqa: E402
 from aectorch.sim import DEFAULT_DISTANCES_M, TextureBank  # noqa: E402
 
 

@@ -1,5 +1,5 @@
 """Where a trained learner loses its precision: each cue's reward and greedy increment against the
-eye's offset from its optimum (`aectorch.evaluate.offset_sweep`), summarised and plotted.
+eye's offset from its optimum (`aectorch.evaluation.offset_sweep`), summarised and plotted.
 
     .venv/bin/python scripts/offset_diagnostic.py runs/NAME/checkpoint.pt [--textures FOLDER] \
         [--readout mean] --json out.json --plot out.png
@@ -21,7 +21,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 
 import torch  # noqa: E402
 
-from aectorch.evaluate.offsets import limit_cycle, offset_summary, offset_sweep  # noqa: E402
+from aectorch.evaluation.offsets import limit_cycle, offset_summary, offset_sweep  # noqa: E402
 from aectorch.figures import plot_offsets  # noqa: E402
 from aectorch.runtime.checkpoint import load_learner  # noqa: E402
 from aectorch.sim import TextureBank  # noqa: E402

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from aectorch.baselines import Matcher, ncc_displacement_px
-from aectorch.evaluate import evaluate, run_trials
+from aectorch.evaluation import evaluate, run_trials
 from aectorch.sim import ActiveDepthEnv, TextureBank
 
 torch.set_num_threads(1)

@@ -1,4 +1,4 @@
-"""aectorch.evaluate: frozen, greedy evaluation over textures x distances."""
+"""aectorch.evaluation: frozen, greedy evaluation over textures x distances."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from aectorch.evaluate import evaluate, run_trials, summarise
+from aectorch.evaluation import evaluate, run_trials, summarise
 from aectorch.coding import EncoderConfig
 from aectorch.framework import JointLearner, LearnerConfig, default_cues
 from aectorch.sim import ActiveDepthEnv, TextureBank
@@ -180,7 +180,7 @@ def test_evaluate_follows_the_training_protocol():
 
 def test_last5_is_the_mean_of_each_fixations_last_five_iterations():
     # An independent record of the same frozen trials: every iteration's errors, by hand.
-    from aectorch.evaluate import frozen_iterations
+    from aectorch.evaluation import frozen_iterations
 
     bank, learner = _trained_learner()
     out = run_trials(learner, bank, distances_m=[1.5], batch_size=3, fixation_iterations=7)
@@ -200,7 +200,7 @@ def test_last5_is_the_mean_of_each_fixations_last_five_iterations():
 
 
 def test_offset_sweep_reads_the_cues_reward_and_greedy_increment_off_the_optimum(tmp_path):
-    from aectorch.evaluate.offsets import limit_cycle, offset_summary, offset_sweep
+    from aectorch.evaluation.offsets import limit_cycle, offset_summary, offset_sweep
 
     bank, learner = _trained_learner()
     sweep = offset_sweep(learner, bank, cue="stereo", offsets_deg=[-0.5, 0.0, 0.5], distances_m=[2.0], batch_size=2)

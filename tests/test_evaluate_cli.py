@@ -13,7 +13,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from aectorch.runtime.config import to_experiment_config
-from aectorch.evaluate.__main__ import main
+from aectorch.evaluate import main
 from aectorch.runtime import run_experiment
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -364,7 +364,7 @@ def test_keep_best_writes_the_best_training_window_and_evaluates_it(tmp_path, te
     assert summary["evaluation"]["checkpoint"] == "best.pt"
     assert "depth_calibration" not in summary and not (tmp_path / "calibrated.pt").exists()  # off by default
     # The evaluation is of best.pt's learner: evaluating it again gives the same numbers.
-    from aectorch.evaluate import evaluate
+    from aectorch.evaluation import evaluate
     from aectorch.sim import TextureBank
 
     _, learner = load_learner(tmp_path / "best.pt")
@@ -393,7 +393,7 @@ def test_depth_calibration_refits_the_evaluated_mlp_on_greedy_training_trials(tm
     assert changed and all(k.startswith("depth_learner.mlp.") or k == "depth_learner.trained" for k in changed), changed
     # Its depth MAE on the 15 calibration trials (texture i mod 3, distance i mod 5: every pair
     # once) is what the summary says.
-    from aectorch.evaluate import evaluate, run_trials
+    from aectorch.evaluation import evaluate, run_trials
     from aectorch.sim import TextureBank
 
     _, learner = load_learner(tmp_path / "calibrated.pt")

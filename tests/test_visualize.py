@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from aectorch.evaluate import run_trials
+from aectorch.evaluation import run_trials
 from aectorch.coding import EncoderConfig
 from aectorch.framework import JointLearner, LearnerConfig, default_cues
 from aectorch.sim import ActiveDepthEnv, TextureBank

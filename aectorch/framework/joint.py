@@ -220,7 +220,7 @@ class JointLearner(nn.Module):
 
         Training fits the MLP on trials made with *sampled* actions, whose final eye angles
         scatter more than those of the greedy policy that is evaluated; refitted on greedy
-        trials of the training textures (:func:`aectorch.evaluate.run_trials`), the MLP maps the
+        trials of the training textures (:func:`aectorch.evaluation.run_trials`), the MLP maps the
         evaluated policy's own ``q`` to distance (``train.depth_calibration_trials``). The
         stored training trials (``depth_inputs``, ``depth_targets``) are not changed.
 

@@ -197,7 +197,7 @@ def record_trials(learner, env, trials: int, root: str | Path, *, learn: bool = 
     """Run ``trials`` trials of every environment of ``env`` and record them all.
 
     The environments start new trials (``env.reset()``); with the defaults learning is frozen and
-    the policies greedy, as in `aectorch.evaluate`. ``trials`` trials of B environments give
+    the policies greedy, as in `aectorch.evaluation`. ``trials`` trials of B environments give
     ``2 * trials * B`` episodes of ``env.fixation_iterations`` frames.
 
     Returns:

@@ -24,7 +24,7 @@ The run folder receives
   interrupted (atomic: a temporary file in the same folder replaces the old one);
 - ``figures/``: Fig. 2 (dictionaries), Fig. 3 (training), Fig. 4 (perturbation, when one is
   configured) and the evaluation figure (`aectorch.figures`);
-- ``evaluation.json``: `aectorch.evaluate.evaluate` on held-out textures;
+- ``evaluation.json``: `aectorch.evaluation.evaluate` on held-out textures;
 - ``summary.json``: final metrics, evaluation headline numbers, timing, perturbation recovery.
 
 A run continues in place from its checkpoint (``train.resume=<run folder>``) and ends

@@ -55,7 +55,7 @@ def trial_protocol(cfg: ExperimentConfig) -> TrialProtocol:
 
 
 def trial_options(cfg: ExperimentConfig) -> dict:
-    """The keyword arguments of `aectorch.evaluate.evaluate` and `run_trials` that ``cfg`` sets:
+    """The keyword arguments of `aectorch.evaluation.evaluate` and `run_trials` that ``cfg`` sets:
     the run's trial protocol and the evaluation's batch size."""
     return dict(protocol=trial_protocol(cfg), batch_size=cfg.eval.batch_size)
 

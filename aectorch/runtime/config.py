@@ -24,7 +24,7 @@ import torch
 
 from aectorch._checks import check_bool, check_choice, check_device, check_distances, check_int, check_real
 from aectorch.choices import DType, Eye, RendererName
-from aectorch.evaluate import EVAL_BATCH_SIZE
+from aectorch.evaluation import EVAL_BATCH_SIZE
 from aectorch.framework import PAPER_ACTIONS_DEG, LearnerConfig, default_cues
 from aectorch.runtime.metrics import PAPER_WINDOW
 from aectorch.runtime.watchdog import WatchdogConfig
@@ -248,7 +248,7 @@ class TrainConfig:
 
 @dataclass
 class EvalConfig:
-    """Evaluation at the end of training (`aectorch.evaluate.evaluate`), frozen and greedy.
+    """Evaluation at the end of training (`aectorch.evaluation.evaluate`), frozen and greedy.
 
     Attributes:
         enabled: evaluate after training and write ``evaluation.json``.

@@ -11,7 +11,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from aectorch.evaluate import evaluate, run_trials
+from aectorch.evaluation import evaluate, run_trials
 from aectorch.framework import MIN_DEPTH_TRIALS, JointLearner
 from aectorch.runtime.builders import build_textures, dictionaries, trial_options
 from aectorch.runtime.checkpoint import load_checkpoint, restore, save_checkpoint
@@ -175,7 +175,7 @@ def calibrate_depth(cfg: ExperimentConfig, learner: JointLearner, bank: TextureB
 
     ``cfg.train.depth_calibration_trials`` greedy, frozen trials on the training textures
     ``bank`` (trial i: texture i mod T, distance i mod the number of ``cfg.env.distances_m``;
-    :func:`aectorch.evaluate.run_trials`), then :meth:`JointLearner.calibrate_depth` refits the
+    :func:`aectorch.evaluation.run_trials`), then :meth:`JointLearner.calibrate_depth` refits the
     MLP on their final eye angles. Returns what it did (JSON-ready): the trials, the depth MAE on
     them before and after, and the fit's epochs and stop reason.
     """

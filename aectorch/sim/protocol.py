@@ -2,7 +2,7 @@
 
 :class:`TrialProtocol` is what a trial is: the renderer, the fixation length h, the body shift
 and its profile, and whether pursuit is yoked. `ActiveDepthEnv`, the experiment's
-`EnvConfig` and the evaluation (`aectorch.evaluate.run_trials`, `evaluate`) all take their
+`EnvConfig` and the evaluation (`aectorch.evaluation.run_trials`, `evaluate`) all take their
 defaults from it.
 
 :class:`Renderer` states what `ActiveDepthEnv` needs of a renderer; `TorchPlaneRenderer` and

@@ -1,7 +1,7 @@
 """Watch one trial of a trained learner: both eyes' views, their difference and the errors.
 
 :func:`record_trial` runs one frozen trial (a leftward and a rightward fixation of ``h``
-iterations each, the protocol of :func:`aectorch.evaluate.run_trials`) of a
+iterations each, the protocol of :func:`aectorch.evaluation.run_trials`) of a
 :class:`~aectorch.framework.JointLearner` on one texture at one distance and keeps, per
 iteration, the image pair one cue's policy saw (by default the last cue's: the stereo pair the
 vergence policy saw, the left eye after the pursuit step and the right eye before the vergence
@@ -27,7 +27,7 @@ from torch import Tensor
 
 from aectorch._checks import check_choice, check_int, check_real
 from aectorch.choices import Policy
-from aectorch.evaluate import frozen_iterations
+from aectorch.evaluation import frozen_iterations
 from aectorch.figures import COLORS
 from aectorch.sim import WINDOW, ActiveDepthEnv, TextureBank, TrialProtocol, resolve_protocol
 
@@ -115,7 +115,7 @@ def record_trial(learner, texture: Tensor, distance_m: float, *, protocol: Trial
                  texture_name: str = "texture", cue: str | None = None) -> TrialFrames:
     """Run one frozen trial of ``learner`` on ``texture`` at ``distance_m`` and keep what it saw.
 
-    The trial is the one :func:`aectorch.evaluate.run_trials` runs for this texture and distance
+    The trial is the one :func:`aectorch.evaluation.run_trials` runs for this texture and distance
     with the same protocol and ``seed`` (a leftward then a rightward fixation from the standard
     start state; the errors are identical): learning is frozen, and the learner's generator
     (sampled actions) is seeded from ``seed`` for the trial and then given its own state back.

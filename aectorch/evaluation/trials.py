@@ -11,7 +11,7 @@ from torch import Tensor
 
 from aectorch._checks import check_choice, check_distances, check_int
 from aectorch.choices import Policy
-from aectorch.evaluate.summary import LAST_ITERATIONS, LAST_SUFFIX
+from aectorch.evaluation.summary import LAST_ITERATIONS, LAST_SUFFIX
 from aectorch.sim import DEFAULT_DISTANCES_M, ActiveDepthEnv, TextureBank, TrialProtocol, resolve_protocol
 
 __all__ = ["EVAL_BATCH_SIZE", "LAST_ITERATIONS", "LAST_SUFFIX", "frozen_iterations", "run_trials"]

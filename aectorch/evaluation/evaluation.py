@@ -8,10 +8,10 @@ import torch
 from torch import Tensor
 
 from aectorch.choices import Policy
-from aectorch.evaluate.summary import (
+from aectorch.evaluation.summary import (
     BEYOND_DEG, LAST_SUFFIX, WITHIN_DEG, fractions, movements, per_trial_rows, summarise,
 )
-from aectorch.evaluate.trials import (
+from aectorch.evaluation.trials import (
     EVAL_BATCH_SIZE, _all_conditions, _check_trial_arguments, _paper_trials, _trial_session, frozen_iterations,
     placement,
 )

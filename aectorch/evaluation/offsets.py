@@ -21,7 +21,7 @@ import torch
 from torch import Tensor
 
 from aectorch._checks import check_int
-from aectorch.evaluate.trials import EVAL_BATCH_SIZE, placement, _all_conditions, _check_trial_arguments, _trial_session
+from aectorch.evaluation.trials import EVAL_BATCH_SIZE, placement, _all_conditions, _check_trial_arguments, _trial_session
 from aectorch.sim import TextureBank, TrialProtocol, resolve_protocol
 
 __all__ = ["DEFAULT_OFFSETS_DEG", "limit_cycle", "offset_summary", "offset_sweep"]
@@ -59,7 +59,7 @@ def offset_sweep(
         textures: the conditions' textures; every texture is tried at every distance.
         cue: the cue whose movement is offset (``"parallax"``: pursuit; ``"stereo"``: vergence).
         offsets_deg: the offsets, degrees.
-        distances_m, protocol, batch_size: as for `aectorch.evaluate.run_trials`; the body is at
+        distances_m, protocol, batch_size: as for `aectorch.evaluation.run_trials`; the body is at
             the end of the protocol's shift.
         progress: show a progress bar.
 

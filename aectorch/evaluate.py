@@ -1,7 +1,8 @@
 """``python -m aectorch.evaluate``: evaluate a checkpoint written by ``train.py`` (see ``--help``).
 
-The command line sits above the runtime (it reads checkpoints); the library it runs,
-`aectorch.evaluate`, does not import the runtime.
+A command line, beside ``python -m aectorch.record`` and ``python -m aectorch.visualize``: it sits
+above the runtime (it reads checkpoints through it); the library it runs, `aectorch.evaluation`,
+sits below the runtime, which runs it at the end of training.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from typing import Sequence
 from aectorch._checks import is_int, is_real
 from aectorch._cli import UsageError, parse_key_values, run_main
 from aectorch.choices import Policy, Readout
-from aectorch.evaluate import BEYOND_DEG, EVAL_BATCH_SIZE, WITHIN_DEG, evaluate
+from aectorch.evaluation import BEYOND_DEG, EVAL_BATCH_SIZE, WITHIN_DEG, evaluate
 from aectorch.figures import plot_evaluation
 from aectorch.runtime.builders import trial_protocol
 from aectorch.runtime.checkpoint import load_checkpoint, load_learner

@@ -19,7 +19,7 @@ BEYOND_DEG = 2.0
 #: (``<movement>_last5_deg``): a fixation that ends in a limit cycle of one small action is a coin
 #: toss between two states at its last iteration, and the mean is where it holds.
 LAST_ITERATIONS = 5
-#: The key suffix of those means in `aectorch.evaluate.run_trials`' output.
+#: The key suffix of those means in `aectorch.evaluation.run_trials`' output.
 LAST_SUFFIX = f"_last{LAST_ITERATIONS}_deg"
 
 

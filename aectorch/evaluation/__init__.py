@@ -26,12 +26,12 @@ simulation; the command line, on a checkpoint written by ``train.py``, is `__mai
     python -m aectorch.evaluate checkpoint=outputs/run/checkpoint.pt textures=photos/ out=eval.json
 """
 
-from aectorch.evaluate.evaluation import evaluate
-from aectorch.evaluate.offsets import limit_cycle, offset_summary, offset_sweep
-from aectorch.evaluate.summary import (
+from aectorch.evaluation.evaluation import evaluate
+from aectorch.evaluation.offsets import limit_cycle, offset_summary, offset_sweep
+from aectorch.evaluation.summary import (
     BEYOND_DEG, LAST_ITERATIONS, WITHIN_DEG, fractions, movements, per_trial_rows, summarise,
 )
-from aectorch.evaluate.trials import EVAL_BATCH_SIZE, frozen_iterations, run_trials
+from aectorch.evaluation.trials import EVAL_BATCH_SIZE, frozen_iterations, run_trials
 
 __all__ = ["BEYOND_DEG", "EVAL_BATCH_SIZE", "LAST_ITERATIONS", "WITHIN_DEG", "evaluate", "fractions",
            "frozen_iterations", "limit_cycle", "movements", "offset_summary", "offset_sweep", "per_trial_rows",
