@@ -7,14 +7,13 @@ with a tight layout, creates the parent folders and returns the :class:`pathlib.
 
 - :func:`principal_components`: PCA of a dictionary's atoms (scores and explained variance);
 - :func:`plot_dictionaries`: Fig. 2, every dictionary on its first two PCs, initial vs trained;
-- :func:`read_metrics`: a ``metrics.jsonl`` file as a list of dicts;
 - :func:`plot_training`: Fig. 3, each eye movement's MAE (deg; pursuit, vergence) and depth MAE (m)
   over training;
 - :func:`plot_perturbation`: Fig. 4, the same around perturbation events;
 - :func:`recovery`: baseline, peak and recovery iteration of an error after a perturbation;
 - :func:`plot_evaluation`: per-distance breakdown of :func:`aectorch.evaluation.evaluate`.
 
-Metric records are dicts with an ``'iteration'`` key; a value that is missing, ``None`` or NaN
+Metric records are dicts with an ``'iteration'`` key (`aectorch.runs.read_metrics` reads a run's); a value that is missing, ``None`` or NaN
 is a gap in the curve (the depth error is NaN before the depth MLP's first fit). The eye
 movements are the records' ``<movement>_mae_deg`` keys and the cues their ``<cue>/reward`` and
 ``<cue>/entropy`` keys, each drawn in the colour of its position (:data:`COLORS`: the paper's Fig.
@@ -23,10 +22,8 @@ movements are the records' ``<movement>_mae_deg`` keys and the cues their ``<cue
 
 from __future__ import annotations
 
-import json
 import math
 import os
-import warnings
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -39,7 +36,6 @@ from aectorch._checks import check_int, is_int
 __all__ = [
     "principal_components",
     "plot_dictionaries",
-    "read_metrics",
     "plot_training",
     "plot_perturbation",
     "recovery",
@@ -345,44 +341,6 @@ def plot_dictionaries(initial: Mapping[str, Tensor], trained: Mapping[str, Tenso
 
 # ----------------------------------------------------------------------------------------------
 # metrics and Figs. 3, 4
-
-
-def read_metrics(path: str | os.PathLike) -> list[dict]:
-    """Read a ``metrics.jsonl`` file: one JSON object per line.
-
-    Blank lines are skipped. A last line that does not parse (a run that crashed mid-write) is
-    skipped with a :func:`warnings.warn`; a bad line elsewhere is a ``ValueError``.
-
-    Args:
-        path: the ``.jsonl`` file.
-
-    Returns:
-        The records, in file order.
-
-    Example:
-        >>> import tempfile
-        >>> f = Path(tempfile.mkdtemp()) / "metrics.jsonl"
-        >>> _ = f.write_text('{"iteration": 1, "pursuit_mae_deg": 2.5}\\n\\n{"iteration": 2, "pursu')
-        >>> with warnings.catch_warnings(record=True):
-        ...     read_metrics(f)
-        [{'iteration': 1, 'pursuit_mae_deg': 2.5}]
-    """
-    path = Path(path)
-    lines = [(number, line.strip()) for number, line in enumerate(path.read_text().splitlines(), start=1)]
-    lines = [(number, line) for number, line in lines if line]
-    records: list[dict] = []
-    for position, (number, line) in enumerate(lines):
-        try:
-            record = json.loads(line)
-        except json.JSONDecodeError as exc:
-            if position == len(lines) - 1:
-                warnings.warn(f"{path}: skipping truncated last line {number} ({exc.msg})", stacklevel=2)
-                break
-            raise ValueError(f"{path}: line {number} is not valid JSON ({exc.msg})") from exc
-        if not isinstance(record, dict):
-            raise ValueError(f"{path}: line {number} must be a JSON object, got {type(record).__name__}")
-        records.append(record)
-    return records
 
 
 _EXTRA_PANELS = (("(c) rewards", "reward", "/reward"), ("(d) policy entropies", "entropy (nats)", "/entropy"))

@@ -3,7 +3,7 @@
 # built-in evaluation) for each seed, once with NAME=VALUE and once without; then each run's final
 # state (checkpoint.pt, not best.pt) evaluated on the default test bank (40 held-out procedural
 # textures, `python -m aectorch.evaluate`, into final.json); then both sets side by side
-# (scripts/results_table.py --eval final.json: each set's rows, mean and standard deviation).
+# (python -m aectorch.report table --eval final.json: each set's rows, mean and standard deviation).
 #
 #   bash scripts/seeds_ab.sh AECTORCH_ONEDNN=0 [extra train.py overrides...]
 #
@@ -33,5 +33,5 @@ for seed in $seeds; do
 done
 for side in with without; do
   echo "## $side $setting (final states)"
-  .venv/bin/python scripts/results_table.py --eval final.json $(for seed in $seeds; do echo "$out/${side}_s$seed"; done)
+  .venv/bin/python -m aectorch.report table --eval final.json $(for seed in $seeds; do echo "$out/${side}_s$seed"; done)
 done

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import subprocess
@@ -14,6 +13,7 @@ import torch
 
 from aectorch.framework import Shard
 from aectorch.runtime import load_checkpoint
+from aectorch.runs import Run
 
 from test_train import TINY, _lines, _without_time  # noqa: F401
 from test_train import textures  # noqa: F401  (the fixture)
@@ -92,7 +92,7 @@ def test_two_processes_with_b_envs_match_one_process_with_2b(tmp_path, textures)
                 assert y[key] is None, key
             else:
                 assert x[key] == pytest.approx(y[key], rel=1e-4, abs=1e-5), key
-    sessions = json.loads((split / "provenance.json").read_text())["sessions"]
+    sessions = Run(split).provenance["sessions"]
     assert sessions[0]["world_size"] == 2
     # Resuming with another number of processes, and torchrun's restarts: tests/test_restarts.py.
 

@@ -23,7 +23,7 @@ PACKAGES = (aectorch.ops, aectorch.coding, aectorch.sim, aectorch.control, aecto
 MODULES = sorted(
     f"{package.__name__}.{m.name}" for package in PACKAGES for m in pkgutil.iter_modules(package.__path__)
 ) + ["aectorch.framework.joint", "aectorch.figures", "aectorch.profiling", "aectorch.runtime.watchdog",
-     "aectorch.runtime.provenance", "aectorch.evaluation.trials", "aectorch.evaluation.summary", "aectorch._checks"]  # top-level modules with examples
+     "aectorch.runtime.provenance", "aectorch.evaluation.trials", "aectorch.evaluation.summary", "aectorch._checks", "aectorch.runs"]  # top-level modules with examples
 
 
 def test_module_discovery_finds_the_modules():

@@ -1,10 +1,8 @@
-"""Tests of aectorch.figures: PCA of dictionaries, metric reading, recovery and the figures."""
+"""Tests of aectorch.figures: PCA of dictionaries, recovery and the figures."""
 
 from __future__ import annotations
 
-import json
 import math
-import warnings
 
 import matplotlib.image
 import numpy as np
@@ -19,7 +17,6 @@ from aectorch.figures import (
     plot_perturbation,
     plot_training,
     principal_components,
-    read_metrics,
     recovery,
 )
 
@@ -148,30 +145,6 @@ def test_plot_dictionaries_bad_input(tmp_path):
     with pytest.raises(ValueError, match="initial"):
         plot_dictionaries({}, {}, tmp_path / "b.png")
     assert not (tmp_path / "b.png").exists()
-
-
-# ---------------------------------------------------------------------------------------------
-# read_metrics
-
-
-def test_read_metrics_round_trip_and_truncated_last_line(tmp_path):
-    records = records_run(5)
-    path = tmp_path / "metrics.jsonl"
-    path.write_text("\n".join(json.dumps(r) for r in records) + "\n\n")
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        back = read_metrics(path)
-    assert len(back) == 5
-    for a, b in zip(back, records):
-        assert a.keys() == b.keys()
-        for key in a:
-            assert a[key] == b[key] or (math.isnan(a[key]) and math.isnan(b[key]))
-    path.write_text(path.read_text() + '{"iteration": 600, "pursuit_mae')
-    with pytest.warns(UserWarning, match="truncated"):
-        assert len(read_metrics(path)) == 5
-    path.write_text('{"iteration": 1}\n{"iteration": \n{"iteration": 3}\n')
-    with pytest.raises(ValueError, match="line 2"):
-        read_metrics(path)
 
 
 # ---------------------------------------------------------------------------------------------

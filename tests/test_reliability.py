@@ -21,6 +21,7 @@ from aectorch.coding import EncoderConfig
 from aectorch.framework import JointLearner, LearnerConfig, default_cues
 from aectorch.sim import ActiveDepthEnv, TextureBank
 from aectorch.runtime.watchdog import Watchdog, WatchdogConfig, WatchdogError
+from aectorch.runs import Run
 
 from test_train import ROOT, _cfg, _lines, _train, _without_time, TINY  # noqa: F401  (shared fixtures)
 from test_train import textures  # noqa: F401
@@ -119,7 +120,7 @@ def test_the_nan_fill_of_new_tensors_changes_no_bit(tmp_path, textures, monkeypa
 def test_run_folder_records_versions_commit_and_device(tmp_path, textures):
     run = tmp_path / "run"
     run_experiment(_cfg(textures, "train.iterations=4"), run)
-    sessions = json.loads((run / "provenance.json").read_text())["sessions"]
+    sessions = Run(run).provenance["sessions"]
     assert len(sessions) == 1
     info = sessions[0]
     import aectorch
@@ -130,9 +131,9 @@ def test_run_folder_records_versions_commit_and_device(tmp_path, textures):
     assert info["git"] is None or len(info["git"]["commit"]) == 40
     assert not torch.are_deterministic_algorithms_enabled()  # restored for the caller
     run_experiment(_cfg(textures, f"train.resume={run}", "train.iterations=6"), run)
-    sessions = json.loads((run / "provenance.json").read_text())["sessions"]
-    assert [s["start_iteration"] for s in sessions] == [0, 4]
-    assert json.loads((run / "summary.json").read_text())["provenance"]["start_iteration"] == 4
+    resumed = Run(run)
+    assert [s["start_iteration"] for s in resumed.provenance["sessions"]] == [0, 4]
+    assert resumed.summary["provenance"]["start_iteration"] == 4
 
 
 # -- the watchdog ------------------------------------------------------------------------------------
@@ -377,9 +378,9 @@ def test_sigterm_while_finishing_leaves_a_run_that_resume_finishes_without_train
     done = _train(f"train.resume={run}", cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-3000:]
     assert (run / "metrics.jsonl").read_text() == metrics  # no iteration was trained again
-    summary = json.loads((run / "summary.json").read_text())
+    summary = Run(run).summary
     assert summary["iterations"] == 12 and "evaluation" in json.dumps(summary)
-    assert json.loads((run / "evaluation.json").read_text())["trials"] > 0
+    assert Run(run).evaluation()["trials"] > 0
 
 
 @pytest.mark.parametrize("limit_bytes", [4000, 200])

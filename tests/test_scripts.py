@@ -1,4 +1,4 @@
-"""The analysis scripts under scripts/ that docs/results.md's tables come from."""
+"""The analysis scripts under scripts/ (the tables of runs are python -m aectorch.report's: tests/test_report.py)."""
 
 from __future__ import annotations
 
@@ -7,47 +7,6 @@ import math
 from pathlib import Path
 
 import pytest
-
-def _run(folder: Path, lines: list[dict], events=None) -> Path:
-    folder.mkdir()
-    (folder / "metrics.jsonl").write_text("".join(json.dumps(line) + "\n" for line in lines))
-    if events is not None:
-        (folder / "summary.json").write_text(json.dumps({"perturbation": {"events": events}}))
-    return folder
-
-
-def test_compare_runs_prints_the_runs_side_by_side(tmp_path, capsys, script):
-    compare = script("compare_runs")
-    a = _run(tmp_path / "a", [{"iteration": i, "pursuit_mae_deg": i / 100, "vergence_mae_deg": None}
-                              for i in (25, 50, 75, 100)], events=[{"iteration": 60, "label": "rolled"}])
-    b = _run(tmp_path / "b", [{"iteration": i, "pursuit_mae_deg": 2.0, "vergence_mae_deg": 0.5} for i in (50, 100)])
-    plot = tmp_path / "out" / "cmp.png"
-    assert compare.main([str(a), str(b), "--names", "x", "y", "--every", "25", "--from", "50",
-                         "--keys", "pursuit_mae_deg", "vergence_mae_deg", "--plot", str(plot)]) == 0
-    out = capsys.readouterr().out.splitlines()
-    assert out[0] == "| iteration | pursuit_mae_deg x | pursuit_mae_deg y | vergence_mae_deg x | vergence_mae_deg y |"
-    assert out[2] == "| 50 | 0.500 | 2.000 | - | 0.500 |"
-    assert out[3] == "| 75 | 0.750 | - | - | - |"  # b has no line at 75
-    assert out[4].startswith("| 100 | 1.000 |") and len(out) == 6 and plot.stat().st_size > 0
-
-
-@pytest.mark.parametrize("args, message", [
-    (["--names", "only-one"], "one name per run"),
-    (["--names", "same", "same"], "distinct"),
-    (["--every", "0"], "--every"),
-])
-def test_compare_runs_rejects_bad_arguments(tmp_path, capsys, args, message, script):
-    compare = script("compare_runs")
-    a = _run(tmp_path / "a", [{"iteration": 1}])
-    b = _run(tmp_path / "b", [{"iteration": 1}])
-    assert compare.main([str(a), str(b), *args]) == 2
-    assert message in capsys.readouterr().err
-
-
-def test_compare_runs_names_a_folder_without_metrics(tmp_path, capsys, script):
-    compare = script("compare_runs")
-    assert compare.main([str(tmp_path)]) == 2
-    assert "has no metrics.jsonl" in capsys.readouterr().err
 
 
 def test_soak_report_splits_memory_by_process_and_finds_growth(tmp_path, script):
@@ -149,46 +108,3 @@ def test_depth_readout_compares_read_outs_of_the_same_trials(tmp_path, capsys, s
     assert (tmp_path / "b.json").read_text() == (tmp_path / "a.json").read_text()
     with pytest.raises(SystemExit):
         readout.main([str(tmp_path / "run" / "best.pt"), "--calibration", "5"])
-
-
-def _evaluation(path: Path, trials: list[tuple[str, float, list[float], list[float]]]) -> Path:
-    rows = [{"texture": t, "distance_m": d, "pursuit_error_deg": p[-1], "vergence_error_deg": v[-1],
-             "depth_error_m": 0.01, "pursuit_errors_deg": p, "vergence_errors_deg": v} for t, d, p, v in trials]
-    path.write_text(json.dumps({"per_trial": rows}))
-    return path
-
-
-def test_compare_trials_counts_the_fixation_ends_that_agree(tmp_path, capsys, script):
-    compare = script("compare_trials")
-    a = _evaluation(tmp_path / "a.json", [("x", 1.0, [0.1, 0.0], [0.0, 0.0]), ("y", 2.0, [0.0, 0.0], [0.5, 0.0])])
-    b = _evaluation(tmp_path / "b.json", [("y", 2.0, [0.04, 0.0], [0.0, 0.0]), ("x", 1.0, [0.1, 0.0], [0.0, 0.2])])
-    assert compare.main([str(a), str(b), "--json", str(tmp_path / "c.json")]) == 0
-    result = json.loads((tmp_path / "c.json").read_text())
-    assert result["pursuit"]["agree"] == 1.0  # 0.04 deg apart is within 0.05
-    assert result["vergence"]["agree"] == 0.5 and result["vergence"]["max_difference_deg"] == 0.5
-    assert result["vergence"]["worst"][0]["texture"] == "y" and result["both_agree_trials"] == 0.0
-    assert "pursuit" in capsys.readouterr().out
-    c = _evaluation(tmp_path / "d.json", [("x", 1.0, [0.1, 0.0], [0.0, 0.0])])
-    assert compare.main([str(a), str(c)]) == 2
-    assert "different trials" in capsys.readouterr().err
-
-
-def test_results_table_reports_the_near_trials_and_the_fractions(tmp_path, capsys, script):
-    table = script("results_table")
-    run = tmp_path / "run"
-    run.mkdir()
-    (run / "config.yaml").write_text("seed: 3\n")
-    (run / "summary.json").write_text(json.dumps({
-        "iterations": 10, "train_seconds": 60.0, "best": None,
-        "final": {"pursuit_mae_deg": 0.1, "vergence_mae_deg": 0.2, "depth_mae_m": 0.3}}))
-    evaluation = json.loads(_evaluation(tmp_path / "e.json", [
-        ("x", 1.0, [0.1, -0.3], [0.0, 0.0]), ("x", 1.5, [0.2, 0.2], [0.1, 0.1]), ("x", 3.0, [5.0, 5.0], [0, 0])]).read_text())
-    evaluation.update(pursuit_mae_deg=1.0, vergence_mae_deg=0.0, depth_mae_m=0.01, trials=3,
-                      pursuit={"median_abs": 0.2}, vergence={"median_abs": 0.0}, depth={"median_abs": 0.01},
-                      fractions={"both": {"within": 0.5, "beyond": 0.25}})
-    (run / "evaluation.json").write_text(json.dumps(evaluation))
-    assert table.main([str(run)]) == 0
-    header, _, row = capsys.readouterr().out.splitlines()
-    cells = dict(zip(header.strip("| ").split(" | "), row.strip("| ").split(" | ")))
-    assert cells["1.0-1.5 m pursuit MAE (deg)"] == "0.200" and cells["1.0-1.5 m vergence MAE (deg)"] == "0.050"
-    assert cells["both within 0.22 deg"] == "0.500" and cells["evaluated (best.pt: iteration)"] == "last"

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import subprocess
@@ -16,6 +15,7 @@ from omegaconf import OmegaConf
 
 from aectorch.runtime.config import ExperimentConfig, PAPER_PRESET, to_experiment_config, validate_resources
 from aectorch.runtime import CHECKPOINT_FORMAT, load_checkpoint, load_learner, run_experiment, save_checkpoint
+from aectorch.runs import Run
 from aectorch.sim import ActiveDepthEnv
 from aectorch.control import PAPER_ACTIONS_DEG
 
@@ -53,7 +53,7 @@ def _train(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 
 
 def _lines(run: Path) -> list[dict]:
-    return [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    return Run(run).metrics
 
 
 def _without_time(lines: list[dict]) -> list[dict]:
@@ -101,9 +101,9 @@ def test_train_py_writes_the_run_folder(tmp_path, textures):
     assert checkpoint["iteration"] == 12 and checkpoint["env"]["roll_deg"].eq(3).all()
     assert set(checkpoint["initial_dictionaries"]) == {f"{cue}/{s}" for cue in ("parallax", "stereo")
                                                        for s in ("wide", "coarse", "fine", "full")}
-    evaluation = json.loads((run / "evaluation.json").read_text())
+    evaluation = Run(run).evaluation()
     assert evaluation["trials"] == 3
-    summary = json.loads((run / "summary.json").read_text())
+    summary = Run(run).summary
     assert summary["iterations"] == 12 and "evaluation" in summary
     assert summary["final"] == {k: v for k, v in lines[-1].items() if k in summary["final"]}
     assert len(summary["final"]) == len(keys) - 5

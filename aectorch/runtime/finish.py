@@ -17,7 +17,8 @@ from aectorch.runtime.builders import build_textures, dictionaries, trial_option
 from aectorch.runtime.checkpoint import load_checkpoint, restore, save_checkpoint
 from aectorch.runtime.config import ExperimentConfig
 from aectorch.runtime.loop import _interrupt_on_sigterm
-from aectorch.runtime.outputs import RunFolder, json_value, read_lines
+from aectorch.runtime.outputs import RunFolder, json_value
+from aectorch.runs import read_metrics
 from aectorch.sim import TextureBank
 
 __all__ = ["calibrate_depth", "calibration_conditions", "finish"]
@@ -56,7 +57,7 @@ def finish(run) -> dict:
 def _finish(run) -> dict:
     cfg, folder = run.cfg, run.folder
     total = cfg.train.iterations
-    records = read_lines(folder.metrics_path)
+    records = read_metrics(folder.metrics_path)
     # The last line (always written at the last iteration) holds the final interval's averages.
     final = {k: v for k, v in (records[-1] if records else {}).items() if k not in _BOOKKEEPING}
     labels = [(when + 1, label) for when, _, label in run.events]
@@ -93,7 +94,7 @@ def _figures(cfg: ExperimentConfig, folder: RunFolder, initial: dict, learner, l
         return None
     out = folder / "figures"
     out.mkdir(exist_ok=True)
-    records = figures.read_metrics(folder.metrics_path)
+    records = read_metrics(folder.metrics_path)
     figures.plot_dictionaries(initial, dictionaries(learner), out / "dictionaries.png")
     figures.plot_training(records, out / "training.png", events=labels)
     if labels:
@@ -106,7 +107,7 @@ def _recovery(cfg: ExperimentConfig, folder: RunFolder, labels, figures) -> dict
     recovery = {}
     recover = getattr(figures, "recovery", None) if figures is not None else None
     if recover is not None:
-        records = figures.read_metrics(folder.metrics_path)
+        records = read_metrics(folder.metrics_path)
         for when, label in labels:
             recovery[label] = {key: recover(records, key, when) for key in _errors(records[0])
                                if key.endswith("_mae_deg")}

@@ -10,7 +10,7 @@ import tempfile
 from pathlib import Path
 
 __all__ = ["LOCK_NAME", "RUN_FILES", "RunFolder", "RunFolderBusy", "WriteFailed", "atomic_write", "format_summary", "json_value",
-           "read_lines", "write_json"]
+           "write_json"]
 
 #: The file in a run folder whose lock (``flock``) the training process holds.
 LOCK_NAME = ".lock"
@@ -70,11 +70,6 @@ def write_json(path: Path, data: dict) -> None:
     """Write ``data`` as JSON, whole or not at all (`atomic_write`)."""
     text = json.dumps(data, indent=2, allow_nan=True) + "\n"
     atomic_write(path, lambda f: f.write(text))
-
-
-def read_lines(path: Path) -> list[dict]:
-    """The records of a JSON-lines file."""
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
 
 def _quiet_tensorboard_thread() -> None:

@@ -1,0 +1,25 @@
+"""Tables and plots of finished runs: ``python -m aectorch.report <command> ...``.
+
+Every command reads run folders through `aectorch.runs` and prints markdown (``--help`` on each):
+
+- ``table RUN... [--eval FILE]``: one row per run (training time, the final training window, an
+  evaluation's MAEs, medians, the fractions on target and failed, the near trials), mean +- sd;
+- ``compare NAME=RUN,RUN... [--evals SET=FILE...] [--json OUT] [--plot PNG]``: groups of runs
+  side by side (mean and sd over each group's runs), and their learning curves;
+- ``curves RUN... [--names] [--keys] [--from] [--to] [--every] [--plot PNG]``: ``metrics.jsonl``
+  of runs side by side, iteration by iteration, with their perturbation events;
+- ``band RUN... --eval FILE --low M --high M``: the trials of a band of distances, mean over runs;
+- ``trials A.json B.json [--tolerance DEG] [--json OUT]``: two evaluations of the same trials;
+- ``ablation LABEL=RUN[:SUFFIX]... [--json OUT]``: each run's ``final_textures`` and
+  ``final_choose`` evaluations in one row;
+- ``rl FOLDER [--own RUN...]``: the RL clients on ``aectorch/Vergence-v0`` beside the learner.
+
+The thresholds (on target within ``WITHIN_DEG``, failed beyond ``BEYOND_DEG``) are the
+evaluation's, `aectorch.evaluation.summary`.
+"""
+
+from aectorch.report.compare import compare_groups, compare_trials, curves_table, group_table
+from aectorch.report.tables import ablation_table, band, band_line, results_table, rl_table
+
+__all__ = ["ablation_table", "band", "band_line", "compare_groups", "compare_trials", "curves_table", "group_table",
+           "results_table", "rl_table"]

@@ -1,0 +1,155 @@
+"""``python -m aectorch.report <command> ...``: tables and plots of finished runs (see ``--help``)."""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Sequence
+
+from aectorch.report import compare, tables
+from aectorch.runs import EVALUATION, Run
+
+__all__ = ["main"]
+
+
+def _write_json(path: Path | None, data, indent: int = 1) -> None:
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(data, indent=indent) + "\n")
+
+
+def _table(args) -> list[str]:
+    return tables.results_table([Run(run) for run in args.runs], args.eval)
+
+
+def _pairs(items: Sequence[str], what: str) -> list[tuple[str, str]]:
+    pairs = [item.partition("=")[::2] for item in items]
+    bad = [item for item, (key, value) in zip(items, pairs) if not key or not value]
+    if bad:
+        raise ValueError(f"{what}, got {bad[0]!r}")
+    return pairs
+
+
+def _compare(args) -> list[str]:
+    groups = {name: [Run(r) for r in runs.split(",")] for name, runs in _pairs(args.groups, "groups are name=run,run,...")}
+    evaluations = dict(_pairs(args.evals, "--evals are set=file"))
+    table = compare.compare_groups(groups, evaluations)
+    _write_json(args.json, {"groups": {k: [str(r.path) for r in v] for k, v in groups.items()},
+                            "evals": evaluations, "table": table})
+    if args.plot:
+        compare.plot_groups(groups, args.plot)
+    return compare.group_table(table)
+
+
+def _curves(args) -> list[str]:
+    names = args.names or [run.name for run in args.runs]
+    if len(names) != len(args.runs):
+        raise ValueError(f"--names needs one name per run ({len(args.runs)}), got {len(names)}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"--names must be distinct, got {names}")
+    runs = {name: Run(run) for name, run in zip(names, args.runs)}
+    last = args.last if args.last is not None else max(max(run.metrics_at, default=0) for run in runs.values())
+    lines = compare.curves_table(runs, args.keys, args.first, last, args.every)
+    if args.plot is not None:
+        compare.plot_curves(runs, args.keys, args.first, last, args.plot)
+        lines.append(f"wrote {args.plot}")
+    return lines
+
+
+def _band(args) -> list[str]:
+    return [tables.band_line([Run(run) for run in args.runs], args.eval, args.low, args.high)]
+
+
+def _trials(args) -> list[str]:
+    result = compare.compare_trials(args.first, args.second, args.tolerance)
+    _write_json(args.json, result, indent=2)
+    return compare.trials_lines(result)
+
+
+def _ablation(args) -> list[str]:
+    lines, cells = tables.ablation_table(args.rows)
+    _write_json(args.json, cells)
+    return lines
+
+
+def _rl(args) -> list[str]:
+    return tables.rl_table(args.folder, [Run(run) for run in args.own], args.default_set)
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m aectorch.report", description=__doc__.splitlines()[0])
+    commands = parser.add_subparsers(dest="command", required=True, metavar="command")
+
+    def command(name, run, documented):
+        # Each command's help is the docstring of the function that computes its numbers.
+        doc = inspect.cleandoc(documented.__doc__)
+        sub = commands.add_parser(name, help=doc.splitlines()[0], description=doc,
+                                  formatter_class=argparse.RawDescriptionHelpFormatter)
+        sub.set_defaults(run=run)
+        return sub
+
+    sub = command("table", _table, tables.results_table)
+    sub.add_argument("runs", nargs="+", type=Path, help="run folders")
+    sub.add_argument("--eval", default=EVALUATION, help=f"evaluation file in each run folder (default: {EVALUATION})")
+
+    sub = command("compare", _compare, compare.compare_groups)
+    sub.add_argument("groups", nargs="+", help="name=run,run,...")
+    sub.add_argument("--evals", nargs="+", default=[f"textures={EVALUATION}"], help="set=file in each run")
+    sub.add_argument("--json", type=Path, help="also write the numbers here")
+    sub.add_argument("--plot", type=Path, help="also draw each group's training curves into this PNG")
+
+    sub = command("curves", _curves, compare.curves_table)
+    sub.add_argument("runs", nargs="+", type=Path, help="run folders")
+    sub.add_argument("--names", nargs="+", default=None, help="a label per run (default: folder names)")
+    sub.add_argument("--keys", nargs="+", default=list(compare.DEFAULT_KEYS), help="metrics.jsonl keys")
+    sub.add_argument("--from", dest="first", type=int, default=0, help="first iteration")
+    sub.add_argument("--to", dest="last", type=int, default=None, help="last iteration")
+    sub.add_argument("--every", type=int, default=100, help="show iterations divisible by this")
+    sub.add_argument("--plot", type=Path, default=None, help="also draw the curves into this PNG")
+
+    sub = command("band", _band, tables.band)
+    sub.add_argument("runs", nargs="+", type=Path, help="run folders")
+    sub.add_argument("--eval", default=EVALUATION, help=f"evaluation file in each run folder (default: {EVALUATION})")
+    sub.add_argument("--low", type=float, required=True, help="nearest distance (m)")
+    sub.add_argument("--high", type=float, required=True, help="farthest distance (m)")
+
+    sub = command("trials", _trials, compare.compare_trials)
+    sub.add_argument("first", type=Path, help="an evaluation (JSON with per_trial rows)")
+    sub.add_argument("second", type=Path, help="another evaluation of the same trials")
+    sub.add_argument("--tolerance", type=float, default=0.05, help="degrees (default 0.05)")
+    sub.add_argument("--json", type=Path, default=None, help="also write the comparison here")
+
+    sub = command("ablation", _ablation, tables.ablation_table)
+    sub.add_argument("rows", nargs="+", help="label=run[:suffix]")
+    sub.add_argument("--json", type=Path, help="also write the cells here")
+
+    sub = command("rl", _rl, tables.rl_table)
+    sub.add_argument("folder", type=Path, help="the examples' result files")
+    sub.add_argument("--own", type=Path, nargs="*", default=[], help="the project's own runs")
+    sub.add_argument("--default-set", default="data/choose-photos",
+                     help="the set of result files written before the examples evaluated several")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run one command; a missing file, a bad file or a bad argument prints one ``error:`` line
+    and exits with status 2 (``AECTORCH_DEBUG=1`` shows the traceback)."""
+    args = _parser().parse_args(argv)
+    try:
+        lines = args.run(args)
+    except (OSError, KeyError, ValueError) as err:
+        if os.environ.get("AECTORCH_DEBUG", "") not in ("", "0"):
+            raise
+        message = err.args[0] if isinstance(err, KeyError) and err.args else err
+        print(f"error: {message}", file=sys.stderr)
+        return 2
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

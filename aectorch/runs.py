@@ -1,0 +1,174 @@
+"""Reading a run folder: what ``train.py`` wrote, as plain Python data.
+
+A run folder (`aectorch.runtime.RunFolder` writes it) holds ``config.yaml`` (the resolved
+config), ``metrics.jsonl`` (a line every ``train.log_every`` iterations), ``summary.json``
+(final metrics, timing, the perturbation's recovery), ``provenance.json`` and evaluations
+(``evaluation.json`` at the end of training; ``python -m aectorch.evaluate ... out=<run>/<name>.json``
+adds others), each with ``per_trial`` rows. `Run` reads them, once each; `read_metrics` and
+`read_json` read one file. ``python -m aectorch.report``, the runtime's finish, the figures and the
+tests all read runs through this module.
+
+Example:
+    >>> import json, tempfile
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> _ = (folder / "metrics.jsonl").write_text('{"iteration": 10, "pursuit_mae_deg": 0.5}\\n')
+    >>> _ = (folder / "evaluation.json").write_text(json.dumps({"per_trial": [{"distance_m": 1.0}]}))
+    >>> run = Run(folder)
+    >>> run.metrics_at[10] == {"iteration": 10, "pursuit_mae_deg": 0.5}
+    True
+    >>> len(run.per_trial())
+    1
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from functools import cached_property
+from pathlib import Path
+
+__all__ = ["EVALUATION", "Run", "per_trial_rows", "read_json", "read_metrics"]
+
+#: The evaluation written at the end of training (``eval.enabled``).
+EVALUATION = "evaluation.json"
+
+
+def read_json(path: str | os.PathLike) -> dict:
+    """One JSON file of a run, as a dict.
+
+    Raises:
+        FileNotFoundError: no such file (the message names it).
+        ValueError: the file is not a JSON object.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path} is not valid JSON ({exc.msg}, line {exc.lineno})") from exc
+    if not isinstance(data, dict):
+        raise ValueError(f"{path} must hold a JSON object, got {type(data).__name__}")
+    return data
+
+
+def read_metrics(path: str | os.PathLike) -> list[dict]:
+    """Read a ``metrics.jsonl`` file: one JSON object per line.
+
+    Blank lines are skipped. A last line that does not parse (a run that crashed mid-write) is
+    skipped with a :func:`warnings.warn`; a bad line elsewhere is a ``ValueError``.
+
+    Args:
+        path: the ``.jsonl`` file.
+
+    Returns:
+        The records, in file order.
+
+    Example:
+        >>> import tempfile
+        >>> f = Path(tempfile.mkdtemp()) / "metrics.jsonl"
+        >>> _ = f.write_text('{"iteration": 1, "pursuit_mae_deg": 2.5}\\n\\n{"iteration": 2, "pursu')
+        >>> with warnings.catch_warnings(record=True):
+        ...     read_metrics(f)
+        [{'iteration': 1, 'pursuit_mae_deg': 2.5}]
+    """
+    path = Path(path)
+    lines = [(number, line.strip()) for number, line in enumerate(path.read_text().splitlines(), start=1)]
+    lines = [(number, line) for number, line in lines if line]
+    records: list[dict] = []
+    for position, (number, line) in enumerate(lines):
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError as exc:
+            if position == len(lines) - 1:
+                warnings.warn(f"{path}: skipping truncated last line {number} ({exc.msg})", stacklevel=2)
+                break
+            raise ValueError(f"{path}: line {number} is not valid JSON ({exc.msg})") from exc
+        if not isinstance(record, dict):
+            raise ValueError(f"{path}: line {number} must be a JSON object, got {type(record).__name__}")
+        records.append(record)
+    return records
+
+
+class Run:
+    """The files of one run folder, each read on first use.
+
+    Args:
+        path: the run folder (``hydra.run.dir`` of ``train.py``).
+
+    Raises:
+        FileNotFoundError: ``path`` is not a folder; a file asked for is missing (named).
+    """
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = Path(path)
+        if not self.path.is_dir():
+            raise FileNotFoundError(f"run folder {str(self.path)!r}: no such folder")
+        self._evaluations: dict[str, dict] = {}
+
+    def __repr__(self) -> str:
+        return f"Run({str(self.path)!r})"
+
+    @property
+    def name(self) -> str:
+        """The folder's name."""
+        return self.path.name
+
+    def has(self, name: str) -> bool:
+        """Whether the run holds the file ``name``."""
+        return (self.path / name).is_file()
+
+    @cached_property
+    def config(self) -> dict:
+        """``config.yaml`` as nested dicts (as written: interpolations unresolved)."""
+        from omegaconf import OmegaConf
+
+        path = self.path / "config.yaml"
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: no such file")
+        return OmegaConf.to_container(OmegaConf.load(path), resolve=False)
+
+    @cached_property
+    def metrics(self) -> list[dict]:
+        """``metrics.jsonl``'s lines in file order (`read_metrics`)."""
+        path = self.path / "metrics.jsonl"
+        if not path.is_file():
+            raise FileNotFoundError(f"run {str(self.path)!r} has no metrics.jsonl")
+        return read_metrics(path)
+
+    @cached_property
+    def metrics_at(self) -> dict[int, dict]:
+        """``metrics.jsonl``'s lines by their iteration."""
+        return {line["iteration"]: line for line in self.metrics}
+
+    @cached_property
+    def summary(self) -> dict:
+        """``summary.json``: the final training window, timing, best state, perturbation, evaluation."""
+        return read_json(self.path / "summary.json")
+
+    @cached_property
+    def provenance(self) -> dict:
+        """``provenance.json``: versions, commit, device and machine of each session."""
+        return read_json(self.path / "provenance.json")
+
+    def evaluation(self, name: str = EVALUATION) -> dict:
+        """An evaluation of the run (``evaluation.json`` by default, or another file in the folder)."""
+        if name not in self._evaluations:
+            self._evaluations[name] = read_json(self.path / name)
+        return self._evaluations[name]
+
+    def per_trial(self, name: str = EVALUATION) -> list[dict]:
+        """The ``per_trial`` rows of an evaluation: texture, distance, each movement's errors.
+
+        Raises:
+            KeyError: the evaluation has no ``per_trial`` rows (an older format).
+        """
+        return per_trial_rows(self.evaluation(name), self.path / name)
+
+
+def per_trial_rows(evaluation: dict, source: str | os.PathLike = "the evaluation") -> list[dict]:
+    """The ``per_trial`` rows of an evaluation's dict; ``source`` names it in the error."""
+    if "per_trial" not in evaluation:
+        raise KeyError(f"{source} has no per_trial rows (written by an older aectorch.evaluation?)")
+    return evaluation["per_trial"]
