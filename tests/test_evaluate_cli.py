@@ -82,7 +82,7 @@ def test_corrupt_checkpoint_and_help(tmp_path, capsys):
     bad.write_bytes(b"garbage")
     assert main([f"checkpoint={bad}", f"out={tmp_path / 'e.json'}"]) == 2
     assert "bad.pt" in capsys.readouterr().err
-    assert main(["--help"]) == 0 and "textures=<folder>" in capsys.readouterr().out
+    assert main(["--help"]) == 0 and "textures     a folder of held-out images" in capsys.readouterr().out
 
 
 def test_module_entry_point_exits_2():

@@ -6,112 +6,108 @@ import os
 import shutil
 import sys
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Optional, Sequence
 
-from aectorch._checks import is_int, is_real
-from aectorch._cli import UsageError, parse_key_values, run_main
+from omegaconf import MISSING
 
-USAGE = """\
-usage: python -m aectorch.visualize checkpoint=<file> out=<file.gif|file.mp4> [key=value ...]
+from aectorch._checks import check_int, check_real
+from aectorch.choices import Policy, RendererName
+from aectorch.runtime.command import run
 
-Watch one frozen trial of a trained learner (a train.py checkpoint): per iteration one frame with
-the left eye's view, the right eye's view, their difference and the pursuit and vergence errors
-so far; the last frame gives the depth estimate against the true distance.
-
-keys:
-  checkpoint=<file>      checkpoint.pt of a train.py run (required)
-  out=<file>             the animation: .gif, or .mp4 when ffmpeg is installed (required)
-  texture=<file|int>     an image file, or an index into the default test bank (default: 0)
-  distance=<metres>      the object's distance (default: 2.0)
-  renderer=torch|pyrender  (default: the run's)
-  policy=greedy|sampled  argmax actions (default) or actions sampled as in training
-  seed=<int>             seeds the environment and sampled actions (default: 0)
-  fps=<int>              frames per second (default: 8)
-  every=<int>            draw every n-th iteration, for a smaller file (default: 1)
-  dpi=<int>              resolution of the frames, 7.2 x 5 inches (default: 100)
-
-Errors print one "error: ..." line and exit with status 2.
-"""
-
-_KEYS = ("checkpoint", "out", "texture", "distance", "renderer", "policy", "seed", "fps", "every", "dpi")
+__all__ = ["VisualizeConfig", "main"]
 
 
-def _parse(argv: Sequence[str]) -> dict:
-    from aectorch.sim import RENDERERS
-    from aectorch.choices import Policy
-    from aectorch.visualize import check_output
+@dataclass
+class VisualizeConfig:
+    """Watch one frozen trial of a trained learner (a train.py checkpoint): per iteration one frame
+    with the left eye's view, the right eye's view, their difference and the pursuit and vergence
+    errors so far; the last frame gives the depth estimate against the true distance.
 
-    args = parse_key_values(argv, _KEYS, required=("checkpoint", "out"), paths=("checkpoint", "out"))
-    for key, default, minimum in (("seed", 0, 0), ("fps", 8, 1), ("every", 1, 1), ("dpi", 100, 10)):
-        if not is_int(args.setdefault(key, default)) or args[key] < minimum:
-            raise UsageError(f"{key} must be an int >= {minimum}, got {args[key]!r}")
-    distance = args.setdefault("distance", 2.0)
-    if not (is_real(distance) and distance > 0):
-        raise UsageError(f"distance must be a distance > 0 in metres, got {distance!r}")
-    if args.get("renderer") is not None and args["renderer"] not in RENDERERS:
-        raise UsageError(f"renderer must be one of {', '.join(RENDERERS)}, got {args['renderer']!r}")
-    if args.setdefault("policy", "greedy") not in Policy.values():
-        raise UsageError(f"policy must be one of {', '.join(Policy.values())}, got {args['policy']!r}")
-    texture = args.setdefault("texture", 0)
-    if isinstance(texture, str):
-        if not os.path.isfile(texture):
-            raise UsageError(f"texture: no such file {texture!r}")
-    elif not is_int(texture) or texture < 0:
-        raise UsageError(f"texture must be an image file or an index >= 0 into the default test bank, "
-                         f"got {texture!r}")
-    try:
-        check_output(args["out"])
-    except ValueError as err:
-        raise UsageError(str(err) if str(err).startswith("out") else f"out: {err}") from err
-    if not os.path.isfile(args["checkpoint"]):
-        raise UsageError(f"checkpoint: no such file {args['checkpoint']!r}")
-    return args
+    Args:
+        checkpoint: checkpoint.pt of a train.py run.
+        out: the animation: a .gif file, or .mp4 when ffmpeg is installed.
+        texture: an image file, or an index into the default test bank.
+        distance: the object's distance in metres.
+        renderer: torch or pyrender (default: the run's).
+        policy: greedy (argmax actions) or sampled (actions sampled as in training).
+        seed: seeds the environment and sampled actions.
+        fps: frames per second.
+        every: draw every n-th iteration, for a smaller file.
+        dpi: resolution of the frames, 7.2 x 5 inches.
+    """
+
+    checkpoint: str = MISSING
+    out: str = MISSING
+    texture: str = "0"
+    distance: float = 2.0
+    renderer: Optional[RendererName] = None
+    policy: Policy = Policy.greedy
+    seed: int = 0
+    fps: int = 8
+    every: int = 1
+    dpi: int = 100
+
+    def __post_init__(self) -> None:
+        from aectorch.visualize import check_output
+
+        for key, minimum in (("seed", 0), ("fps", 1), ("every", 1), ("dpi", 10)):
+            check_int(getattr(self, key), key, minimum=minimum)
+        check_real(self.distance, "distance", above=0.0, unit="metres")
+        if not os.path.isfile(self.texture) and not (self.texture.isdigit()):
+            raise ValueError(f"texture: no such file {self.texture!r} (an image file, or an index >= 0 into the "
+                             "default test bank)")
+        try:
+            check_output(self.out)
+        except ValueError as err:
+            raise ValueError(str(err) if str(err).startswith("out") else f"out: {err}") from err
+        if not os.path.isfile(self.checkpoint):
+            raise ValueError(f"checkpoint: no such file {self.checkpoint!r}")
 
 
 def _texture(texture):
     """``(texture [H, W], name)`` of an image file or an index into the default test bank."""
     from aectorch.sim import TextureBank
 
-    if isinstance(texture, str):
+    if os.path.isfile(texture):
         with tempfile.TemporaryDirectory(prefix="aectorch-texture-") as folder:
             shutil.copyfile(texture, Path(folder) / Path(texture).name)
             try:
                 bank = TextureBank.from_folder(folder, progress=False)
             except (ValueError, OSError) as err:
-                raise UsageError(f"texture: {str(err).replace(folder, os.path.dirname(texture) or '.')}") from err
+                raise ValueError(f"texture: {str(err).replace(folder, os.path.dirname(texture) or '.')}") from err
         return bank[0], Path(texture).name
-    bank = TextureBank.default("test")
+    bank, texture = TextureBank.default("test"), int(texture)
     if texture >= len(bank):
-        raise UsageError(f"texture: index {texture} is outside the default test bank's [0, {len(bank)})")
+        raise ValueError(f"texture: index {texture} is outside the default test bank's [0, {len(bank)})")
     return bank[texture], bank.names[texture]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m aectorch.visualize checkpoint=... out=... [key=value ...]`` (see ``--help``)."""
-    return run_main(argv, USAGE, _visualize)
+    return run(argv, VisualizeConfig, "aectorch.visualize", _visualize)
 
 
-def _visualize(argv: list[str]) -> int:
-    args = _parse(argv)
+def _visualize(args: VisualizeConfig) -> int:
     from aectorch.runtime import load_learner, trial_protocol
     from aectorch.visualize import animate_trial, frame_steps, record_trial
 
     try:
-        cfg, learner = load_learner(args["checkpoint"])
+        cfg, learner = load_learner(args.checkpoint)
     except ValueError as err:
-        raise UsageError(f"checkpoint: {err}") from err
-    texture, name = _texture(args["texture"])
+        raise ValueError(f"checkpoint: {err}") from err
+    texture, name = _texture(args.texture)
     try:
-        frames = record_trial(learner, texture, float(args["distance"]), protocol=trial_protocol(cfg),
-                              renderer=args.get("renderer") or cfg.env.renderer, policy=args["policy"],
-                              seed=args["seed"], texture_name=name)
+        frames = record_trial(learner, texture, float(args.distance), protocol=trial_protocol(cfg),
+                              renderer=args.renderer or cfg.env.renderer, policy=args.policy,
+                              seed=args.seed, texture_name=name)
     except ValueError as err:
         if str(err).startswith("distance_m: "):  # beyond the background plane
-            raise UsageError(f"distance: {str(err)[len('distance_m: '):]}") from err
+            raise ValueError(f"distance: {str(err)[len('distance_m: '):]}") from err
         raise
-    out = animate_trial(frames, args["out"], fps=args["fps"], every=args["every"], dpi=args["dpi"])
-    print(f"wrote {out} ({len(frame_steps(len(frames), args['every']))} frames)")
+    out = animate_trial(frames, args.out, fps=args.fps, every=args.every, dpi=args.dpi)
+    print(f"wrote {out} ({len(frame_steps(len(frames), args.every))} frames)")
     return 0
 
 
