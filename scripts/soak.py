@@ -69,10 +69,12 @@ def session_starts(run: Path) -> list[float]:
     """Start times (Unix seconds) of the run's sessions in ``provenance.json`` (none if absent)."""
     from datetime import datetime
 
-    path = run / "provenance.json"
-    if not path.is_file():
+    from aectorch.runs import Run
+
+    folder = Run(run)
+    if not folder.has("provenance.json"):
         return []
-    sessions = json.loads(path.read_text()).get("sessions", [])
+    sessions = folder.provenance.get("sessions", [])
     return [datetime.fromisoformat(s["started"]).timestamp() for s in sessions if s.get("started")]
 
 
@@ -100,8 +102,9 @@ def report(run: Path, since: int = 10_000) -> dict:
     """Summary of a soak folder: iterations, non-finite metrics, the ranges of the health signals
     (over the whole run, and the errors and entropies from iteration ``since`` on), and the
     resident memory of every process with its least-squares growth."""
-    lines = [json.loads(x) for x in (run / "metrics.jsonl").read_text().splitlines() if x.strip()]
-    memory = [json.loads(x) for x in (run / "memory.jsonl").read_text().splitlines() if x.strip()]
+    from aectorch.runs import Run, read_metrics
+
+    lines, memory = Run(run).metrics, read_metrics(run / "memory.jsonl")
     nonfinite = sum(1 for line in lines for k, v in line.items()
                     if k != "depth_mae_m" and isinstance(v, float) and not math.isfinite(v))
     nulls = sum(1 for line in lines for k, v in line.items() if v is None and k != "depth_mae_m")
@@ -137,8 +140,9 @@ def plot(run: Path, path: Path) -> None:
     """The soak's curves: eq. (9) errors and depth MAE, rewards, entropies, |TD error|, memory."""
     from matplotlib.figure import Figure
 
-    lines = [json.loads(x) for x in (run / "metrics.jsonl").read_text().splitlines() if x.strip()]
-    memory = [json.loads(x) for x in (run / "memory.jsonl").read_text().splitlines() if x.strip()]
+    from aectorch.runs import Run, read_metrics
+
+    lines, memory = Run(run).metrics, read_metrics(run / "memory.jsonl")
     it = [line["iteration"] for line in lines]
 
     def series(key):
