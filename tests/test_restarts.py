@@ -10,7 +10,6 @@
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import shutil
 import signal
@@ -25,6 +24,7 @@ import torch
 from aectorch.framework.batch_state import gather_rows, take_rows
 from aectorch.runtime import RunExists, build_env, build_learner, load_checkpoint, prepare_run, run_experiment
 from aectorch.framework import Shard
+from aectorch.runs import Run
 from test_distributed import _close, _env, _single, _tiny, _torchrun
 from test_train import QUIET, ROOT, TINY, _assert_same_state, _cfg, _lines, textures  # noqa: F401  (the fixture)
 
@@ -69,7 +69,7 @@ def test_a_rerun_into_a_finished_run_stops_before_any_write(tmp_path, textures):
     assert load_checkpoint(run / "checkpoint.pt")["iteration"] == 4
     assert [line["iteration"] for line in _lines(run)] == [2, 4]
     assert not (run / "figures").exists() and not (run / "best.pt").exists()
-    sessions = json.loads((run / "provenance.json").read_text())["sessions"]
+    sessions = Run(run).provenance["sessions"]
     assert len(sessions) == 1 and sessions[0]["start_iteration"] == 0
 
 
@@ -172,7 +172,7 @@ def test_torchrun_restarts_a_killed_worker_and_the_run_resumes_to_the_undisturbe
             job.wait()
     assert job.returncode == 0, stderr[-4000:]
     assert killed_at < 60
-    sessions = json.loads((run / "provenance.json").read_text())["sessions"]
+    sessions = Run(run).provenance["sessions"]
     assert len(sessions) == 2 and sessions[1]["start_iteration"] >= killed_at, sessions  # one restart, resumed
     lines = _lines(run)
     assert [line["iteration"] for line in lines] == list(range(2, 61, 2))  # no gap, no duplicate
