@@ -827,7 +827,9 @@ def plot_code_comparison(groups: Mapping[str, Sequence[Mapping[str, Mapping]]], 
     Example:
         >>> import tempfile
         >>> from aectorch.coding.readouts import code_summary
-        >>> run = lambda seed: {"stereo/fine": code_summary(torch.randn(200, 32, generator=torch.Generator().manual_seed(seed)))}
+        >>> def run(seed):
+        ...     atoms = torch.randn(200, 32, generator=torch.Generator().manual_seed(seed))
+        ...     return {"stereo/fine": code_summary(atoms)}
         >>> groups = {"normal": [run(0), run(1)], "other": [run(2)]}
         >>> plot_code_comparison(groups, Path(tempfile.mkdtemp()) / "compare.png").exists()
         True
@@ -865,9 +867,10 @@ def plot_code_comparison(groups: Mapping[str, Sequence[Mapping[str, Mapping]]], 
                                  f"run {len(centres)}: read-outs with different bins cannot share a panel")
             mean = shares.mean(0)
             index = np.mean([_as_float(run[name]["binocularity"].get("mean_abs_index")) for run in runs])
+            runs_text = f"{len(runs)} run" + ("" if len(runs) == 1 else "s")
             ax.bar(centres + (g - (len(groups) - 1) / 2) * width * step, mean, width=width * step,
                    yerr=np.stack([mean - shares.min(0), shares.max(0) - mean]), capsize=2, color=_color(g),
-                   label=f"{label} ({len(runs)} runs; mean |index| {index:.2f})", error_kw={"linewidth": 0.8})
+                   label=f"{label} ({runs_text}; mean |index| {index:.2f})", error_kw={"linewidth": 0.8})
         ax.set_title(name, fontsize=10)
         ax.set_xlabel(axis_label, fontsize=8)
         ax.set_ylabel("share of the atoms", fontsize=8)

@@ -1,8 +1,8 @@
 """Read-outs of a learned binocular code: binocularity, disparity tuning and orientation of each atom.
 
 The AEC lineage reads its learned dictionaries out the way physiologists read out V1 (Klimmasch
-et al. 2021, eLife; Eckmann et al. 2020; Lonini et al. 2013): how much each atom listens to each
-eye, which disparity it prefers, which orientation. Here each is a batched function of a
+et al. 2021, eLife, among others): how much each atom listens to each eye, which disparity it
+prefers, which orientation. Here each is a batched function of a
 dictionary's atoms ``[..., P, N]`` (the columns of `SparseDictionary.atoms`), with no loop over
 atoms; device and dtype follow the input.
 
@@ -186,7 +186,9 @@ def disparity_tuning(atoms: Tensor, max_disparity: int | None = None) -> tuple[T
     which lies in [0, 2]: 2 where the right half is the left half shifted by ``d`` (the atom's
     disparity), 0 where it is its negative, 1 throughout for an atom with one half zero (no
     disparity signal). The patches' contrast normalisation is left out (it rescales every
-    stimulus alike in expectation).
+    stimulus alike in expectation). For the stereo cue's images (columns left to right as seen),
+    ``d > 0`` is an uncrossed disparity (the surface beyond the fixation point), ``d < 0`` a
+    crossed one.
 
     Args:
         atoms: ``[..., P, N]``, atoms as columns (see :func:`atom_halves`).
@@ -284,8 +286,8 @@ def disparity_histogram(disparity: Tensor, max_disparity: int) -> tuple[Tensor, 
     check_int(max_disparity, "max_disparity", 0)
     _check_values(disparity, "disparity")
     which = disparity.round().long().clamp(-max_disparity, max_disparity) + max_disparity
-    return _counts(which, 2 * max_disparity + 1), torch.arange(-max_disparity, max_disparity + 1,
-                                                                         device=disparity.device)
+    disparities = torch.arange(-max_disparity, max_disparity + 1, device=disparity.device)
+    return _counts(which, 2 * max_disparity + 1), disparities
 
 
 class OrientationPreference(NamedTuple):
