@@ -192,3 +192,44 @@ def test_results_table_reports_the_near_trials_and_the_fractions(tmp_path, capsy
     cells = dict(zip(header.strip("| ").split(" | "), row.strip("| ").split(" | ")))
     assert cells["1.0-1.5 m pursuit MAE (deg)"] == "0.200" and cells["1.0-1.5 m vergence MAE (deg)"] == "0.050"
     assert cells["both within 0.22 deg"] == "0.500" and cells["evaluated (best.pt: iteration)"] == "last"
+
+
+def _code_run(folder: Path, seed: int) -> Path:
+    import torch
+
+    from aectorch.coding.readouts import code_summary
+
+    generator = torch.Generator().manual_seed(seed)
+    code = {name: code_summary(torch.randn(200, 16, generator=generator)) for name in ("parallax/fine", "stereo/fine")}
+    start = {name: code_summary(torch.randn(200, 16, generator=generator)) for name in code}
+    folder.mkdir()
+    (folder / "summary.json").write_text(json.dumps({"code": code, "code_initial": start}))
+    return folder
+
+
+def test_code_table_gives_each_groups_mean_and_range_beside_the_start(tmp_path, capsys, script):
+    from aectorch.figures import read_code
+
+    table = script("code_table")
+    runs = [_code_run(tmp_path / f"s{seed}", seed) for seed in range(3)]
+    plot = tmp_path / "out" / "binocularity.png"
+    assert table.main([f"normal={runs[0]},{runs[1]}", str(runs[2]), "--cue", "stereo", "--plot", str(plot)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert len(out) == 4 and out[2].startswith("| normal (2) | stereo/fine | ") and out[3].startswith("| s2 (1) | ")
+    codes = [read_code(run) for run in runs[:2]]
+    index = [c["stereo/fine"]["binocularity"]["mean_abs_index"] for c in codes]
+    start = [c["initial"]["stereo/fine"]["binocularity"]["mean_abs_index"] for c in codes]
+    expected = f"{sum(index) / 2:.3f} ({min(index):.3f}-{max(index):.3f}) [{sum(start) / 2:.3f}]"
+    assert out[2].split(" | ")[2] == expected
+    assert plot.stat().st_size > 0
+
+
+@pytest.mark.parametrize("args, message", [
+    (["x=", "--cue", "stereo"], "a group must be"),
+    (["a=one", "a=two"], "distinct"),
+    (["nowhere"], "no summary.json"),
+])
+def test_code_table_rejects_bad_groups(tmp_path, capsys, args, message, script):
+    assert script("code_table").main([str(tmp_path / a) if "=" not in a and not a.startswith("--") else a
+                                      for a in args]) == 2
+    assert message in capsys.readouterr().err
