@@ -11,7 +11,12 @@ with a tight layout, creates the parent folders and returns the :class:`pathlib.
   over training;
 - :func:`plot_perturbation`: Fig. 4, the same around perturbation events;
 - :func:`recovery`: baseline, peak and recovery iteration of an error after a perturbation;
-- :func:`plot_evaluation`: per-distance breakdown of :func:`aectorch.evaluation.evaluate`.
+- :func:`plot_evaluation`: per-distance breakdown of :func:`aectorch.evaluation.evaluate`;
+- :func:`plot_code`: the learned code's read-outs (binocularity, disparity, orientation
+  histograms per dictionary, :func:`aectorch.coding.readouts.code_summary`);
+- :func:`plot_code_comparison`: those read-outs of several runs side by side (e.g. rearing
+  conditions over seeds; `aectorch.runs.Run.code` reads them, ``python -m aectorch.report code``
+  tabulates them).
 
 Metric records are dicts with an ``'iteration'`` key (`aectorch.runs.read_metrics` reads a run's); a value that is missing, ``None`` or NaN
 is a gap in the curve (the depth error is NaN before the depth MLP's first fit). The eye
@@ -40,6 +45,8 @@ __all__ = [
     "plot_perturbation",
     "recovery",
     "plot_evaluation",
+    "plot_code",
+    "plot_code_comparison",
 ]
 
 DPI = 120
@@ -641,4 +648,169 @@ def plot_offsets(sweeps: Mapping[str, Mapping[str, Tensor]], path: str | os.Path
         bottom.set_xlabel("offset from the optimum (deg)")
         bottom.set_title(f"{cue}: increment taken there (deg)", fontsize=9)
         bottom.legend(fontsize=7)
+    return _save(fig, path)
+
+
+# ----------------------------------------------------------------------------------------------
+# the learned code's read-outs (aectorch.coding.readouts)
+
+#: The three read-outs of :func:`aectorch.coding.readouts.code_summary`, with their bins' key and
+#: the label of their axis.
+_READOUTS = (("binocularity", "edges", "binocularity index (R - L) / (R + L)"),
+             ("disparity", "disparities_px", "preferred disparity (px of the scale)"),
+             ("orientation", "centres_deg", "preferred orientation (deg)"))
+
+
+def _check_code(code: Any, name: str) -> None:
+    if not isinstance(code, Mapping) or not code:
+        raise ValueError(f"{name} must be a non-empty mapping {{dictionary: code_summary(atoms)}}, "
+                         f"got {type(code).__name__}")
+    for key, readout in code.items():
+        for part, bins, _ in _READOUTS:
+            entry = readout.get(part) if isinstance(readout, Mapping) else None
+            if not isinstance(entry, Mapping) or bins not in entry or "counts" not in entry:
+                raise ValueError(f"{name}[{key!r}] must be a code_summary result with {part!r}: "
+                                 f"{{{bins!r}, 'counts', ...}}")
+
+
+def _bars(ax, entry: Mapping, bins: str, **style) -> None:
+    """One read-out's histogram as bars (binocularity: between its edges; the others: centred)."""
+    counts = np.asarray(entry["counts"], dtype=float)
+    x = np.asarray(entry[bins], dtype=float)
+    if bins == "edges":
+        ax.bar(x[:-1], counts, width=np.diff(x), align="edge", **style)
+    else:
+        width = x[1] - x[0] if len(x) > 1 else 1.0
+        ax.bar(x, counts, width=width, **style)
+
+
+def plot_code(code: Mapping[str, Mapping], path: str | os.PathLike, *,
+              initial: Mapping[str, Mapping] | None = None) -> Path:
+    """The read-outs of the learned code: one row per dictionary, three histograms.
+
+    Columns: (a) the atoms' binocularity index, -1 left (first image) only, +1 right only; (b)
+    their preferred disparity in pixels of the dictionary's scale; (c) their preferred
+    orientation (0 horizontal stripes, 90 vertical). Each row's title gives the mean absolute
+    binocularity index and the tuning curves' mean depth of modulation. With ``initial``, the
+    dictionaries' random start is drawn as a grey outline behind each histogram: the read-out
+    of a code that has learned nothing.
+
+    Args:
+        code: ``{dictionary: code_summary(atoms)}`` (:func:`aectorch.coding.readouts.code_summary`,
+            what a run's ``summary.json`` holds under ``"code"``), e.g. keys ``"stereo/fine"``.
+        path: the image file to write.
+        initial: the same for the dictionaries' start (``summary.json``'s ``"code_initial"``).
+
+    Returns:
+        The path written.
+
+    Example:
+        >>> import tempfile
+        >>> from aectorch.coding.readouts import code_summary
+        >>> code = {"stereo/fine": code_summary(torch.randn(200, 64))}
+        >>> plot_code(code, Path(tempfile.mkdtemp()) / "code.png").exists()
+        True
+    """
+    _check_code(code, "code")
+    if initial is not None:
+        _check_code(initial, "initial")
+    rows = len(code)
+    fig = _new_figure((12.0, 2.5 * rows + 0.5))
+    axes = fig.subplots(rows, 3, squeeze=False)
+    for row, (name, readout) in enumerate(code.items()):
+        for column, (part, bins, label) in enumerate(_READOUTS):
+            ax = axes[row, column]
+            _bars(ax, readout[part], bins, color=_color(column), alpha=0.8, label="trained")
+            if initial is not None and name in initial:
+                _bars(ax, initial[name][part], bins, fill=False, edgecolor="dimgrey", linewidth=0.8,
+                      label="initial")
+            ax.set_xlabel(label, fontsize=8)
+            ax.set_ylabel("atoms", fontsize=8)
+            ax.tick_params(labelsize=7)
+        b, d = readout["binocularity"], readout["disparity"]
+        axes[row, 0].set_title(f"{name}: mean |index| {_as_float(b.get('mean_abs_index')):.3f}", loc="left",
+                               fontsize=9)
+        axes[row, 1].set_title(f"{name}: mean modulation {_as_float(d.get('mean_modulation')):.3f}", loc="left",
+                               fontsize=9)
+        axes[row, 2].set_title(f"{name}: mean selectivity "
+                               f"{_as_float(readout['orientation'].get('mean_selectivity')):.3f}", loc="left",
+                               fontsize=9)
+        axes[row, 2].set_xticks(np.asarray(readout["orientation"]["centres_deg"], dtype=float)[::2])
+    if initial is not None:
+        axes[0, 0].legend(fontsize=7)
+    fig.suptitle("The learned code: binocularity, disparity and orientation of each atom")
+    return _save(fig, path)
+
+
+def plot_code_comparison(groups: Mapping[str, Sequence[Mapping[str, Mapping]]], path: str | os.PathLike, *,
+                         dictionaries: Sequence[str] | None = None, readout: str = "binocularity") -> Path:
+    """One read-out's histograms of several groups of runs side by side (e.g. rearing conditions).
+
+    One panel per dictionary; in each, one bar per group and bin: the share of the atoms in that
+    bin, the mean over the group's runs (seeds), with the smallest and largest run as an error
+    bar. The legend gives each group's mean absolute binocularity index (over its runs).
+
+    Args:
+        groups: ``{label: [code, ...]}``, each code a run's ``{dictionary: code_summary}``
+            (`aectorch.runs.Run.code`), e.g. ``{"normal": [seed 0, seed 1, seed 2], "monocular": [...]}``.
+        path: the image file to write.
+        dictionaries: the dictionaries to show (default: every one the first run holds, but
+            ``"initial"``).
+        readout: ``"binocularity"`` (default), ``"disparity"`` or ``"orientation"``.
+
+    Returns:
+        The path written.
+
+    Example:
+        >>> import tempfile
+        >>> from aectorch.coding.readouts import code_summary
+        >>> def run(seed):
+        ...     atoms = torch.randn(200, 32, generator=torch.Generator().manual_seed(seed))
+        ...     return {"stereo/fine": code_summary(atoms)}
+        >>> groups = {"normal": [run(0), run(1)], "other": [run(2)]}
+        >>> plot_code_comparison(groups, Path(tempfile.mkdtemp()) / "compare.png").exists()
+        True
+    """
+    parts = {part: (bins, label) for part, bins, label in _READOUTS}
+    if readout not in parts:
+        raise ValueError(f"readout must be one of {sorted(parts)}, got {readout!r}")
+    if not isinstance(groups, Mapping) or not groups:
+        raise ValueError("groups must map labels to non-empty lists of runs' code read-outs")
+    for label, runs in groups.items():
+        if isinstance(runs, (str, bytes, Mapping)) or not isinstance(runs, Sequence) or not runs:
+            raise ValueError(f"groups[{label!r}] must be a non-empty list of runs' code read-outs")
+        for i, run in enumerate(runs):
+            _check_code({k: v for k, v in run.items() if k != "initial"}, f"groups[{label!r}][{i}]")
+    first = next(iter(groups.values()))[0]
+    names = [k for k in first if k != "initial"] if dictionaries is None else list(dictionaries)
+    for label, runs in groups.items():
+        for i, run in enumerate(runs):
+            missing = [n for n in names if n not in run]
+            if missing:
+                raise ValueError(f"groups[{label!r}][{i}] has no read-outs of {missing} (has {sorted(run)})")
+    bins, axis_label = parts[readout]
+    fig = _new_figure((4.2 * len(names), 3.6))
+    axes = fig.subplots(1, len(names), squeeze=False)[0]
+    width = 0.8 / len(groups)
+    for ax, name in zip(axes, names):
+        x = np.asarray(first[name][readout][bins], dtype=float)
+        centres = (x[:-1] + x[1:]) / 2 if bins == "edges" else x
+        step = centres[1] - centres[0] if len(centres) > 1 else 1.0
+        for g, (label, runs) in enumerate(groups.items()):
+            shares = np.array([np.asarray(run[name][readout]["counts"], dtype=float)
+                               / max(1.0, float(np.sum(run[name][readout]["counts"]))) for run in runs])
+            if shares.shape[1] != len(centres):
+                raise ValueError(f"groups[{label!r}] has {shares.shape[1]} {readout} bins for {name!r}, the first "
+                                 f"run {len(centres)}: read-outs with different bins cannot share a panel")
+            mean = shares.mean(0)
+            index = np.mean([_as_float(run[name]["binocularity"].get("mean_abs_index")) for run in runs])
+            runs_text = f"{len(runs)} run" + ("" if len(runs) == 1 else "s")
+            ax.bar(centres + (g - (len(groups) - 1) / 2) * width * step, mean, width=width * step,
+                   yerr=np.stack([mean - shares.min(0), shares.max(0) - mean]), capsize=2, color=_color(g),
+                   label=f"{label} ({runs_text}; mean |index| {index:.2f})", error_kw={"linewidth": 0.8})
+        ax.set_title(name, fontsize=10)
+        ax.set_xlabel(axis_label, fontsize=8)
+        ax.set_ylabel("share of the atoms", fontsize=8)
+        ax.legend(fontsize=7)
+    fig.suptitle(f"The learned code's {readout}, by group (mean of the runs; bars: smallest to largest run)")
     return _save(fig, path)

@@ -148,6 +148,25 @@ class Run:
         return read_json(self.path / "summary.json")
 
     @cached_property
+    def code(self) -> dict:
+        """The read-outs of the run's learned code: ``summary.json``'s ``"code"``
+        (``{dictionary: code_summary}``), with its ``"code_initial"`` under the key ``"initial"``
+        when the summary holds it (`aectorch.coding.readouts.code_summary`).
+
+        Raises:
+            KeyError: the summary has no ``"code"`` (a run from before the read-outs:
+                ``python train.py train.resume=<run>`` finishes it again).
+        """
+        summary = self.summary
+        if "code" not in summary:
+            raise KeyError(f"{self.path / 'summary.json'} has no 'code' entry: written before the code's read-outs "
+                           f"(python train.py train.resume={self.path} finishes it again)")
+        code = dict(summary["code"])
+        if "code_initial" in summary:
+            code["initial"] = summary["code_initial"]
+        return code
+
+    @cached_property
     def provenance(self) -> dict:
         """``provenance.json``: versions, commit, device and machine of each session."""
         return read_json(self.path / "provenance.json")

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import math
+import warnings
 
 import matplotlib.image
 import numpy as np
@@ -12,6 +14,8 @@ from sklearn.decomposition import PCA
 
 from aectorch.figures import (
     DPI,
+    plot_code,
+    plot_code_comparison,
     plot_dictionaries,
     plot_evaluation,
     plot_perturbation,
@@ -273,3 +277,60 @@ def test_plot_evaluation(tmp_path):
 
 def test_dpi_is_about_120():
     assert 100 <= DPI <= 150
+
+
+# ---------------------------------------------------------------------------------------------
+# the learned code's read-outs
+
+
+def _code(seed, names=("stereo/coarse", "stereo/fine"), atoms=32):
+    from aectorch.coding.readouts import code_summary
+
+    generator = torch.Generator().manual_seed(seed)
+    return {name: code_summary(torch.randn(200, atoms, generator=generator)) for name in names}
+
+
+def test_plot_code_writes_one_row_per_dictionary_with_the_initial_outline(tmp_path):
+    one = read_png(plot_code(_code(0, names=("stereo/fine",)), tmp_path / "one.png"))
+    two = read_png(plot_code(_code(1), tmp_path / "two.png", initial=_code(2)))
+    assert two.shape[0] > 1.6 * one.shape[0]  # a second row
+
+
+def test_plot_code_bad_input_names_the_argument(tmp_path):
+    with pytest.raises(ValueError, match="code must be a non-empty mapping"):
+        plot_code({}, tmp_path / "x.png")
+    broken = _code(0)
+    del broken["stereo/fine"]["disparity"]
+    with pytest.raises(ValueError, match=r"code\['stereo/fine'\] must be a code_summary result with 'disparity'"):
+        plot_code(broken, tmp_path / "x.png")
+    with pytest.raises(ValueError, match="initial"):
+        plot_code(_code(0), tmp_path / "x.png", initial={"stereo/fine": {}})
+
+
+def test_run_code_and_the_comparison_of_groups_of_runs(tmp_path):
+    from aectorch.runs import Run
+
+    folders = []
+    for seed in range(3):
+        folder = tmp_path / f"run{seed}"
+        folder.mkdir()
+        (folder / "summary.json").write_text(json.dumps({"code": _code(seed), "code_initial": _code(10 + seed)}))
+        folders.append(folder)
+    code = Run(folders[0]).code
+    assert set(code) == {"stereo/coarse", "stereo/fine", "initial"} and code["stereo/fine"] == _code(0)["stereo/fine"]
+    groups = {"normal": [Run(f).code for f in folders[:2]], "strabismus": [Run(folders[2]).code]}
+    read_png(plot_code_comparison(groups, tmp_path / "binocularity.png"))
+    read_png(plot_code_comparison(groups, tmp_path / "disparity.png", readout="disparity",
+                                  dictionaries=["stereo/fine"]))
+    with pytest.raises(ValueError, match="readout must be one of"):
+        plot_code_comparison(groups, tmp_path / "x.png", readout="colour")
+    with pytest.raises(ValueError, match=r"has no read-outs of \['stereo/full'\]"):
+        plot_code_comparison(groups, tmp_path / "x.png", dictionaries=["stereo/full"])
+    with pytest.raises(ValueError, match="non-empty list"):
+        plot_code_comparison({"normal": []}, tmp_path / "x.png")
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "summary.json").write_text(json.dumps({"final": {}}))
+    with pytest.raises(KeyError, match="no 'code' entry"):
+        Run(tmp_path / "old").code
+    with pytest.raises(FileNotFoundError, match="no such folder"):
+        Run(tmp_path / "missing").code

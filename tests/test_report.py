@@ -213,3 +213,44 @@ def test_the_command_line_lists_its_commands():
     assert done.returncode == 0
     for command in ("table", "compare", "curves", "band", "trials", "ablation", "rl"):
         assert command in done.stdout
+
+
+def _code_run(folder: Path, seed: int) -> Path:
+    import torch
+
+    from aectorch.coding.readouts import code_summary
+
+    generator = torch.Generator().manual_seed(seed)
+    code = {name: code_summary(torch.randn(200, 16, generator=generator)) for name in ("parallax/fine", "stereo/fine")}
+    start = {name: code_summary(torch.randn(200, 16, generator=generator)) for name in code}
+    folder.mkdir()
+    (folder / "summary.json").write_text(json.dumps({"code": code, "code_initial": start}))
+    return folder
+
+
+def test_code_gives_each_groups_mean_and_range_beside_the_start(tmp_path, capsys):
+    runs = [_code_run(tmp_path / f"s{seed}", seed) for seed in range(3)]
+    plot = tmp_path / "out" / "binocularity.png"
+    assert main(["code", f"normal={runs[0]},{runs[1]}", str(runs[2]), "--cue", "stereo", "--plot", str(plot)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert len(out) == 5 and out[2].startswith("| normal (2) | stereo/fine | ") and out[3].startswith("| s2 (1) | ")
+    codes = [Run(run).code for run in runs[:2]]
+    index = [c["stereo/fine"]["binocularity"]["mean_abs_index"] for c in codes]
+    start = [c["initial"]["stereo/fine"]["binocularity"]["mean_abs_index"] for c in codes]
+    expected = f"{sum(index) / 2:.3f} ({min(index):.3f}-{max(index):.3f}) [{sum(start) / 2:.3f}]"
+    assert out[2].split(" | ")[2] == expected
+    assert plot.stat().st_size > 0 and out[4] == f"wrote {plot}"
+
+
+@pytest.mark.parametrize("args, message", [
+    (["x=", "--cue", "stereo"], "a group must be"),
+    (["a={one}", "a={two}"], "distinct"),
+    (["nowhere"], "no such folder"),
+])
+def test_code_rejects_bad_groups(tmp_path, capsys, args, message):
+    (tmp_path / "one").mkdir()
+    (tmp_path / "two").mkdir()
+    args = [a.format(one=tmp_path / "one", two=tmp_path / "two") for a in args]
+    assert main(["code", *[a if "=" in a or a.startswith("--") or a == "stereo" else str(tmp_path / a)
+                           for a in args]]) == 2
+    assert message in capsys.readouterr().err

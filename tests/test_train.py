@@ -17,6 +17,7 @@ from aectorch.runtime.config import ExperimentConfig, PAPER_PRESET, to_experimen
 from aectorch.runtime import CHECKPOINT_FORMAT, load_checkpoint, load_learner, run_experiment, save_checkpoint
 from aectorch.runs import Run
 from aectorch.sim import ActiveDepthEnv
+from aectorch.coding.readouts import code_summary
 from aectorch.control import PAPER_ACTIONS_DEG
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -105,6 +106,13 @@ def test_train_py_writes_the_run_folder(tmp_path, textures):
     assert evaluation["trials"] == 3
     summary = Run(run).summary
     assert summary["iterations"] == 12 and "evaluation" in summary
+    # The learned code's read-outs, per dictionary: of its final state and of its random start.
+    assert set(summary["code"]) == set(summary["code_initial"]) == set(checkpoint["initial_dictionaries"])
+    atoms = checkpoint["learner"]["cues.stereo.encoder.dictionaries.fine.atoms"]
+    assert summary["code"]["stereo/fine"] == json.loads(json.dumps(code_summary(atoms)))
+    assert summary["code_initial"]["stereo/fine"] == json.loads(json.dumps(
+        code_summary(checkpoint["initial_dictionaries"]["stereo/fine"])))
+    assert (run / "figures" / "code.png").is_file()
     assert summary["final"] == {k: v for k, v in lines[-1].items() if k in summary["final"]}
     assert len(summary["final"]) == len(keys) - 5
     assert [e["iteration"] for e in summary["perturbation"]["events"]] == [7, 10]

@@ -1,4 +1,5 @@
-"""Sensory coding: foveal patches, batched OMP / MP, learnable dictionaries, binocular encoders."""
+"""Sensory coding: foveal patches, batched OMP / MP, learnable dictionaries, binocular encoders, and
+the read-outs of a learned code (binocularity, disparity tuning, orientation)."""
 
 from aectorch.coding.dictionary import (
     DictionaryOutput,
@@ -12,6 +13,10 @@ from aectorch.coding.patches import (
     pyramid_down, reduced_patches, scale_patches, window_patches,
 )
 from aectorch.coding.pursuit import gram_matrix, matching_pursuit, omp, use_backend
+from aectorch.coding.readouts import (
+    binocularity_histogram, binocularity_index, code_summary, disparity_histogram, disparity_tuning,
+    orientation_histogram, orientation_preference, preferred_disparity,
+)
 from aectorch.coding.sparse_code import SparseCode
 
 __all__ = [
@@ -29,12 +34,20 @@ __all__ = [
     "WIDE",
     "WINDOW",
     "FULL",
+    "binocularity_histogram",
+    "binocularity_index",
+    "code_summary",
+    "disparity_histogram",
+    "disparity_tuning",
     "extract_patches",
     "gram_matrix",
     "matching_pursuit",
     "omp",
+    "orientation_histogram",
+    "orientation_preference",
     "patch_permutation",
     "pooled_activity",
+    "preferred_disparity",
     "pyramid_down",
     "reconstruction_error",
     "reduced_patches",

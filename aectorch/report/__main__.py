@@ -76,6 +76,32 @@ def _ablation(args) -> list[str]:
     return lines
 
 
+def _code_groups(items: Sequence[str]) -> dict[str, list[Run]]:
+    groups: dict[str, list[Run]] = {}
+    for item in items:
+        label, _, folders = item.rpartition("=") if "=" in item else (Path(item).name, "", item)
+        if not label or not folders:
+            raise ValueError(f"a group must be label=run[,run...] or a run folder, got {item!r}")
+        if label in groups:
+            raise ValueError(f"group labels must be distinct, {label!r} is given twice")
+        groups[label] = [Run(folder) for folder in folders.split(",") if folder]
+        if not groups[label]:
+            raise ValueError(f"group {label!r} names no run folder")
+    return groups
+
+
+def _code(args) -> list[str]:
+    codes = {label: [run.code for run in runs] for label, runs in _code_groups(args.groups).items()}
+    lines = tables.code_table(codes, args.cue)
+    if args.plot is not None:
+        from aectorch.figures import plot_code_comparison
+
+        plot_code_comparison(codes, args.plot, dictionaries=tables.code_dictionaries(codes, args.cue),
+                             readout=args.readout)
+        lines.append(f"wrote {args.plot}")
+    return lines
+
+
 def _rl(args) -> list[str]:
     return tables.rl_table(args.folder, [Run(run) for run in args.own], args.default_set)
 
@@ -126,6 +152,12 @@ def _parser() -> argparse.ArgumentParser:
     sub = command("ablation", _ablation, tables.ablation_table)
     sub.add_argument("rows", nargs="+", help="label=run[:suffix]")
     sub.add_argument("--json", type=Path, help="also write the cells here")
+
+    sub = command("code", _code, tables.code_table)
+    sub.add_argument("groups", nargs="+", help="label=run[,run...] or a run folder")
+    sub.add_argument("--cue", default=None, help="only this cue's dictionaries (e.g. stereo)")
+    sub.add_argument("--plot", type=Path, default=None, help="also draw one read-out's histograms side by side")
+    sub.add_argument("--readout", default="binocularity", choices=("binocularity", "disparity", "orientation"))
 
     sub = command("rl", _rl, tables.rl_table)
     sub.add_argument("folder", type=Path, help="the examples' result files")

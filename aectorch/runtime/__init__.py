@@ -10,7 +10,8 @@ package holds, one idea per module:
   recording, the watchdog, the metrics log, the best state, checkpoints, the progress bar;
 - `migrations.py`: checkpoints of earlier formats, read as today's;
 - `outputs.py`: the run folder's files (`RunFolder`);
-- `finish.py`: the end of a run: figures, depth calibration, evaluation, ``summary.json``;
+- `finish.py`: the end of a run: the code's read-outs, figures, depth calibration, evaluation,
+  ``summary.json``;
 - `metrics.py`, `watchdog.py`, `provenance.py`, `distributed.py`: what the loop reads and writes.
 
 The run folder receives
@@ -22,10 +23,11 @@ The run folder receives
 - ``tb/``: the same scalars as TensorBoard events;
 - ``checkpoint.pt``: every ``train.checkpoint_every`` iterations, at the end and when
   interrupted (atomic: a temporary file in the same folder replaces the old one);
-- ``figures/``: Fig. 2 (dictionaries), Fig. 3 (training), Fig. 4 (perturbation, when one is
-  configured) and the evaluation figure (`aectorch.figures`);
+- ``figures/``: Fig. 2 (dictionaries), Fig. 3 (training), the code's read-outs, Fig. 4
+  (perturbation, when one is configured) and the evaluation figure (`aectorch.figures`);
 - ``evaluation.json``: `aectorch.evaluation.evaluate` on held-out textures;
-- ``summary.json``: final metrics, evaluation headline numbers, timing, perturbation recovery.
+- ``summary.json``: final metrics, evaluation headline numbers, timing, perturbation recovery, and
+  the read-outs of each dictionary, trained and initial (`aectorch.coding.code_summary`).
 
 A run continues in place from its checkpoint (``train.resume=<run folder>``) and ends
 bit-identical to an uninterrupted one (the learner's, the environments' and the metrics' state,

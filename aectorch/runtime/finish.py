@@ -1,5 +1,5 @@
-"""The end of a run: figures, the perturbation's recovery, depth calibration, the evaluation and
-``summary.json``."""
+"""The end of a run: the learned code's read-outs, figures, the perturbation's recovery, depth
+calibration, the evaluation and ``summary.json``."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from aectorch.coding.readouts import code_summary
 from aectorch.evaluation import evaluate, run_trials
 from aectorch.framework import MIN_DEPTH_TRIALS, JointLearner
 from aectorch.runtime.builders import build_textures, dictionaries, trial_options
@@ -69,7 +70,11 @@ def _finish(run) -> dict:
         "final": {k: json_value(v) for k, v in final.items()},
         "provenance": run.session,
     }
-    figures = _figures(cfg, folder, run.initial, run.learner, labels)
+    # The read-outs of the code as training left it (before best.pt is restored for the evaluation),
+    # and of its random start: the chance level of each histogram.
+    summary["code"] = {name: code_summary(atoms) for name, atoms in dictionaries(run.learner).items()}
+    summary["code_initial"] = {name: code_summary(atoms) for name, atoms in run.initial.items()}
+    figures = _figures(cfg, folder, run.initial, run.learner, labels, (summary["code"], summary["code_initial"]))
     if run.events:
         summary["perturbation"] = _recovery(cfg, folder, labels, figures)
     if run.best["iteration"] is not None:
@@ -80,9 +85,10 @@ def _finish(run) -> dict:
     return summary
 
 
-def _figures(cfg: ExperimentConfig, folder: RunFolder, initial: dict, learner, labels):
-    """Fig. 2 (dictionaries), Fig. 3 (training) and Fig. 4 (perturbation); the figures module, or
-    ``None`` when figures are off or cannot be drawn."""
+def _figures(cfg: ExperimentConfig, folder: RunFolder, initial: dict, learner, labels, code):
+    """Fig. 2 (dictionaries), Fig. 3 (training), Fig. 4 (perturbation) and the code's read-outs
+    (``code``: those of the trained and the initial dictionaries); the figures module, or ``None``
+    when figures are off or cannot be drawn."""
     if not cfg.train.figures:
         return None
     try:
@@ -97,6 +103,7 @@ def _figures(cfg: ExperimentConfig, folder: RunFolder, initial: dict, learner, l
     records = read_metrics(folder.metrics_path)
     figures.plot_dictionaries(initial, dictionaries(learner), out / "dictionaries.png")
     figures.plot_training(records, out / "training.png", events=labels)
+    figures.plot_code(code[0], out / "code.png", initial=code[1])
     if labels:
         figures.plot_perturbation(records, out / "perturbation.png", events=labels)
     return figures
