@@ -86,7 +86,9 @@ def main(argv=None) -> dict:
     from torchrl.objectives.value import GAE
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--reward", choices=["error", "coding"], default="error")
+    parser.add_argument("--reward", choices=["improvement", "coding", "scaled", "error"], default="scaled")
+    parser.add_argument("--gamma", type=float, default=0.5, help="the discount")
+    parser.add_argument("--lr", type=float, default=3e-4)
     parser.add_argument("--steps", type=int, default=40_000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--num-envs", type=int, default=8)
@@ -112,9 +114,9 @@ def main(argv=None) -> dict:
     critic = ValueOperator(_mlp(norm, features, 1), in_keys=["observation"])
     frames = 120 * args.num_envs  # four fixations of every head
     collector = Collector(env, actor, frames_per_batch=frames, total_frames=args.steps)
-    advantage = GAE(gamma=0.99, lmbda=0.95, value_network=critic)
+    advantage = GAE(gamma=args.gamma, lmbda=0.95, value_network=critic)
     loss = ClipPPOLoss(actor, critic, clip_epsilon=0.2, entropy_coeff=0.0, critic_coeff=0.5)
-    optimizer = torch.optim.Adam(loss.parameters(), lr=3e-4)
+    optimizer = torch.optim.Adam(loss.parameters(), lr=args.lr)
     clock = time.perf_counter()
     for batch in collector:
         norm.eval()  # the statistics follow the collected observations only
@@ -132,7 +134,7 @@ def main(argv=None) -> dict:
         norm.train()
     seconds = time.perf_counter() - clock
     collector.shutdown()
-    result = {"reward": args.reward, "steps": args.steps, "seed": args.seed, "train_s": seconds,
+    result = {"args": vars(args), "reward": args.reward, "steps": args.steps, "seed": args.seed, "train_s": seconds,
               "eval": {name: {"trained": evaluate(logits, env, textures, args.eval_episodes, args.seed, args.num_envs),
                               "random": evaluate(None, env, textures, args.eval_episodes, args.seed, args.num_envs)}
                        for name, textures in sets.items()}}

@@ -2,8 +2,10 @@
 
     .venv/bin/python scripts/rl_table.py runs/rl --own runs/rl/own_s0 runs/rl/own_s1 runs/rl/own_s2
 
-Reads ``<client>_<reward>_s<seed>.json`` (written by ``examples/sb3_vergence.py`` and
-``examples/torchrl_vergence.py`` with ``--out``) and, for the project's own learner, each run's
+Reads ``<client>_<reward>_s<seed>.json`` (written by ``examples/sb3_vergence.py``,
+``examples/torchrl_vergence.py`` and ``examples/cleanrl_ppo_vergence.py`` with ``--out``; the
+client ``sb3-activedepth`` is ``examples/sb3_vergence.py --env aectorch/ActiveDepth-v0``, tabulated
+apart with both movements' errors) and, for the project's own learner, each run's
 ``final_choose.json`` and ``final_textures.json`` (``python -m aectorch.evaluate`` on the
 choosing photographs and on the 40 test textures) and ``summary.json``. Prints one markdown row per client, reward and evaluation set: the mean over the
 seeds of the mean |vergence error| at fixation ends, the fraction within 0.22 deg, the random
@@ -35,12 +37,18 @@ def main(argv=None) -> int:
                         help="the set of result files written before the examples evaluated several")
     args = parser.parse_args(argv)
     rows: dict = defaultdict(lambda: defaultdict(list))
+    depth_rows: dict = defaultdict(list)
     for path in sorted(args.folder.glob("*_s[0-9]*.json")):
-        match = re.fullmatch(r"(sb3|torchrl)_(error|coding)_s(\d+)\.json", path.name)
+        match = re.fullmatch(r"(sb3|torchrl|cleanrl|sb3-activedepth)_(error|coding|improvement|scaled)_s(\d+)\.json",
+                             path.name)
         if not match:
             continue
         result = json.loads(path.read_text())
-        client = {"sb3": "SB3 PPO", "torchrl": "TorchRL PPO"}[match[1]]
+        if match[1] == "sb3-activedepth":
+            for name, pair in _sets(result, args.default_set).items():
+                depth_rows[(match[2], name)].append((pair, result["train_s"]))
+            continue
+        client = {"sb3": "SB3 PPO", "torchrl": "TorchRL PPO", "cleanrl": "CleanRL-style PPO"}[match[1]]
         for name, pair in _sets(result, args.default_set).items():
             cell = rows[(client, match[2], name)]
             cell["mae"].append(pair["trained"]["vergence_mae_deg"])
@@ -72,7 +80,24 @@ def main(argv=None) -> int:
               f"| {client} | {reward} | {name} | {len(mae)} | {statistics.fmean(mae):.3f}{sd} [{per_seed}] | "
               f"{statistics.fmean(cell['within']):.1%} | - |", end="")
         print(f" {statistics.fmean(cell['train_s']):.0f} |")
+    if depth_rows:
+        _print_active_depth(depth_rows)
     return 0
+
+
+def _print_active_depth(depth_rows: dict) -> None:
+    """SB3's PPO on ``aectorch/ActiveDepth-v0``: both movements' mean |error|, beside random."""
+    print("\n| agent | reward | evaluated on | seeds | pursuit MAE (deg) | random | vergence MAE (deg) | random | training (s) |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for (reward, name), runs in sorted(depth_rows.items()):
+        cells = []
+        for movement in ("pursuit", "vergence"):
+            for policy in ("trained", "random"):
+                values = [pair[policy][f"{movement}_mae_deg"] for pair, _ in runs]
+                per_seed = " [" + " / ".join(f"{v:.2f}" for v in values) + "]" if policy == "trained" else ""
+                cells.append(f"{statistics.fmean(values):.3f}{per_seed}")
+        seconds = statistics.fmean(s for _, s in runs)
+        print(f"| SB3 PPO, MultiDiscrete | {reward} | {name} | {len(runs)} | {' | '.join(cells)} | {seconds:.0f} |")
 
 
 if __name__ == "__main__":

@@ -145,7 +145,7 @@ def test_bad_options_are_named():
     env.close()
 
 
-@pytest.mark.parametrize("example", ["sb3_vergence", "torchrl_vergence"])
+@pytest.mark.parametrize("example", ["sb3_vergence", "torchrl_vergence", "cleanrl_ppo_vergence"])
 def test_the_rl_examples_train_and_evaluate(example, tmp_path):
     import importlib.util
     import json
@@ -228,3 +228,11 @@ def test_the_default_reward_is_the_improvement():
     assert envs.TaskConfig().reward == "improvement"
     with pytest.raises(ValueError, match="reward"):
         envs.TaskConfig(reward="bonus")
+
+
+def test_the_cleanrl_style_example_is_one_short_file_on_make_vec():
+    from pathlib import Path
+
+    source = (Path(__file__).resolve().parents[1] / "examples" / "cleanrl_ppo_vergence.py").read_text()
+    assert len(source.splitlines()) <= 200
+    assert "gym.make_vec(" in source and "stable_baselines3" not in source and "torchrl" not in source
