@@ -7,9 +7,11 @@ machine's drift), each timed step by step after a warm-up, median over the steps
     (B = 32, both cues, learning): B env-iterations per iteration.
   * ``Vergence-v0``: ``gymnasium.make_vec("aectorch/Vergence-v0", num_envs=N,
     vectorization_mode="vector_entry_point")`` stepped with random actions (default N = 256,
-    features observation and coding reward, the internal encoder learning): N env-iterations per
-    step, NumPy conversion at Gymnasium's boundary included. Also with ``reward="error"`` and
-    ``observation="images"``, which need no encoder.
+    features observation, the internal encoder learning): N env-iterations per step, NumPy
+    conversion at Gymnasium's boundary included. With the default ``reward="improvement"``, with
+    ``reward="coding"`` (the default before it, and the same steps without the subtraction), with
+    ``reward="scaled"``, and with ``reward="error"`` and ``observation="images"``, which need no
+    encoder.
 
 Usage:
     python benchmarks/rl_envs.py [--num-envs 256] [--rounds 5] [--steps 20] [--json benchmarks/results/rl_envs.json]
@@ -60,7 +62,9 @@ def main(argv=None) -> int:
     torch.set_num_threads(1)  # train.py's default: torch ops on one thread, the fused kernels on every core
     workloads = {
         f"train loop (B = {args.batch})": _train_loop(args.batch),
-        f"Vergence-v0, features + coding (N = {args.num_envs})": _vergence(args.num_envs),
+        f"Vergence-v0, features + improvement (N = {args.num_envs})": _vergence(args.num_envs),
+        f"Vergence-v0, features + coding (N = {args.num_envs})": _vergence(args.num_envs, reward="coding"),
+        f"Vergence-v0, features + scaled (N = {args.num_envs})": _vergence(args.num_envs, reward="scaled"),
         f"Vergence-v0, features + error (N = {args.num_envs})": _vergence(args.num_envs, reward="error"),
         f"Vergence-v0, images + error (N = {args.num_envs})": _vergence(args.num_envs, observation="images",
                                                                          reward="error"),
