@@ -1,15 +1,19 @@
-"""Stable-Baselines3's PPO, unchanged, learns vergence on ``aectorch/Vergence-v0``.
+"""Stable-Baselines3's PPO, unchanged, learns vergence on ``aectorch/Vergence-v0`` from the intrinsic reward.
 
 Eight simulated heads (one batched simulator) train SB3's ``PPO("MlpPolicy")``, with the
-observations normalised by SB3's ``VecNormalize``, on the procedural training textures; the policy is then evaluated greedily on another set of images (a folder of
-photographs, or the 40 procedural test textures) against a random policy: the mean |vergence
-error| at the end of each fixation. With ``reward="coding"`` the agent learns from the internal
-encoder's coding reward alone (active efficient coding: no ground truth), with ``reward="error"``
-from minus the absolute vergence error (an oracle baseline). The evaluation reads the trained
-encoder's features (frozen), as the policy saw them.
+observations z-scored by SB3's ``VecNormalize`` (the one wrapper), on the procedural training
+textures; the greedy policy is then evaluated on another set of images (a folder of photographs,
+and the 40 procedural test textures) against a random policy: the mean |error| at the end of each
+fixation. By default the agent learns from ``reward="scaled"``, the improvement of the internal
+encoder's coding reward over a running scale of it (active efficient coding: no ground truth),
+with a discount of 0.5; ``--reward error`` is minus the absolute vergence error (an oracle
+baseline), ``--reward coding`` the absolute coding reward. The evaluation reads the trained
+encoder's features (frozen), as the policy saw them. ``--env aectorch/ActiveDepth-v0`` learns
+both movements at once (``MultiDiscrete``) and scores both.
 
-    python examples/sb3_vergence.py --reward error --steps 40000 --seed 0 --eval-textures data/choose-photos
-    python examples/sb3_vergence.py --reward coding --out runs/sb3_coding_s0.json
+    python examples/sb3_vergence.py --seed 0 --eval-textures data/choose-photos --out runs/rl/sb3_scaled_s0.json
+    python examples/sb3_vergence.py --reward error --gamma 0.99 --seed 0
+    python examples/sb3_vergence.py --env aectorch/ActiveDepth-v0 --seed 0
 """
 
 from __future__ import annotations
@@ -93,7 +97,9 @@ def main(argv=None) -> dict:
         sets[args.eval_textures] = args.eval_textures
     env = envs.make_sb3_vec_env(args.env, num_envs=args.num_envs, seed=args.seed, reward=args.reward)
     # SB3's defaults but for the rollout, four fixations (120 steps) of every environment per update,
-    # and the observations normalised by SB3's running statistics (VecNormalize), as SB3 advises for PPO.
+    # and the discount, 0.5: the improvement rewards a step's own change, and a discount near 1
+    # adds the later steps' noise to its return (the project's own learner: 0.3). The observations
+    # are z-scored by SB3's running statistics (VecNormalize), as SB3 advises for PPO.
     venv = VecNormalize(VecMonitor(env), norm_obs=True, norm_reward=args.norm_reward, gamma=args.gamma)
     model = PPO("MlpPolicy", venv, n_steps=args.n_steps, batch_size=args.batch_size, gamma=args.gamma,
                 learning_rate=args.lr, n_epochs=args.epochs, ent_coef=args.ent_coef, seed=args.seed,

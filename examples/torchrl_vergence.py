@@ -8,7 +8,10 @@ minibatches. The greedy policy is then evaluated as in
 ``examples/sb3_vergence.py``: the mean |vergence error| at each fixation's end, on another set of
 images, beside a random policy.
 
-    python examples/torchrl_vergence.py --reward error --steps 40000 --seed 0 --eval-textures data/choose-photos
+By default the agent learns from the intrinsic ``reward="scaled"`` with a discount of 0.5.
+
+    python examples/torchrl_vergence.py --seed 0 --eval-textures data/choose-photos --out runs/rl/torchrl_scaled_s0.json
+    python examples/torchrl_vergence.py --reward error --gamma 0.99 --seed 0
 """
 
 from __future__ import annotations
