@@ -67,10 +67,12 @@ class Features(Choice):
 
 
 class Reward(Choice):
-    """The paper's coding reward, or its improvement R(s') - R(s)."""
+    """The paper's coding reward, its improvement R(s') - R(s), or the improvement over a running
+    root mean square of itself (`aectorch.control.rewards`)."""
 
     coding = "coding"
     improvement = "improvement"
+    scaled = "scaled"
 
 
 class AgentName(Choice):

@@ -8,7 +8,10 @@ minibatches. The greedy policy is then evaluated as in
 ``examples/sb3_vergence.py``: the mean |vergence error| at each fixation's end, on another set of
 images, beside a random policy.
 
-    python examples/torchrl_vergence.py --reward error --steps 40000 --seed 0 --eval-textures data/choose-photos
+By default the agent learns from the intrinsic ``reward="scaled"`` with a discount of 0.5.
+
+    python examples/torchrl_vergence.py --seed 0 --eval-textures data/choose-photos --out runs/rl/torchrl_scaled_s0.json
+    python examples/torchrl_vergence.py --reward error --gamma 0.99 --seed 0
 """
 
 from __future__ import annotations
@@ -86,7 +89,9 @@ def main(argv=None) -> dict:
     from torchrl.objectives.value import GAE
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--reward", choices=["error", "coding"], default="error")
+    parser.add_argument("--reward", choices=["improvement", "coding", "scaled", "error"], default="scaled")
+    parser.add_argument("--gamma", type=float, default=0.5, help="the discount")
+    parser.add_argument("--lr", type=float, default=3e-4)
     parser.add_argument("--steps", type=int, default=40_000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--num-envs", type=int, default=8)
@@ -112,9 +117,9 @@ def main(argv=None) -> dict:
     critic = ValueOperator(_mlp(norm, features, 1), in_keys=["observation"])
     frames = 120 * args.num_envs  # four fixations of every head
     collector = Collector(env, actor, frames_per_batch=frames, total_frames=args.steps)
-    advantage = GAE(gamma=0.99, lmbda=0.95, value_network=critic)
+    advantage = GAE(gamma=args.gamma, lmbda=0.95, value_network=critic)
     loss = ClipPPOLoss(actor, critic, clip_epsilon=0.2, entropy_coeff=0.0, critic_coeff=0.5)
-    optimizer = torch.optim.Adam(loss.parameters(), lr=3e-4)
+    optimizer = torch.optim.Adam(loss.parameters(), lr=args.lr)
     clock = time.perf_counter()
     for batch in collector:
         norm.eval()  # the statistics follow the collected observations only
@@ -132,7 +137,7 @@ def main(argv=None) -> dict:
         norm.train()
     seconds = time.perf_counter() - clock
     collector.shutdown()
-    result = {"reward": args.reward, "steps": args.steps, "seed": args.seed, "train_s": seconds,
+    result = {"args": vars(args), "reward": args.reward, "steps": args.steps, "seed": args.seed, "train_s": seconds,
               "eval": {name: {"trained": evaluate(logits, env, textures, args.eval_episodes, args.seed, args.num_envs),
                               "random": evaluate(None, env, textures, args.eval_episodes, args.seed, args.num_envs)}
                        for name, textures in sets.items()}}

@@ -145,7 +145,7 @@ def test_bad_options_are_named():
     env.close()
 
 
-@pytest.mark.parametrize("example", ["sb3_vergence", "torchrl_vergence"])
+@pytest.mark.parametrize("example", ["sb3_vergence", "torchrl_vergence", "cleanrl_ppo_vergence"])
 def test_the_rl_examples_train_and_evaluate(example, tmp_path):
     import importlib.util
     import json
@@ -175,3 +175,64 @@ def test_loaded_encoders_stay_across_seeded_resets_and_give_the_trained_features
     torch.testing.assert_close(obs["features"], expected)
     with pytest.raises(ValueError, match=r"encoders must hold the cues \['stereo'\]"):
         other.load_encoders({})
+
+
+def test_the_reward_forms_are_the_learners():
+    from aectorch.control import RewardScale, learned_reward
+
+    r, r_prev = torch.tensor([-1.0, -2.0, -0.5]), torch.tensor([-1.5, -1.0, -0.5])
+    assert torch.equal(learned_reward("coding", r), r)
+    assert learned_reward("improvement", r, r_prev).tolist() == [0.5, -1.0, 0.0]
+    scale = RewardScale(window=4)
+    first = learned_reward("scaled", r, r_prev, scale)
+    torch.testing.assert_close(first, torch.tensor([0.5, -1.0, 0.0]) / (1.25 / 3) ** 0.5)
+    learned_reward("scaled", torch.tensor([2.0, 2.0]), torch.zeros(2), scale)  # weighs 2 old + 2 new
+    torch.testing.assert_close(scale.mean_square, torch.tensor((2 * 1.25 / 3 + 8) / 4, dtype=torch.float64))
+    with pytest.raises(ValueError, match="previous observation's coding reward"):
+        learned_reward("improvement", r)
+    with pytest.raises(ValueError, match="RewardScale"):
+        learned_reward("scaled", r, r_prev)
+    with pytest.raises(ValueError, match="'bonus' is not a valid Reward"):
+        learned_reward("bonus", r, r_prev)
+
+
+@pytest.mark.parametrize("form", ["improvement", "scaled"])
+def test_the_improvement_rewards_are_the_coding_rewards_change_within_each_episode(form):
+    # Two tasks from one seed take the same actions: one gives the coding reward, one its change.
+    # The first step of an episode is measured from the episode's first observation, coded at the
+    # reset (or at the step that ended the last episode) and not learned from.
+    tasks = {r: envs.EyeTask(3, envs.TaskConfig(**SMALL, reward=r), seed=1) for r in ("coding", form)}
+    for task in tasks.values():
+        task.reset(seed=1)
+    coder = tasks["coding"]
+
+    def first_reward():
+        with torch.no_grad():
+            return coder.encoders["stereo"].encode(coder.env.observe("stereo", coder.scales)).reward
+
+    previous, improvements = first_reward(), []
+    actions = torch.randint(11, (2 * coder.episode_steps, 3), generator=torch.Generator().manual_seed(0))
+    for action in actions:
+        coding, other = (task.step(action) for task in tasks.values())
+        improvements.append(coding.reward - previous)
+        if form == "improvement":
+            torch.testing.assert_close(other.reward, improvements[-1])
+        previous = first_reward() if coding.truncated else coding.reward
+    if form == "scaled":  # the last step's scale holds every improvement so far
+        rms = torch.cat(improvements).double().square().mean().sqrt()
+        torch.testing.assert_close(other.reward, improvements[-1] / rms.float())
+    assert not torch.allclose(torch.stack(improvements), torch.zeros(len(improvements), 3))
+
+
+def test_the_default_reward_is_the_improvement():
+    assert envs.TaskConfig().reward == "improvement"
+    with pytest.raises(ValueError, match="reward"):
+        envs.TaskConfig(reward="bonus")
+
+
+def test_the_cleanrl_style_example_is_one_short_file_on_make_vec():
+    from pathlib import Path
+
+    source = (Path(__file__).resolve().parents[1] / "examples" / "cleanrl_ppo_vergence.py").read_text()
+    assert len(source.splitlines()) <= 200
+    assert "gym.make_vec(" in source and "stable_baselines3" not in source and "torchrl" not in source

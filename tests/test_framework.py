@@ -163,17 +163,22 @@ def test_config_rejects_bad_values():
         LearnerConfig(active_cues=["vergence"])
 
 
-@pytest.mark.parametrize("reward", ["coding", "improvement"])
+@pytest.mark.parametrize("reward", ["coding", "improvement", "scaled"])
 def test_the_actor_critics_learn_from_the_configured_reward(reward):
     # With the critic at 0 and J = 0, the first TD error is (1 - xi) times the reward learned from:
-    # R(s') for "coding", R(s') - R(s) for "improvement".
+    # R(s') for "coding", R(s') - R(s) for "improvement", that over its root mean square for
+    # "scaled" (the first batch's own).
     control = ActorCriticConfig(critic_init=0.0, critic_discount=0.5)
     env, learner = make(h=3, cue=dict(reward=reward, nac=control))
     first = learner.iteration(env)
     second = learner.iteration(env)
     for cue_first, cue_second in ((first.parallax, second.parallax), (first.stereo, second.stereo)):
-        learned = cue_second.reward - (cue_first.reward if reward == "improvement" else 0.0)
+        learned = cue_second.reward - (cue_first.reward if reward != "coding" else 0.0)
+        if reward == "scaled":
+            learned = learned / learned.double().square().mean().add(1e-12).sqrt().to(learned.dtype)
         torch.testing.assert_close(cue_second.td_error, (1 - control.xi) * learned)
+    scales = [name for name in learner.state_dict() if "reward_scale" in name]
+    assert bool(scales) == (reward == "scaled")  # its running scale is in the checkpoint
 
 
 @pytest.mark.parametrize("reward", ["coding", "improvement"])

@@ -254,3 +254,21 @@ def test_code_rejects_bad_groups(tmp_path, capsys, args, message):
     assert main(["code", *[a if "=" in a or a.startswith("--") or a == "stereo" else str(tmp_path / a)
                            for a in args]]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_rl_tabulates_the_clients_and_active_depth(tmp_path, capsys):
+    def result(mae, random_mae, **pursuit):
+        row = lambda v, p: {"vergence_mae_deg": v, "within_0.22_deg": 0.5, "fixations": 8,  # noqa: E731
+                            **({"pursuit_mae_deg": p} if p is not None else {})}
+        return {"train_s": 10.0, "eval": {"test textures": {"trained": row(mae, pursuit.get("trained")),
+                                                            "random": row(random_mae, pursuit.get("random"))}}}
+
+    for name, value in (("cleanrl_scaled_s0", 0.2), ("cleanrl_scaled_s1", 0.4), ("sb3_coding_s0", 1.0)):
+        (tmp_path / f"{name}.json").write_text(json.dumps(result(value, 2.5)))
+    (tmp_path / "sb3-activedepth_scaled_s0.json").write_text(json.dumps(result(0.5, 2.0, trained=1.0, random=3.0)))
+    (tmp_path / "other_s0.json").write_text("{}")  # not a client's file: left alone
+    assert main(["rl", str(tmp_path)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert "| CleanRL-style PPO | scaled | test textures | 2 | 0.300 (0.141) [0.20 / 0.40] | 50.0% | 2.50 | 10 |" in out
+    assert "| SB3 PPO | coding | test textures | 1 | 1.000 [1.00] | 50.0% | 2.50 | 10 |" in out
+    assert "| SB3 PPO, MultiDiscrete | scaled | test textures | 1 | 1.000 [1.00] | 3.000 | 0.500 [0.50] | 2.000 | 10 |" in out

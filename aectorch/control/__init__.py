@@ -7,7 +7,8 @@ from aectorch.control.agent import (
 )
 from aectorch.control.factory import AGENTS, agent_config, make_agent
 from aectorch.control.ppo import PPO, PPOConfig
+from aectorch.control.rewards import RewardScale, learned_reward
 
 __all__ = ["AGENTS", "DEFAULT_ACTIONS_DEG", "PAPER_ACTIONS_DEG", "PPO", "ActOutput", "ActorCriticConfig", "Agent",
-           "LearnOutput", "NaturalActorCritic", "PPOConfig", "Transitions", "UpdateOutput", "agent_config",
-           "draw_uniform", "make_agent", "sample_actions"]
+           "LearnOutput", "NaturalActorCritic", "PPOConfig", "RewardScale", "Transitions", "UpdateOutput",
+           "agent_config", "draw_uniform", "learned_reward", "make_agent", "sample_actions"]

@@ -37,7 +37,7 @@ from aectorch._checks import check_choice, check_int
 from aectorch.choices import Choice
 from aectorch.coding import BinocularEncoder, EncoderConfig
 from aectorch.coding.patches import DEFAULT_SCALES, as_scale
-from aectorch.control import DEFAULT_ACTIONS_DEG
+from aectorch.control import DEFAULT_ACTIONS_DEG, RewardScale, learned_reward
 from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, ActiveDepthEnv, TextureBank
 
 __all__ = ["EyeTask", "Observation", "Reward", "Step", "Task", "TaskConfig"]
@@ -60,11 +60,16 @@ class Observation(Choice):
 
 
 class Reward(Choice):
-    """``coding``: the internal encoder's coding reward -(e^C + e^F) of the next observation (summed
-    over the cues); ``error``: minus the absolute angle error(s) after the step, in degrees (an
-    oracle baseline)."""
+    """The intrinsic rewards, from the internal encoder's coding reward R = -(e^C + e^F) (summed over
+    the cues), in the forms the joint learner has (`aectorch.control.rewards.learned_reward`):
+    ``improvement`` (the default): R(s') - R(s), the change the step caused; ``coding``: R(s') of
+    the next observation; ``scaled``: the improvement over a running root mean square of itself.
+    And ``error``: minus the absolute angle error(s) after the step, in degrees (an oracle
+    baseline)."""
 
+    improvement = "improvement"
     coding = "coding"
+    scaled = "scaled"
     error = "error"
 
 
@@ -80,7 +85,7 @@ class TaskConfig:
     Attributes:
         task: ``vergence``, ``pursuit`` or ``active_depth`` (set by the id).
         observation: ``features`` (default) or ``images``.
-        reward: ``coding`` (default) or ``error``.
+        reward: ``improvement`` (default), ``coding``, ``scaled`` or ``error`` (`Reward`).
         actions_deg: the action set of pan increments (default `DEFAULT_ACTIONS_DEG`).
         textures: a folder of images, a `TextureBank`, or ``None`` (the 100 procedural training
             textures, ``TextureBank.default("train")``).
@@ -96,7 +101,7 @@ class TaskConfig:
 
     task: Task = Task.vergence
     observation: Observation = Observation.features
-    reward: Reward = Reward.coding
+    reward: Reward = Reward.improvement
     actions_deg: Sequence[float] = DEFAULT_ACTIONS_DEG
     textures: object = None
     distances_m: Sequence[float] = DEFAULT_DISTANCES_M
@@ -172,8 +177,10 @@ class EyeTask:
         self.device = self.env.device
         self.scales = tuple(as_scale(s) for s in config.scales)
         self.actions_deg = torch.tensor(config.actions_deg, dtype=self.env.dtype, device=self.device)
-        self.needs_encoder = config.observation == Observation.features or config.reward == Reward.coding
+        self.needs_encoder = config.observation == Observation.features or config.reward != Reward.error
         self.encoders: dict[str, BinocularEncoder] = {}
+        self.reward_scale: RewardScale | None = None  # the ``scaled`` reward's running scale
+        self._previous: Tensor | None = None  # the coding reward of the current observation
         self._loaded = False  # encoders given by load_encoders stay across seeded resets
         self._seed_encoders(0 if seed is None else seed)
         per_fixation = config.fixation_iterations
@@ -198,6 +205,7 @@ class EyeTask:
         if not self.needs_encoder:
             return
         generator = torch.Generator().manual_seed(int(seed))
+        self.reward_scale = RewardScale().to(self.device) if self.config.reward == Reward.scaled else None
         self.encoders = {cue: BinocularEncoder(self.config.encoder, self.scales, generator=generator,
                                                dtype=self.env.dtype, device=self.device) for cue in self.cues}
 
@@ -222,7 +230,7 @@ class EyeTask:
             self._seed_encoders(seed)
         self.env.reset(seed)
         self.steps = 0
-        observation, _ = self._observe(learn=False)
+        observation, self._previous = self._observe(learn=False)
         return observation
 
     def step(self, actions: Tensor) -> Step:
@@ -241,15 +249,17 @@ class EyeTask:
         details = {"distance_m": self.env.distance_m.clone() if info.distance_m is None else info.distance_m,
                    "pursuit_error_deg": info.pursuit_error_deg, "vergence_error_deg": info.vergence_error_deg,
                    "left_pan_deg": info.left_pan_deg, "right_pan_deg": info.right_pan_deg}
-        if truncated:
+        if truncated:  # the next episode's first observation: its improvements start from it
             self.steps = 0
-            observation, _ = self._observe(learn=False)
+            observation, first = self._observe(learn=False)
         else:
             observation, coding = self._observe(learn=True)
-        if self.config.reward == Reward.coding:
-            reward = coding
-        else:
+            first = coding
+        if self.config.reward == Reward.error:
             reward = -sum(errors[self.env.cue(cue).movement].abs() for cue in self.cues)
+        else:
+            reward = learned_reward(self.config.reward.value, coding, self._previous, self.reward_scale)
+        self._previous = first
         return Step(observation, reward, truncated, final, details)
 
     def _increments(self, actions: Tensor) -> list[Tensor]:

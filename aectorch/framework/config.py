@@ -63,6 +63,9 @@ class CueConfig:
             coding reward's, minus a constant of the start state), but the improvement leaves out
             the texture's reward level, the largest term of the TD error's noise. With gamma = 1
             the improvement's return telescopes to a constant: use it only with a discount < 1.
+            ``"scaled"``: the improvement over a running root mean square of the improvements.
+            One function computes the three, here and in the standard environments
+            (`aectorch.control.rewards.learned_reward`).
         motor_cost: a metabolic cost of the eye movement (>= 0, default 0): the agent learns from
             the reward minus ``motor_cost * |increment|`` (degrees) of the action that led to it,
             as the lineage's AEC models charge the muscles' activity, so that standing still pays

@@ -17,7 +17,7 @@ from torch import Tensor, nn
 
 from aectorch.choices import Features, Readout, Reward
 from aectorch.coding import BinocularEncoder
-from aectorch.control import Agent, Transitions, draw_uniform, make_agent
+from aectorch.control import Agent, RewardScale, Transitions, draw_uniform, learned_reward, make_agent
 from aectorch.framework.config import CueConfig
 from aectorch.framework.shard import Shard
 from aectorch.profiling import stage
@@ -71,6 +71,8 @@ class CueLearner(nn.Module):
         self.register_buffer("action_negation", negation, persistent=False)
         if symmetric:  # start the policy and the critic symmetric as well
             agent.symmetrize_(encoder.feature_permutation, negation)
+        # The running scale of the ``scaled`` reward (its buffers are in the checkpoint); none otherwise.
+        self.reward_scale = RewardScale() if config.reward == Reward.scaled else None
         self.previous: tuple[Tensor, Tensor, Tensor] | None = None  # (features, action, reward)
 
     @staticmethod
@@ -119,7 +121,7 @@ class CueLearner(nn.Module):
         """The agent learns the pending transition, whose reward is this observation's; with the
         cue's symmetry the transformed transition too. Returns the TD errors ``[B]``."""
         f_prev, a_prev, r_prev = self.previous
-        learned = reward - r_prev if self.config.reward == Reward.improvement else reward
+        learned = learned_reward(self.config.reward, reward, r_prev, self.reward_scale, self.shard.reduce)
         if self.config.motor_cost:
             learned = learned - self.config.motor_cost * self.agent.actions_deg[a_prev].abs().to(learned.dtype)
         f_next = features

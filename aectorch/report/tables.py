@@ -184,20 +184,28 @@ def _rl_sets(result: dict, default_set: str) -> dict:
 
 def rl_table(folder: Path, own: Sequence[Run] = (), default_set: str = "data/choose-photos") -> list[str]:
     """The RL clients on ``aectorch/Vergence-v0`` (``<client>_<reward>_s<seed>.json`` in ``folder``,
-    written by ``examples/sb3_vergence.py`` and ``examples/torchrl_vergence.py`` with ``--out``)
-    beside the project's learner (each of ``own``'s ``final_choose.json`` and
-    ``final_textures.json``, and ``summary.json``): per client, reward and evaluation set, the mean
-    over the seeds of the vergence MAE at fixation ends, the fraction on target, the random
-    policy's error and the training seconds."""
+    written by ``examples/sb3_vergence.py``, ``examples/torchrl_vergence.py`` and
+    ``examples/cleanrl_ppo_vergence.py`` with ``--out``) beside the project's learner (each of
+    ``own``'s ``final_choose.json`` and ``final_textures.json``, and ``summary.json``): per client,
+    reward and evaluation set, the mean over the seeds of the vergence MAE at fixation ends, the
+    fraction on target, the random policy's error and the training seconds. The client
+    ``sb3-activedepth`` (``examples/sb3_vergence.py --env aectorch/ActiveDepth-v0``) gets a table
+    of its own, with both movements' errors beside a random policy's."""
     if not Path(folder).is_dir():
         raise FileNotFoundError(f"{folder}: no such folder")
     rows: dict = defaultdict(lambda: defaultdict(list))
+    depth_rows: dict = defaultdict(list)
     for path in sorted(Path(folder).glob("*_s[0-9]*.json")):
-        match = re.fullmatch(r"(sb3|torchrl)_(error|coding)_s(\d+)\.json", path.name)
+        match = re.fullmatch(r"(sb3|torchrl|cleanrl|sb3-activedepth)_(error|coding|improvement|scaled)_s(\d+)\.json",
+                             path.name)
         if not match:
             continue
         result = read_json(path)
-        client = {"sb3": "SB3 PPO", "torchrl": "TorchRL PPO"}[match[1]]
+        if match[1] == "sb3-activedepth":
+            for name, pair in _rl_sets(result, default_set).items():
+                depth_rows[(match[2], name)].append((pair, result["train_s"]))
+            continue
+        client = {"sb3": "SB3 PPO", "torchrl": "TorchRL PPO", "cleanrl": "CleanRL-style PPO"}[match[1]]
         for name, pair in _rl_sets(result, default_set).items():
             cell = rows[(client, match[2], name)]
             cell["mae"].append(pair["trained"]["vergence_mae_deg"])
@@ -225,6 +233,22 @@ def rl_table(folder: Path, own: Sequence[Run] = (), default_set: str = "data/cho
                      f"{statistics.fmean(cell['within']):.1%} | "
                      + (f"{statistics.fmean(random):.2f} |" if random else "- |")
                      + f" {statistics.fmean(cell['train_s']):.0f} |")
+    return lines + (_active_depth_table(depth_rows) if depth_rows else [])
+
+
+def _active_depth_table(depth_rows: dict) -> list[str]:
+    """SB3's PPO on ``aectorch/ActiveDepth-v0``: both movements' mean |error|, beside random."""
+    lines = ["", "| agent | reward | evaluated on | seeds | pursuit MAE (deg) | random | vergence MAE (deg) | random "
+             "| training (s) |", "|---|---|---|---|---|---|---|---|---|"]
+    for (reward, name), runs in sorted(depth_rows.items()):
+        cells = []
+        for movement in ("pursuit", "vergence"):
+            for policy in ("trained", "random"):
+                values = [pair[policy][f"{movement}_mae_deg"] for pair, _ in runs]
+                per_seed = " [" + " / ".join(f"{v:.2f}" for v in values) + "]" if policy == "trained" else ""
+                cells.append(f"{statistics.fmean(values):.3f}{per_seed}")
+        seconds = statistics.fmean(s for _, s in runs)
+        lines.append(f"| SB3 PPO, MultiDiscrete | {reward} | {name} | {len(runs)} | {' | '.join(cells)} | {seconds:.0f} |")
     return lines
 
 
