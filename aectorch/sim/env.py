@@ -886,8 +886,9 @@ class ActiveDepthEnv:
         self.fixation = int(state["fixation"])
         self.iteration = int(state["iteration"])
         self._generator.set_state(state["generator"])
-        # The optics (absent from states saved before perturbations were data: none but the roll,
-        # which roll_deg holds); the roll tensor is the state's own.
+        # The optics (None in states saved before perturbations were data, as
+        # `aectorch.runtime.migrations` fills them in: none but the roll, which roll_deg holds);
+        # the roll tensor is the state's own.
         roll = self.roll_deg
         self.set_optics(Optics.from_dict(state["optics"]) if state.get("optics") is not None
                         else replace(NEUTRAL, roll_deg=tuple(roll[0].tolist())))
