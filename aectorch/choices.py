@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from enum import Enum
 
-__all__ = ["AgentName", "Algorithm", "Choice", "DictionaryStart", "DType", "Eye", "Features", "Policy", "Pooling", "Readout", "RendererName", "Reward",
+__all__ = ["AgentName", "Algorithm", "Choice", "DictionaryStart", "DType", "Eye", "Features", "PerturbationKind", "Policy", "Pooling", "Readout", "RendererName", "Reward",
            "Symmetry", "WatchdogMode"]
 
 
@@ -121,3 +121,17 @@ class WatchdogMode(Choice):
     stop = "stop"
     warn = "warn"
     off = "off"
+
+
+class PerturbationKind(Choice):
+    """The perturbations of `aectorch.sim.perturbations` (`PERTURBATIONS`): of one eye's mounting
+    (``roll``, ``strabismus``, ``camera_shift``), of one eye's image (``anisometropia``,
+    ``monocular_deprivation``, ``aniseikonia``) or of the world's textures (``orientation_rearing``)."""
+
+    roll = "roll"
+    strabismus = "strabismus"
+    anisometropia = "anisometropia"
+    monocular_deprivation = "monocular_deprivation"
+    aniseikonia = "aniseikonia"
+    orientation_rearing = "orientation_rearing"
+    camera_shift = "camera_shift"

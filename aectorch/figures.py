@@ -414,11 +414,17 @@ def plot_training(records: Sequence[Mapping], path: str | os.PathLike, *,
 
 
 def plot_perturbation(records: Sequence[Mapping], path: str | os.PathLike, *,
-                      events: Sequence[tuple[int, str]], margin: int | None = None) -> Path:
+                      events: Sequence[tuple[int, str]], margin: int | None = None,
+                      readout: Mapping | None = None) -> Path:
     """Fig. 4: eye movement and depth errors around perturbation events.
 
     Panels (a) and (b) of :func:`plot_training`, restricted to the records with iteration in
-    ``[first event - margin, last event + margin]``; the events are grey dotted lines.
+    ``[first event - margin, last event + margin]``; the events are grey dotted lines. Records of
+    a run with perturbations carry the short window (``<movement>_recent_deg``,
+    ``depth_recent_m``, ``<movement>_recent_1px``; `aectorch.runtime.metrics`): then (a) and (b)
+    draw it (the long window thin and dashed behind it) and a panel (c) the fraction of fixation
+    ends within one pixel, with the 95 % line; ``readout`` (`aectorch.evaluation.adaptation`) marks
+    each change's peak (triangle) and recovery within 1.2x (circle).
 
     Args:
         records: metric dicts as for :func:`plot_training`.
@@ -426,7 +432,10 @@ def plot_perturbation(records: Sequence[Mapping], path: str | os.PathLike, *,
         events: ``(iteration, label)`` pairs, at least one.
         margin: iterations shown before the first and after the last event; by default the
             distance between the first and the last event, or 20 % of the run's iteration span
-            when there is one event (or all events are at one iteration); at least 1.
+            when there is one event (or all events are at one iteration), at least 1, before the
+            first, and everything after the last (where the recovery, or its absence, is).
+        readout: ``{label: {"iteration": change, movement or "depth": {"peak_iteration", "peak",
+            "iterations_to_recover", ...}}}``, or ``None``.
 
     Returns:
         The path written.
@@ -452,20 +461,73 @@ def plot_perturbation(records: Sequence[Mapping], path: str | os.PathLike, *,
         if not (is_int(margin) or isinstance(margin, float)) or not margin >= 0:  # inf keeps all
             raise ValueError(f"margin must be a non-negative number of iterations or None, got {margin!r}")
         margin_value = float(margin)
-    low, high = first - margin_value, last + margin_value
+    low, high = first - margin_value, (max(float(x.max()), last) if margin is None else last + margin_value)
     keep = (x >= low) & (x <= high)
     if not keep.any():
         raise ValueError(f"records has no record with iteration in [{low:g}, {high:g}] "
                          f"(records span [{x.min():g}, {x.max():g}])")
     window = [r for r, k in zip(records, keep) if k]
-    fig = _new_figure((8.0, 5.9))
-    ax_eye, ax_depth = fig.subplots(2, 1, sharex=True)
-    _error_panels(ax_eye, ax_depth, x[keep], window)
-    _draw_events([ax_eye, ax_depth], checked_events)
-    ax_depth.set_xlim(low, high)
-    ax_depth.set_xlabel("learner iteration")
+    if not _keys(window, "_recent_deg"):
+        fig = _new_figure((8.0, 5.9))
+        ax_eye, ax_depth = fig.subplots(2, 1, sharex=True)
+        _error_panels(ax_eye, ax_depth, x[keep], window)
+        axes = [ax_eye, ax_depth]
+    else:
+        fig = _new_figure((8.0, 8.2))
+        axes = list(fig.subplots(3, 1, sharex=True))
+        _recent_panels(*axes, x[keep], window, readout or {})
+    _draw_events(axes, checked_events)
+    axes[-1].set_xlim(low, high)
+    axes[-1].set_xlabel("learner iteration")
     fig.suptitle("Adaptation to perturbations (Fig. 4)")
     return _save(fig, path)
+
+
+def _recent_panels(ax_eye, ax_depth, ax_within, x: np.ndarray, records: Sequence[Mapping], readout: Mapping) -> None:
+    """Fig. 4's panels from the short window: (a) the movements' and (b) depth's errors (the long
+    window thin and dashed), (c) the fraction within one pixel; the read-out's peaks and
+    recoveries marked."""
+    movements = [k[: -len("_recent_deg")] for k in _keys(records, "_recent_deg")]
+    curves = []
+    for i, movement in enumerate(movements):
+        y = _series(records, f"{movement}_recent_deg")
+        curves.append(y)
+        _curve(ax_eye, x, y, color=_color(i), label=f"{movement} (recent)")
+        _curve(ax_eye, x, _series(records, f"{movement}_mae_deg"), color=_color(i), linewidth=0.8,
+               linestyle="--", alpha=0.6, label=f"{movement} (1000-fixation window)")
+        _curve(ax_within, x, _series(records, f"{movement}_recent_1px"), color=_color(i), label=movement)
+    depth = _series(records, "depth_recent_m")
+    _curve(ax_depth, x, depth, color=DEPTH_COLOR, label="depth (recent)")
+    _curve(ax_depth, x, _series(records, "depth_mae_m"), color=DEPTH_COLOR, linewidth=0.8, linestyle="--",
+           alpha=0.6, label="depth (1000-trial window)")
+    for change in readout.values():
+        for i, key in enumerate([*movements, "depth"]):
+            entry = change.get(key) if isinstance(change, Mapping) else None
+            if not isinstance(entry, Mapping) or entry.get("peak_iteration") is None:
+                continue
+            ax = ax_depth if key == "depth" else ax_eye
+            color = DEPTH_COLOR if key == "depth" else _color(i)
+            ax.plot([entry["peak_iteration"]], [entry["peak"]], marker="v", color=color, linestyle="none")
+            if entry.get("iterations_to_recover") is not None:
+                at = change["iteration"] + entry["iterations_to_recover"]
+                level = _series([r for r in records if r["iteration"] == at], entry["key"])
+                if level.size:
+                    ax.plot([at], [level[0]], marker="o", markerfacecolor="none", color=color, linestyle="none")
+    if any(np.isfinite(y).any() for y in curves):
+        _log_if_positive(ax_eye, *curves)
+    ax_eye.legend(loc="upper right", fontsize=7)
+    ax_depth.legend(loc="upper right", fontsize=7)
+    ax_within.axhline(0.95, color="grey", linewidth=0.8)
+    ax_within.set_ylim(0, 1.02)
+    ax_within.legend(loc="lower right", fontsize=7)
+    ax_eye.set_ylabel("eye movement MAE (deg)")
+    ax_depth.set_ylabel("depth MAE (m)")
+    ax_within.set_ylabel("within 1 px")
+    ax_eye.set_title("(a) eye movement error, last fixation ends (solid)", loc="left", fontsize=10)
+    ax_depth.set_title("(b) depth estimation error", loc="left", fontsize=10)
+    ax_within.set_title("(c) fixation ends within one pixel", loc="left", fontsize=10)
+    for ax in (ax_eye, ax_depth, ax_within):
+        ax.grid(True, which="major", alpha=0.3)
 
 
 def recovery(records: Sequence[Mapping], key: str, event_iteration: int, *,

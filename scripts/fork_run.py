@@ -34,7 +34,10 @@ def fork(checkpoint: Path, folder: Path, overrides: list[str], iterations: int) 
     if iterations <= payload["iteration"]:
         raise ValueError(f"--iterations must be above the checkpoint's iteration {payload['iteration']}, "
                          f"got {iterations}")
-    merged = OmegaConf.merge(OmegaConf.create(payload["config"]), OmegaConf.from_dotlist(overrides))
+    # The fork runs until ``iterations``: its config says so (perturbation events are checked
+    # against the run's length).
+    merged = OmegaConf.merge(OmegaConf.create(payload["config"]), {"train": {"iterations": iterations}},
+                             OmegaConf.from_dotlist(overrides))
     payload["config"] = OmegaConf.to_container(merged)
     checkpoint_config(payload, checkpoint)  # names the field of a bad override
     payload.pop("best", None)

@@ -13,7 +13,9 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from aectorch.runtime.config import ExperimentConfig, PAPER_PRESET, to_experiment_config, validate_resources
+from aectorch.runtime.config import (
+    ROLL_PERTURBATION, ExperimentConfig, PAPER_PRESET, to_experiment_config, validate_resources,
+)
 from aectorch.runtime import CHECKPOINT_FORMAT, load_checkpoint, load_learner, run_experiment, save_checkpoint
 from aectorch.runs import Run
 from aectorch.sim import ActiveDepthEnv
@@ -89,17 +91,21 @@ def test_train_py_writes_the_run_folder(tmp_path, textures):
     assert any((run / "tb").iterdir())
     lines = _lines(run)
     assert [line["iteration"] for line in lines] == list(range(2, 13, 2))
-    keys = {"iteration", "env_iterations", "elapsed_s", "roll_left_deg", "roll_right_deg",
-            "pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m"}
+    keys = {"iteration", "env_iterations", "elapsed_s", "roll_left_deg", "roll_right_deg", "perturbations",
+            "pursuit_mae_deg", "vergence_mae_deg", "depth_mae_m", "depth_recent_m",
+            *(f"{m}_recent_{w}" for m in ("pursuit", "vergence") for w in ("deg", "1px"))}
     for cue in ("parallax", "stereo"):
         keys |= {f"{cue}/reward", f"{cue}/entropy", f"{cue}/td_error"}
         keys |= {f"{cue}/{s}/{m}" for s in ("wide", "coarse", "fine", "full") for m in ("error", "atom_usage")}
     assert set(lines[-1]) == keys and lines[-1]["env_iterations"] == 60
-    # The roll: the right eye from iteration 6 (0-based; line 6 reports after it), both from 9.
+    # The roll: the right eye from iteration 4 (0-based, 0.4 of 12; line 6 reports after it), both from 9.
+    deg = ROLL_PERTURBATION["perturbations"][0]["params"]["deg"]
     rolls = [(line["iteration"], line["roll_left_deg"], line["roll_right_deg"]) for line in lines]
-    assert rolls == [(2, 0, 0), (4, 0, 0), (6, 0, 0), (8, 0, 3), (10, 3, 3), (12, 3, 3)]
+    assert rolls == [(2, 0, 0), (4, 0, 0), (6, 0, deg), (8, 0, deg), (10, deg, deg), (12, deg, deg)]
+    assert [line["perturbations"] for line in lines][1:5] == [[], ["right eye rolled"], ["right eye rolled"],
+                                                              ["right eye rolled", "both eyes rolled"]]
     checkpoint = load_checkpoint(run / "checkpoint.pt")
-    assert checkpoint["iteration"] == 12 and checkpoint["env"]["roll_deg"].eq(3).all()
+    assert checkpoint["iteration"] == 12 and checkpoint["env"]["roll_deg"].eq(deg).all()
     assert set(checkpoint["initial_dictionaries"]) == {f"{cue}/{s}" for cue in ("parallax", "stereo")
                                                        for s in ("wide", "coarse", "fine", "full")}
     evaluation = Run(run).evaluation()
@@ -114,8 +120,10 @@ def test_train_py_writes_the_run_folder(tmp_path, textures):
         code_summary(checkpoint["initial_dictionaries"]["stereo/fine"])))
     assert (run / "figures" / "code.png").is_file()
     assert summary["final"] == {k: v for k, v in lines[-1].items() if k in summary["final"]}
-    assert len(summary["final"]) == len(keys) - 5
-    assert [e["iteration"] for e in summary["perturbation"]["events"]] == [7, 10]
+    assert len(summary["final"]) == len(keys) - 6
+    assert [e["iteration"] for e in summary["perturbation"]["events"]] == [5, 10]
+    recovery = summary["perturbation"]["recovery"]["right eye rolled"]
+    assert recovery["iteration"] == 4 and recovery["stop"] == 9 and recovery["vergence"]["key"] == "vergence_recent_deg"
 
 
 def test_resume_is_bit_identical(tmp_path, textures):
@@ -297,8 +305,14 @@ def test_preset_paper_and_perturbation_fractions():
     assert all(_value(default, key) != value for key, value in PAPER_PRESET.items()), PAPER_PRESET
     assert paper.train.iterations == 6000 and paper.env.shift_iterations == default.env.shift_iterations
     assert default.train.iterations == ExperimentConfig().train.iterations
-    assert roll.perturbation.roll_deg == 3.0 and default.perturbation.roll_deg == 0
-    assert [e[:2] for e in roll.perturbation.events(100)] == [(50, (0.0, 3.0)), (75, (3.0, 3.0))]
+    assert default.perturbation.roll_deg == 0 and not default.events()
+    deg = ROLL_PERTURBATION["perturbations"][0]["params"]["deg"]
+    assert roll.train.iterations == 3000
+    assert [(e.start, e.eyes, e.perturbation.deg) for e in roll.events()] == [(1200, (1,), deg), (2400, (0,), deg)]
+    # the old key: two roll events, the same as the list's
+    short = PerturbationConfig(roll_deg=3.0).events(100)
+    assert [(e.start, e.eyes, e.perturbation.deg, e.label) for e in short] == [
+        (50, (1,), 3.0, "right eye rolled"), (75, (0,), 3.0, "both eyes rolled")]
     with pytest.raises(ValueError, match="perturbation.first_fraction"):
         PerturbationConfig(roll_deg=3.0, first_fraction=0.8, second_fraction=0.7)
 
@@ -459,6 +473,11 @@ def test_fork_continues_a_run_with_changed_settings(tmp_path, textures, capsys, 
     actor = "cues.parallax.agent.policy.weight"  # PPO, the default agent
     assert not torch.equal(before["learner"][actor], after["learner"][actor])
     assert load_checkpoint(source / "checkpoint.pt")["iteration"] == 8  # the source is untouched
+    # A perturbation experiment forked from an unperturbed run: its events may start at the fork.
+    assert fork_run.main([str(source / "checkpoint.pt"), str(tmp_path / "rolled"),
+                          "perturbations=[{kind: roll, start: 8, eye: right, params: {deg: 5}}]",
+                          "--iterations", "10", "--no-progress"]) == 0
+    assert load_checkpoint(tmp_path / "rolled" / "checkpoint.pt")["env"]["roll_deg"][0].tolist() == [0.0, 5.0]
     # Bad arguments stop before anything is written, naming what is wrong.
     for args, message in [(["learner.cues.stereo.encoder.lr=-1"], "learner.cues.stereo.encoder.lr"), (["nosuch.key=1"], "nosuch"),
                           (["--iterations", "8"], "above the checkpoint's iteration 8")]:

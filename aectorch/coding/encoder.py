@@ -11,6 +11,7 @@ the reward (eq. 6). `EncoderConfig` holds the coder's hyperparameters.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Callable, NamedTuple, Optional, Sequence
 
@@ -47,6 +48,9 @@ class EncoderConfig:
             once the eye movements have shaped it (the lineage raised its rate over training;
             online dictionary learning decays it).
         decay_power: p of ``decay`` (> 0).
+        floor: ``None`` (default: the rate decays on), or a fraction in (0, 1]: the decaying rate
+            falls no lower than ``floor * lr``, so the code stays plastic (a perturbation
+            experiment's choice: `aectorch.runtime.config`, ``plasticity=floor``).
         centred: mirror-centred sampling at every scale (`aectorch.coding.patches.Scale`'s
             ``centred``): each pyramid level samples between pixel pairs and the fine scale's
             patch grid sits in the middle of its crop, so the patches of mirrored images are the
@@ -69,6 +73,7 @@ class EncoderConfig:
     lr: float = 0.1
     decay: Optional[float] = 500.0
     decay_power: float = 1.0
+    floor: Optional[float] = None
     centred: bool = True
     start: DictionaryStart = DictionaryStart.random
 
@@ -82,14 +87,24 @@ class EncoderConfig:
         if self.decay is not None and not (is_real(self.decay) and self.decay > 0):
             raise ValueError(f"{owner}.decay must be null or a number > 0, got {self.decay!r}")
         check_real(self.decay_power, f"{owner}.decay_power", above=0)
+        if self.floor is not None and not (is_real(self.floor) and 0 < self.floor <= 1):
+            raise ValueError(f"{owner}.floor must be null or a fraction in (0, 1], got {self.floor!r}")
         check_bool(self.centred, f"{owner}.centred")
         self.start = check_choice(self.start, f"{owner}.start", DictionaryStart)
 
     def rate(self, steps: int) -> float:
-        """The dictionaries' learning rate after ``steps`` learning steps (``decay``)."""
+        """The dictionaries' learning rate after ``steps`` learning steps (``decay``, ``floor``)."""
         if self.decay is None:
             return self.lr
-        return self.lr * (self.decay / (self.decay + steps)) ** self.decay_power
+        rate = self.lr * (self.decay / (self.decay + steps)) ** self.decay_power
+        return rate if self.floor is None else max(rate, self.floor * self.lr)
+
+    def steps_at(self, fraction: float) -> int:
+        """The learning steps after which the decaying rate is ``fraction`` of ``lr`` (rounded
+        down; 0 for a constant rate): where `BinocularEncoder.raise_rate` puts the decay's clock."""
+        if self.decay is None:
+            return 0
+        return int(math.floor(self.decay * (fraction ** (-1.0 / self.decay_power) - 1.0) + 1e-9))
 
 
 class EncoderOutput(NamedTuple):
@@ -285,6 +300,15 @@ class BinocularEncoder(nn.Module):
     def rate(self) -> float:
         """The learning rate of the next `learn_` step (`EncoderConfig.rate` of `steps`)."""
         return self.config.rate(self.steps)
+
+    def raise_rate(self, fraction: float) -> float:
+        """Make the dictionaries plastic again: a decayed rate is raised to ``fraction`` (in (0, 1])
+        of ``lr`` by winding the decay's clock back (`EncoderConfig.steps_at`), from where it
+        decays again; a rate above that stays. Returns the rate of the next step."""
+        if not (is_real(fraction) and 0 < fraction <= 1):
+            raise ValueError(f"fraction must be in (0, 1], got {fraction!r}")
+        self.steps = min(self.steps, self.config.steps_at(fraction))
+        return self.rate()
 
     @torch.no_grad()
     def learn_(self, output: EncoderOutput, lr: float | None = None, *,

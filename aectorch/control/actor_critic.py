@@ -160,6 +160,9 @@ class ActorCriticConfig:
             approximation (``sum alpha_theta = inf``: the actor never stops); p > 1 makes the
             actor's whole path finite, ``alpha_theta * tau / (p - 1)``, so the policy converges to
             a fixed point instead of drifting on.
+        actor_floor: ``None`` (default), or a fraction in (0, 1]: the decaying actor step falls
+            no lower than ``actor_floor * alpha_theta`` (a perturbation experiment's choice of
+            plasticity, ``plasticity=floor``).
         actor_init: initial actor weights are uniform in ``[-actor_init, actor_init]``
             (>= 0; default 0.01; lineage 0.4; the paper: "initially random").
         critic_init: initial critic weights are uniform in ``[-critic_init,
@@ -183,6 +186,7 @@ class ActorCriticConfig:
     batch_reference: Optional[int] = 64
     actor_decay: Optional[float] = 1000.0
     actor_decay_power: float = 1.0
+    actor_floor: Optional[float] = None
     actor_init: float = 0.01
     critic_init: float = 0.0
 
@@ -215,6 +219,8 @@ class ActorCriticConfig:
             require("feature_norm", positive[0], "None or a finite float > 0")
         if self.actor_decay is not None:
             require("actor_decay", positive[0], "None or a finite float > 0")
+        if self.actor_floor is not None:
+            require("actor_floor", lambda x: 0 < x <= 1, "None or a fraction in (0, 1]")
         if self.normalize_window is not None and not (is_int(self.normalize_window) and self.normalize_window >= 2):
             raise ValueError(f"{owner}.normalize_window must be None or an int >= 2, got {self.normalize_window!r}")
         if self.batch_reference is not None and not (is_int(self.batch_reference) and self.batch_reference >= 1):
@@ -598,6 +604,8 @@ class NaturalActorCritic(nn.Module):
         steps_new = self.step_count + any_update.to(self.step_count.dtype)
         if cfg.actor_decay is not None:
             decay = (cfg.actor_decay / (cfg.actor_decay + self.step_count)) ** cfg.actor_decay_power
+            if cfg.actor_floor is not None:
+                decay = decay.clamp_min(cfg.actor_floor)
             step = step * decay.to(step.dtype)
         theta_new = theta * (1 - step * cfg.weight_decay) + step * w_new
         theta_new = _project(theta_new, cfg.projection, cfg.theta_bound)
@@ -624,6 +632,21 @@ class NaturalActorCritic(nn.Module):
         t = transitions
         out = self.update(t.features, t.actions, t.rewards, t.next_features, check=False, reduce=reduce)
         return LearnOutput(out.td_error, True)
+
+    @torch.no_grad()
+    def raise_rate(self, fraction: float) -> float:
+        """Make the actor plastic again: a decayed actor step (``actor_decay``) is raised to
+        ``fraction`` (in (0, 1]) of ``alpha_theta`` by winding its step count back, from where it
+        decays again (a larger step stays). Returns the actor step's factor now."""
+        cfg = self.config
+        if not (is_real(fraction) and 0 < fraction <= 1):
+            raise ValueError(f"fraction must be in (0, 1], got {fraction!r}")
+        if cfg.actor_decay is None:
+            return 1.0
+        count = cfg.actor_decay * (fraction ** (-1.0 / cfg.actor_decay_power) - 1.0)
+        self.step_count.clamp_(max=count)
+        factor = (cfg.actor_decay / (cfg.actor_decay + float(self.step_count))) ** cfg.actor_decay_power
+        return factor if cfg.actor_floor is None else max(factor, cfg.actor_floor)
 
     @torch.no_grad()
     def symmetrize_(self, feature_permutation: torch.Tensor, action_negation: torch.Tensor) -> None:

@@ -17,7 +17,8 @@ a fixation that ends in a limit cycle of one small action is a coin toss at its 
 
 :func:`offset_sweep` is a diagnostic: a cue's coding reward and greedy increment against the
 offset of its eye movement from the optimum (where the code stops telling offsets apart, and
-whether the policy stops at the target). `aectorch.baselines.Matcher`, a classical
+whether the policy stops at the target). :func:`adaptation` reads a perturbed run's recovery off
+its metrics (`adaptation.py`). `aectorch.baselines.Matcher`, a classical
 cross-correlation matcher, runs through the same trials as the accuracy anchor.
 
 The library (`summary.py`, `trials.py`, `evaluation.py`) needs only the framework and the
@@ -26,6 +27,7 @@ simulation; the command line, on a checkpoint written by ``train.py``, is `__mai
     python -m aectorch.evaluate checkpoint=outputs/run/checkpoint.pt textures=photos/ out=eval.json
 """
 
+from aectorch.evaluation.adaptation import adaptation, recovery_of
 from aectorch.evaluation.evaluation import evaluate
 from aectorch.evaluation.offsets import limit_cycle, offset_summary, offset_sweep
 from aectorch.evaluation.summary import (
@@ -33,6 +35,6 @@ from aectorch.evaluation.summary import (
 )
 from aectorch.evaluation.trials import EVAL_BATCH_SIZE, frozen_iterations, run_trials
 
-__all__ = ["BEYOND_DEG", "EVAL_BATCH_SIZE", "LAST_ITERATIONS", "WITHIN_DEG", "evaluate", "fractions",
+__all__ = ["BEYOND_DEG", "EVAL_BATCH_SIZE", "LAST_ITERATIONS", "WITHIN_DEG", "adaptation", "evaluate", "fractions",
            "frozen_iterations", "limit_cycle", "movements", "offset_summary", "offset_sweep", "per_trial_rows",
-           "run_trials", "summarise"]
+           "recovery_of", "run_trials", "summarise"]

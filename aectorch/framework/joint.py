@@ -201,6 +201,20 @@ class JointLearner(nn.Module):
             q_deg=info.q_deg, distance_m=info.distance_m, depth_prediction_m=prediction, depth_retrained=retrained,
         )
 
+    def raise_plasticity(self, fraction: float) -> dict[str, dict[str, float]]:
+        """Make the learners plastic again (after a perturbation, `aectorch.runtime`'s
+        ``plasticity.raise_to``): every decayed rate, each cue's dictionaries' learning rate and a
+        natural actor-critic's actor step, is raised to ``fraction`` (in (0, 1]) of its starting
+        value and decays again from there (`BinocularEncoder.raise_rate`); PPO's step is constant
+        and stays. Returns the rates now, ``{cue: {"dictionary": rate, "actor": factor}}``."""
+        out = {}
+        for name, cue in self.cues.items():
+            out[name] = {"dictionary": cue.encoder.raise_rate(fraction)}
+            raise_rate = getattr(cue.agent, "raise_rate", None)
+            if raise_rate is not None:
+                out[name]["actor"] = raise_rate(fraction)
+        return out
+
     def forget_transitions(self) -> None:
         """Start the next iteration without a previous transition (e.g. after ``env.reset``)."""
         for cue in self.cues.values():

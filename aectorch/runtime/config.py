@@ -9,9 +9,13 @@ Hydra composes the command line onto :class:`ExperimentConfig` (type checks), an
 
 - ``preset``: ``default`` (no change, selected by default) and ``paper`` (:data:`PAPER_PRESET`,
   the paper's values), chosen with ``preset=paper``;
-- ``experiment``: ``roll_perturbation`` (the paper's Fig. 4 experiment, a 3 degree roll of the
-  right eye at half of the training and of both eyes at three quarters), added with
-  ``+experiment=roll_perturbation``.
+- ``experiment``: ``roll_perturbation`` (the paper's Fig. 4 experiment: one eye rolled at half
+  of the training, the other at three quarters, :data:`ROLL_PERTURBATION`), added with
+  ``+experiment=roll_perturbation``;
+- ``plasticity``: ``decay`` (the default, no change), ``floor`` and ``raise``
+  (:data:`PLASTICITY`): how plastic the learners stay, a perturbation experiment's choice;
+- ``rearing``: the AEC lineage's rearing conditions (:data:`REARING`), each a list of
+  perturbation events: ``python train.py -m rearing=normal,monocular,...``.
 """
 
 from __future__ import annotations
@@ -26,7 +30,8 @@ from aectorch._checks import check_bool, check_choice, check_device, check_dista
 from aectorch.choices import DType, Eye, RendererName
 from aectorch.evaluation import EVAL_BATCH_SIZE
 from aectorch.framework import PAPER_ACTIONS_DEG, LearnerConfig, default_cues
-from aectorch.runtime.metrics import PAPER_WINDOW
+from aectorch.runtime.metrics import PAPER_WINDOW, RECENT_WINDOW
+from aectorch.runtime.perturbations import Event, PerturbationEventConfig, resolve_events
 from aectorch.runtime.watchdog import WatchdogConfig
 from aectorch.sim import (
     DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, PROCEDURAL_TEXTURES, START_PURSUIT_DEG, START_VERGENCE_DEG,
@@ -37,7 +42,11 @@ __all__ = [
     "EvalConfig",
     "ExperimentConfig",
     "PAPER_PRESET",
+    "PLASTICITY",
     "PerturbationConfig",
+    "PerturbationEventConfig",
+    "PlasticityConfig",
+    "REARING",
     "RecordConfig",
     "ROLL_PERTURBATION",
     "TrainConfig",
@@ -67,12 +76,43 @@ PAPER_PRESET: dict[str, Any] = {
     "train.iterations": 6000,
 }
 
-#: The paper's perturbation experiment (section 4, Fig. 4), ``+experiment=roll_perturbation``.
+#: The paper's perturbation experiment (section 4, Fig. 4), ``+experiment=roll_perturbation``:
+#: the right eye rolled 7 deg at iteration 1200 (0.4 of a 3000-iteration run), the left eye too
+#: at 2400 (0.8), both until the end: the one-eye stretch is long enough for the recovery
+#: (docs/results.md, "Adaptation to a roll", says why this angle and this length).
 ROLL_PERTURBATION: dict[str, Any] = {
-    "perturbation.roll_deg": 3.0,
-    "perturbation.first_eye": "right",
-    "perturbation.first_fraction": 0.5,
-    "perturbation.second_fraction": 0.75,
+    "perturbations": [
+        {"kind": "roll", "start": 0.4, "eye": "right", "params": {"deg": 7.0}, "label": "right eye rolled"},
+        {"kind": "roll", "start": 0.8, "eye": "left", "params": {"deg": 7.0}, "label": "both eyes rolled"},
+    ],
+    "train.iterations": 3000,
+}
+
+#: The plasticity regimes a perturbation experiment chooses from (``plasticity=<name>``): name ->
+#: dotted key -> value. ``decay``: today's (the dictionaries' rates decay as tau / (tau + t),
+#: PPO's step is constant); ``floor``: the decaying rates fall no lower than half their start;
+#: ``raise``: every event's start and end raises them back to their start, from where they decay
+#: again.
+PLASTICITY: dict[str, dict[str, Any]] = {
+    "decay": {},
+    "floor": {**{f"learner.cues.{cue}.encoder.floor": 0.5 for cue in default_cues()},
+              **{f"learner.cues.{cue}.nac.actor_floor": 0.5 for cue in default_cues()}},
+    "raise": {"plasticity.raise_to": 1.0},
+}
+
+#: The rearing conditions of the AEC lineage (Klimmasch et al. 2021, Eckmann et al. 2020), each a
+#: list of perturbation events over the whole run (``rearing=<name>``; the evaluation afterwards
+#: sees with normal eyes): name -> events.
+REARING: dict[str, list[dict[str, Any]]] = {
+    "normal": [],
+    "monocular": [{"kind": "monocular_deprivation", "start": 0, "eye": "right", "params": {"contrast": 0.0}}],
+    "strabismus": [{"kind": "strabismus", "start": 0, "eye": "right", "params": {"deg": 10.0}}],
+    "anisometropia_early": [{"kind": "anisometropia", "start": 0, "end": 0.25, "eye": "right",
+                             "params": {"arcmin": 120.0}, "label": "right eye blurred, corrected early"}],
+    "anisometropia_late": [{"kind": "anisometropia", "start": 0, "end": 0.75, "eye": "right",
+                            "params": {"arcmin": 120.0}, "label": "right eye blurred, corrected late"}],
+    "vertical": [{"kind": "orientation_rearing", "start": 0, "params": {"orientation": "vertical"}}],
+    "horizontal": [{"kind": "orientation_rearing", "start": 0, "params": {"orientation": "horizontal"}}],
 }
 
 _DTYPES = {DType.float32: torch.float32, DType.float64: torch.float64}
@@ -206,6 +246,11 @@ class TrainConfig:
             choose it, never held-out data. ``checkpoint.pt`` stays the latest state (to resume).
         metrics_window: fixation ends the training window's pursuit and vergence MAE (eq. 9) and
             trials its depth MAE average over (>= 1; the paper: 1000).
+        recent_window: with perturbations: fixation ends of the short window that shows the
+            transient (``<movement>_recent_deg``, ``<movement>_recent_1px`` in ``metrics.jsonl``,
+            half as many trials for ``depth_recent_m``: the same stretch of iterations) and that the
+            recovery read-out measures (>= 1; default 128: 4 fixations of 32 environments, 120
+            iterations; the 1000-fixation window lags the errors by hundreds of iterations).
         depth_calibration_trials: after training, before the evaluation (so only with
             ``eval.enabled``): the evaluated state
             (``best.pt``, or the last state) runs this many greedy, frozen trials on the
@@ -230,12 +275,13 @@ class TrainConfig:
     deterministic: bool = True
     keep_best: bool = True
     metrics_window: int = PAPER_WINDOW
+    recent_window: int = RECENT_WINDOW
     depth_calibration_trials: int = 0
 
     def __post_init__(self) -> None:
         owner = "train"
         for name, minimum in (("iterations", 1), ("depth_calibration_trials", 0), ("log_every", 1),
-                              ("metrics_window", 1), ("checkpoint_every", 1), ("threads", 0)):
+                              ("metrics_window", 1), ("recent_window", 1), ("checkpoint_every", 1), ("threads", 0)):
             check_int(getattr(self, name), f"{owner}.{name}", minimum)
         for name in ("compile", "overwrite", "progress", "figures", "tensorboard", "deterministic", "keep_best"):
             check_bool(getattr(self, name), f"{owner}.{name}")
@@ -273,11 +319,12 @@ class EvalConfig:
 
 @dataclass
 class PerturbationConfig:
-    """The paper's perturbation (section 4, Fig. 4): a constant in-plane roll of the eyes.
+    """The paper's perturbation (section 4, Fig. 4) in short: a constant in-plane roll of the eyes.
 
     At ``first_fraction * train.iterations`` (rounded down) the eye ``first_eye`` is rolled by
     ``roll_deg`` about its optical axis; at ``second_fraction * train.iterations`` the other eye
-    is rolled by the same angle too. Both stay rolled until the end.
+    is rolled by the same angle too. Both stay rolled until the end. Shorthand for two ``roll``
+    events of ``perturbations`` (:meth:`events`), which come before that list's own.
 
     Attributes:
         roll_deg: the roll, degrees (0 = no perturbation; the paper: 3).
@@ -308,20 +355,43 @@ class PerturbationConfig:
     def enabled(self) -> bool:
         return self.roll_deg != 0
 
-    def events(self, iterations: int) -> list[tuple[int, tuple[float, float], str]]:
-        """``(iteration, (left_roll_deg, right_roll_deg), label)`` of the two roll changes.
-
-        The roll is set before learner iteration ``iteration`` (0-based) runs; none when disabled.
-        """
+    def events(self, iterations: int) -> list[Event]:
+        """The two roll events (`aectorch.runtime.perturbations.Event`): ``first_eye`` rolled from
+        iteration ``int(first_fraction * iterations)`` (0-based) on, the other eye from
+        ``int(second_fraction * iterations)``; none when disabled. A second event at the run's
+        end never acts."""
         if not self.enabled:
             return []
-        first = Eye.values().index(self.first_eye)
-        one = [0.0, 0.0]
-        one[first] = float(self.roll_deg)
-        return [
-            (int(self.first_fraction * iterations), (one[0], one[1]), f"{self.first_eye} eye rolled"),
-            (int(self.second_fraction * iterations), (float(self.roll_deg),) * 2, "both eyes rolled"),
-        ]
+        other = "left" if self.first_eye == Eye.right else "right"
+        entries = [{"kind": "roll", "start": int(self.first_fraction * iterations), "eye": str(self.first_eye),
+                    "params": {"deg": float(self.roll_deg)}, "label": f"{self.first_eye} eye rolled"}]
+        second = int(self.second_fraction * iterations)
+        if second < iterations:
+            entries.append({"kind": "roll", "start": second, "eye": other, "params": {"deg": float(self.roll_deg)},
+                            "label": "both eyes rolled"})
+        return resolve_events(entries, iterations, owner="perturbation")
+
+
+@dataclass
+class PlasticityConfig:
+    """How plastic the learners stay around perturbations: a perturbation experiment's choice
+    (``plasticity=decay|floor|raise``, :data:`PLASTICITY`). Today's rates decay (the
+    dictionaries' ``learner.cues.<cue>.encoder.decay``, a natural actor-critic's
+    ``nac.actor_decay``; PPO's step is constant); ``learner.cues.<cue>.encoder.floor`` and
+    ``nac.actor_floor`` stop them at a floor.
+
+    Attributes:
+        raise_to: ``null`` (default), or a fraction in (0, 1]: at the start and the end of every
+            perturbation event each decayed rate is raised back to this fraction of its starting
+            value, from where it decays again (`aectorch.framework.JointLearner.raise_plasticity`).
+    """
+
+    raise_to: Optional[float] = None
+
+    def __post_init__(self) -> None:
+        if self.raise_to is not None and not (isinstance(self.raise_to, (int, float)) and not isinstance(
+                self.raise_to, bool) and 0 < self.raise_to <= 1):
+            raise ValueError(f"plasticity.raise_to must be null or a fraction in (0, 1], got {self.raise_to!r}")
 
 
 @dataclass
@@ -354,7 +424,10 @@ class ExperimentConfig:
             actor-critics' `ActorCriticConfig`).
         train: the loop, logs and checkpoints (:class:`TrainConfig`).
         eval: the final evaluation on held-out textures (:class:`EvalConfig`).
-        perturbation: the roll perturbation (:class:`PerturbationConfig`).
+        perturbation: the paper's roll perturbation in short (:class:`PerturbationConfig`).
+        perturbations: perturbation events (`aectorch.runtime.perturbations.PerturbationEventConfig`:
+            kind, start, end, eye, params, label), applied in this order after ``perturbation``'s.
+        plasticity: how plastic the learners stay around the events (:class:`PlasticityConfig`).
         record: recording the training as a LeRobotDataset (:class:`RecordConfig`).
         watchdog: the health checks after every iteration (`aectorch.runtime.watchdog.WatchdogConfig`;
             on resume taken from the command line, since it changes nothing that is learned).
@@ -367,6 +440,8 @@ class ExperimentConfig:
     train: TrainConfig = field(default_factory=TrainConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
     perturbation: PerturbationConfig = field(default_factory=PerturbationConfig)
+    perturbations: list[PerturbationEventConfig] = field(default_factory=list)
+    plasticity: PlasticityConfig = field(default_factory=PlasticityConfig)
     watchdog: WatchdogConfig = field(default_factory=WatchdogConfig)
     record: RecordConfig = field(default_factory=RecordConfig)
     seed: int = 0
@@ -375,6 +450,15 @@ class ExperimentConfig:
         if self.record.envs > self.env.num_envs:
             raise ValueError(f"record.envs={self.record.envs} exceeds env.num_envs={self.env.num_envs}")
         check_int(self.seed, "seed", 0)
+        self.perturbations = [e if isinstance(e, PerturbationEventConfig) else PerturbationEventConfig(**e)
+                              for e in self.perturbations]
+        self.events()  # checked against the run's length: the errors name the entry's key
+
+    def events(self) -> list[Event]:
+        """Every perturbation event of the run, checked, in their order: ``perturbation``'s rolls,
+        then ``perturbations`` (`aectorch.runtime.perturbations.resolve_events`)."""
+        iterations = self.train.iterations
+        return self.perturbation.events(iterations) + resolve_events(self.perturbations, iterations)
 
 
 def to_experiment_config(node) -> ExperimentConfig:
@@ -497,13 +581,15 @@ def _nested(dotted: dict[str, Any]) -> dict:
 
 @dataclass
 class _TrainNode(ExperimentConfig):
-    # Hydra's defaults list: the preset group applies after the schema's own values.
-    defaults: list[Any] = field(default_factory=lambda: ["_self_", {"preset": "default"}, {"guard": "default"}])
+    # Hydra's defaults list: the groups apply after the schema's own values.
+    defaults: list[Any] = field(default_factory=lambda: ["_self_", {"preset": "default"}, {"guard": "default"},
+                                                         {"plasticity": "decay"}, {"rearing": "normal"}])
 
 
 def register_configs() -> None:
     """Register the configs with Hydra's ConfigStore: ``train`` and the groups ``preset``
-    (``default``, ``paper``), ``experiment`` (``roll_perturbation``) and ``guard`` (``default``: Hydra's
+    (``default``, ``paper``), ``experiment`` (``roll_perturbation``), ``plasticity``
+    (:data:`PLASTICITY`), ``rearing`` (:data:`REARING`) and ``guard`` (``default``: Hydra's
     callback `aectorch.runtime.launch.RunFolderGuard`, which refuses a new run over an existing
     one before Hydra writes into its folder)."""
     from hydra.core.config_store import ConfigStore
@@ -516,3 +602,8 @@ def register_configs() -> None:
                 node={"hydra": {"callbacks": {"run_folder_guard": {"_target_": "aectorch.runtime.launch.RunFolderGuard"}}}})
     store.store(group="experiment", name="roll_perturbation", node=_nested(ROLL_PERTURBATION),
                 package="_global_")
+    for name, values in PLASTICITY.items():
+        store.store(group="plasticity", name=name, node=_nested(values), package="_global_")
+    for name, events in REARING.items():
+        # "normal" adds nothing: a run's own perturbations stay.
+        store.store(group="rearing", name=name, node={"perturbations": events} if events else {}, package="_global_")

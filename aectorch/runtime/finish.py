@@ -12,7 +12,7 @@ import torch
 from torch import Tensor
 
 from aectorch.coding.readouts import code_summary
-from aectorch.evaluation import evaluate, run_trials
+from aectorch.evaluation import adaptation, evaluate, run_trials
 from aectorch.framework import MIN_DEPTH_TRIALS, JointLearner
 from aectorch.runtime.builders import build_textures, dictionaries, trial_options
 from aectorch.runtime.checkpoint import load_checkpoint, restore, save_checkpoint
@@ -27,7 +27,7 @@ __all__ = ["calibrate_depth", "calibration_conditions", "finish"]
 log = logging.getLogger("aectorch")
 
 #: metrics.jsonl's bookkeeping columns, not the final metrics of ``summary.json``.
-_BOOKKEEPING = ("iteration", "env_iterations", "elapsed_s", "roll_left_deg", "roll_right_deg")
+_BOOKKEEPING = ("iteration", "env_iterations", "elapsed_s", "roll_left_deg", "roll_right_deg", "perturbations")
 
 
 def _errors(record: dict) -> list[str]:
@@ -61,7 +61,8 @@ def _finish(run) -> dict:
     records = read_metrics(folder.metrics_path)
     # The last line (always written at the last iteration) holds the final interval's averages.
     final = {k: v for k, v in (records[-1] if records else {}).items() if k not in _BOOKKEEPING}
-    labels = [(when + 1, label) for when, _, label in run.events]
+    changes = _changes(run.schedule, total)
+    labels = [(change + 1, label) for change, _, label in changes]
     summary: dict = {
         "iterations": total,
         "env_iterations": total * cfg.env.num_envs * run.session.get("world_size", 1),
@@ -74,9 +75,17 @@ def _finish(run) -> dict:
     # and of its random start: the chance level of each histogram.
     summary["code"] = {name: code_summary(atoms) for name, atoms in dictionaries(run.learner).items()}
     summary["code_initial"] = {name: code_summary(atoms) for name, atoms in run.initial.items()}
-    figures = _figures(cfg, folder, run.initial, run.learner, labels, (summary["code"], summary["code_initial"]))
-    if run.events:
-        summary["perturbation"] = _recovery(cfg, folder, labels, figures)
+    readout = adaptation(records, changes) if changes else None
+    figures = _figures(cfg, folder, run.initial, run.learner, labels, (summary["code"], summary["code_initial"]),
+                       readout)
+    if changes:
+        summary["perturbation"] = {
+            "roll_deg": cfg.perturbation.roll_deg,
+            "events": [{"iteration": event.start + 1, **event.as_dict()} for event in run.schedule.events],
+            "plasticity": {"raise_to": cfg.plasticity.raise_to,
+                           "floor": {cue: c.encoder.floor for cue, c in cfg.learner.cues.items()}},
+            "recovery": readout,
+        }
     if run.best["iteration"] is not None:
         summary["best"] = {k: json_value(v) for k, v in run.best.items()}
     if cfg.eval.enabled:
@@ -85,10 +94,21 @@ def _finish(run) -> dict:
     return summary
 
 
-def _figures(cfg: ExperimentConfig, folder: RunFolder, initial: dict, learner, labels, code):
-    """Fig. 2 (dictionaries), Fig. 3 (training), Fig. 4 (perturbation) and the code's read-outs
-    (``code``: those of the trained and the initial dictionaries); the figures module, or ``None``
-    when figures are off or cannot be drawn."""
+def _changes(schedule, total: int) -> list[tuple[int, int, str]]:
+    """``(iteration, stop, label)`` of every event's start and end: the iteration (0-based) it acts
+    from, the next change (or the run's end), the label (``<label> ends`` for an end)."""
+    stretches = dict(schedule.stretches(total))
+    out = []
+    for change in sorted(stretches):
+        names = [e.label for e in schedule.starting(change)] + [f"{e.label} ends" for e in schedule.ending(change)]
+        out.append((change, stretches[change], " + ".join(names)))
+    return out
+
+
+def _figures(cfg: ExperimentConfig, folder: RunFolder, initial: dict, learner, labels, code, readout=None):
+    """Fig. 2 (dictionaries), Fig. 3 (training), Fig. 4 (perturbation, with ``readout``, the
+    adaptation read-out) and the code's read-outs (``code``: those of the trained and the initial
+    dictionaries); the figures module, or ``None`` when figures are off or cannot be drawn."""
     if not cfg.train.figures:
         return None
     try:
@@ -105,22 +125,8 @@ def _figures(cfg: ExperimentConfig, folder: RunFolder, initial: dict, learner, l
     figures.plot_training(records, out / "training.png", events=labels)
     figures.plot_code(code[0], out / "code.png", initial=code[1])
     if labels:
-        figures.plot_perturbation(records, out / "perturbation.png", events=labels)
+        figures.plot_perturbation(records, out / "perturbation.png", events=labels, readout=readout)
     return figures
-
-
-def _recovery(cfg: ExperimentConfig, folder: RunFolder, labels, figures) -> dict:
-    """The perturbation's events and how the errors recovered after each (with the figures)."""
-    recovery = {}
-    recover = getattr(figures, "recovery", None) if figures is not None else None
-    if recover is not None:
-        records = read_metrics(folder.metrics_path)
-        for when, label in labels:
-            recovery[label] = {key: recover(records, key, when) for key in _errors(records[0])
-                               if key.endswith("_mae_deg")}
-    return {"roll_deg": cfg.perturbation.roll_deg,
-            "events": [{"iteration": w, "label": lab} for w, lab in labels],
-            "recovery": recovery}
 
 
 def _evaluate(cfg: ExperimentConfig, folder: RunFolder, learner: JointLearner, train_bank: TextureBank,

@@ -4,8 +4,8 @@
 learner, the metrics) and the run folder, and runs the loop: each iteration the callbacks'
 ``before_iteration``, the learner's iteration (``watch``: what a callback wants to see of the
 observations), the metrics, then the callbacks' ``after_iteration``. What a run does besides
-learning is a :class:`Callback` each (:func:`default_callbacks`): the roll perturbation
-(:class:`Perturbation`), the LeRobot recording (:class:`Recording`), the caller's function
+learning is a :class:`Callback` each (:func:`default_callbacks`): the perturbation events
+(:class:`Perturbations`), the LeRobot recording (:class:`Recording`), the caller's function
 (:class:`EveryIteration`), the watchdog (:class:`WatchdogCheck`), ``metrics.jsonl`` and
 TensorBoard (:class:`MetricsLog`), ``best.pt`` (:class:`BestState`), ``checkpoint.pt``
 (:class:`Checkpoints`) and the progress bar (:class:`Progress`).
@@ -42,10 +42,11 @@ from aectorch.runtime.checkpoint import CHECKPOINT_FORMAT, restore, save_checkpo
 from aectorch.runtime.config import ExperimentConfig, to_container
 from aectorch.runtime.metrics import TrainingMetrics
 from aectorch.runtime.outputs import RunFolder, WriteFailed
+from aectorch.runtime.perturbations import Schedule
 from aectorch.runtime.provenance import provenance
 from aectorch.runtime.watchdog import Watchdog, WatchdogError
 
-__all__ = ["BestState", "Callback", "Checkpoints", "EveryIteration", "MetricsLog", "Perturbation", "Progress",
+__all__ = ["BestState", "Callback", "Checkpoints", "EveryIteration", "MetricsLog", "Perturbations", "Progress",
            "Recording", "TrainingRun", "WatchdogCheck", "default_callbacks"]
 
 log = logging.getLogger("aectorch")
@@ -133,15 +134,27 @@ class Callback:
         """After the loop, however it ended."""
 
 
-class Perturbation(Callback):
-    """The paper's roll perturbation (`PerturbationConfig.events`): the eyes' roll set before the
-    events' iterations."""
+class Perturbations(Callback):
+    """The perturbation events (``run.schedule``, `aectorch.runtime.perturbations.Schedule`): before
+    every iteration the environment gets the optics of the events acting then (only when they
+    changed: a resumed environment has its own already), and at an event's start or end, with
+    ``plasticity.raise_to``, the learner's decayed rates are raised again."""
 
     def before_iteration(self, run, iteration):
-        for when, roll, label in run.events:
-            if iteration == when:
-                run.env.set_roll(torch.tensor(roll))
-                log.info("iteration %d: %s by %s deg", iteration, label, run.cfg.perturbation.roll_deg)
+        schedule = run.schedule
+        if not schedule:
+            return
+        optics = schedule.optics_at(iteration)
+        if optics != run.env.optics:
+            run.env.set_optics(optics)
+        for event in schedule.starting(iteration):
+            log.info("iteration %d: %s", iteration, event.label)
+        for event in schedule.ending(iteration):
+            log.info("iteration %d: %s ends", iteration, event.label)
+        raise_to = run.cfg.plasticity.raise_to
+        if raise_to is not None and iteration in schedule.changes:
+            rates = run.learner.raise_plasticity(raise_to)
+            log.info("iteration %d: plasticity raised to %s of the starting rates: %s", iteration, raise_to, rates)
 
 
 class Recording(Callback):
@@ -195,6 +208,8 @@ class MetricsLog(Callback):
             roll = run.env.roll_deg[0].tolist()
             run.line = {"iteration": done, "env_iterations": done * run.shard.total, "elapsed_s": run.elapsed(),
                         "roll_left_deg": roll[0], "roll_right_deg": roll[1], **run.metrics.summary()}
+            if run.schedule:  # the events that acted in the iteration just done
+                run.line["perturbations"] = [event.label for event in run.schedule.active(done - 1)]
             run.folder.log_line(self.file, run.line)
 
     def on_end(self, run):
@@ -283,7 +298,7 @@ def default_callbacks(cfg: ExperimentConfig, main: bool,
                       fn: Callable[[int, IterationRecord], None] | None = None) -> list[Callback]:
     """The callbacks of a ``train.py`` run, in their order (``fn``: the caller's, after every
     iteration, before the watchdog)."""
-    callbacks: list[Callback] = [Perturbation()]
+    callbacks: list[Callback] = [Perturbations()]
     if cfg.record.lerobot is not None and main:
         callbacks.append(Recording(cfg.record.lerobot, cfg.record.envs))
     if fn is not None:
@@ -321,9 +336,12 @@ class TrainingRun:
         set_threads(cfg.train.threads, shard.world_size)
         self.env = build_env(cfg, shard)
         self.learner = build_learner(cfg, shard=shard)
+        #: the perturbation events (`Schedule`), resolved against this session's train.iterations
+        self.schedule = Schedule(cfg.events())
         self.metrics = TrainingMetrics.for_learner(
             self.learner, shard.total, window_fixations=cfg.train.metrics_window, window_trials=cfg.train.metrics_window,
-            movements=[spec.movement for spec in self.env.CUES.values()])
+            movements=[spec.movement for spec in self.env.CUES.values()],
+            recent=cfg.train.recent_window if self.schedule else None)
         self.watchdog = Watchdog(cfg.watchdog)
         self.best: dict = {"iteration": None, "score": None}
         self.start, self.initial, self.elapsed_before = 0, None, 0.0
@@ -336,7 +354,6 @@ class TrainingRun:
         self.session = {**provenance(cfg.env.device), "start_iteration": self.start, "world_size": shard.world_size}
         folder.start(self.config_dict, self.session, resumed_at=self.start if checkpoint is not None else None,
                      tensorboard=cfg.train.tensorboard)
-        self.events = cfg.perturbation.events(self.total)
         self.train_seconds = 0.0
         self.line: dict | None = None
         self._state: tuple[int, dict] | None = None

@@ -19,6 +19,11 @@ contract with `aectorch.figures`:
   ``exp(H(p))`` of the atom-selection distribution ``p`` accumulated since the previous summary,
   divided by the number of atoms: 1 = every atom chosen equally often, 1/N = one atom only).
 
+- with ``recent`` (a run with perturbations), the short window that shows a perturbation's
+  transient: ``<movement>_recent_deg`` (the MAE of the last ``recent`` fixation ends),
+  ``<movement>_recent_1px`` (the fraction of them within one pixel, `aectorch.evaluation.WITHIN_DEG`)
+  and ``depth_recent_m`` (the last ``recent // 2`` predicted trials: the same iterations).
+
 Values not yet defined (no fixation ended, no iteration since the last summary) are NaN.
 """
 
@@ -31,14 +36,17 @@ import torch
 from torch import Tensor
 
 from aectorch._checks import check_int
+from aectorch.evaluation.summary import WITHIN_DEG
 from aectorch.framework import default_cues
 from aectorch.sim import ActiveDepthEnv
 
-__all__ = ["PAPER_WINDOW", "TrainingMetrics"]
+__all__ = ["PAPER_WINDOW", "RECENT_WINDOW", "TrainingMetrics"]
 
 #: The training windows' length: the paper's eq. (9) averages the last 1000 fixation ends (and
 #: the depth MAE the last 1000 trials).
 PAPER_WINDOW = 1000
+#: The short window of a run with perturbations: 4 fixations of 32 environments (120 iterations).
+RECENT_WINDOW = 128
 
 
 def _mean(total: float, count: int) -> float:
@@ -57,6 +65,9 @@ class TrainingMetrics:
             :meth:`for_learner`).
         movements: the eye movements of the records' ``errors_deg`` (default: those of
             `aectorch.sim.ActiveDepthEnv`'s cues, pursuit and vergence).
+        recent: ``None`` (default), or the fixation ends of the short window (>= 1, at most
+            ``window_fixations``; its depth window is ``recent // 2`` trials, at most
+            ``window_trials``): the keys ``*_recent_*``.
 
     Example:
         >>> import torch
@@ -79,10 +90,14 @@ class TrainingMetrics:
         *,
         cues: Mapping[str, Sequence[str]] | None = None,
         movements: Sequence[str] | None = None,
+        recent: int | None = None,
     ) -> None:
         for name, value in (("num_envs", num_envs), ("window_fixations", window_fixations),
                             ("window_trials", window_trials)):
             check_int(value, name, 1)
+        if recent is not None:
+            check_int(recent, "recent", 1)
+        self.recent = recent
         self.num_envs = num_envs
         self.window_fixations = window_fixations
         self.window_trials = window_trials
@@ -97,10 +112,10 @@ class TrainingMetrics:
 
     @classmethod
     def for_learner(cls, learner, num_envs: int, window_fixations: int = PAPER_WINDOW, window_trials: int = PAPER_WINDOW,
-                    movements: Sequence[str] | None = None) -> "TrainingMetrics":
+                    movements: Sequence[str] | None = None, recent: int | None = None) -> "TrainingMetrics":
         """The metrics of ``learner``'s cues and scales (a `JointLearner`)."""
         cues = {name: tuple(s.name for s in cue.encoder.scales) for name, cue in learner.cues.items()}
-        return cls(num_envs, window_fixations, window_trials, cues=cues, movements=movements)
+        return cls(num_envs, window_fixations, window_trials, cues=cues, movements=movements, recent=recent)
 
     def _reset_interval(self) -> None:
         self.iterations = 0
@@ -152,6 +167,8 @@ class TrainingMetrics:
         """The metrics as a flat dict of floats; ``reset`` starts a new averaging interval."""
         out = {f"{movement}_mae_deg": float(w.mean()) if w.numel() else math.nan for movement, w in self.errors.items()}
         out["depth_mae_m"] = float(self.depth.mean()) if self.depth.numel() else math.nan
+        if self.recent is not None:
+            out.update(self.recent_summary())
         for cue, scales in self.cues.items():
             sums = self.sums[cue]
             out[f"{cue}/reward"] = _mean(sums["reward"], self.iterations)
@@ -163,6 +180,18 @@ class TrainingMetrics:
                 out[f"{cue}/{scale}/atom_usage"] = math.nan if counts is None else _usage(counts[i])
         if reset:
             self._reset_interval()
+        return out
+
+    def recent_summary(self) -> dict[str, float]:
+        """The short window's keys (``recent``; see the module): the last ``recent`` fixation ends
+        of each movement's window (the long window holds them), the last ``recent // 2`` trials."""
+        out = {}
+        for movement, w in self.errors.items():
+            last = w[-self.recent:]
+            out[f"{movement}_recent_deg"] = float(last.mean()) if last.numel() else math.nan
+            out[f"{movement}_recent_1px"] = float((last <= WITHIN_DEG).double().mean()) if last.numel() else math.nan
+        depth = self.depth[-max(1, self.recent // 2):]
+        out["depth_recent_m"] = float(depth.mean()) if depth.numel() else math.nan
         return out
 
     def window_mae(self) -> float:

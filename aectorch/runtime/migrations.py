@@ -19,7 +19,13 @@ windows per eye movement.
 Format 3 (this version): each cue's config has ``motor_cost``, ``readout`` and
 ``encoder.start``, and ``env`` has ``q_iterations``; a format 2 file gets the values that
 reproduce what it did (:data:`_ADDED_2`: no motor cost, the argmax read-out, a random start, q
-of the last iteration), whatever today's defaults are.
+of the last iteration), whatever today's defaults are. Later versions of format 3 added to the
+environment's state its perturbations' ``optics`` and ``first_optics`` (issue 48); a file
+without them gets ``None``, which the environment reads as what it was: no perturbation but the
+roll its ``roll_deg`` holds; and to each cue's config the rates' floors ``encoder.floor`` and
+``nac.actor_floor``, ``None`` (no floor) where absent (:data:`_ADDED_3`). The config's new
+sections (``perturbations``, ``plasticity``, ``train.recent_window``) get their defaults, which
+change nothing for a run without events.
 """
 
 from __future__ import annotations
@@ -151,6 +157,29 @@ def _from_2(payload: dict) -> dict:
     return out
 
 
+#: Fields that versions of format 3 added, with what a file without them did: the environment's
+#: optics (``None``: the roll of ``roll_deg`` and nothing else), the cues' rates without a floor.
+_ADDED_3 = {"env": {"optics": None, "first_optics": None}, "encoder": {"floor": None}, "nac": {"actor_floor": None}}
+
+
+def _complete_3(payload: dict) -> dict:
+    """A format 3 payload with the fields later versions of format 3 added (in place: the payload
+    is the caller's own, just read)."""
+    states = payload.get("env")
+    for state in states if isinstance(states, list) else [states]:
+        if isinstance(state, dict) and "pan_deg" in state:
+            for key, value in _ADDED_3["env"].items():
+                state.setdefault(key, value)
+    config = payload.get("config")
+    cues = ((config.get("learner") or {}).get("cues") or {}) if isinstance(config, dict) else {}
+    for cue in cues.values():
+        for section in ("encoder", "nac"):
+            if isinstance(cue, dict) and isinstance(cue.get(section), dict):
+                for key, value in _ADDED_3[section].items():
+                    cue[section].setdefault(key, value)
+    return payload
+
+
 #: ``MIGRATIONS[v]`` turns a payload of format v into one of format v + 1.
 MIGRATIONS: dict[int, Callable[[dict], dict]] = {1: _from_1, 2: _from_2}
 
@@ -165,4 +194,4 @@ def migrate(payload: dict) -> dict:
     while version < CHECKPOINT_FORMAT:
         payload = MIGRATIONS[version](payload)
         version = payload["format"]
-    return payload
+    return _complete_3(payload)

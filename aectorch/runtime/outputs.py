@@ -228,7 +228,7 @@ class RunFolder:
         if self._writer is not None:
             try:
                 for key, value in line.items():
-                    if key != "iteration" and value is not None and math.isfinite(value):
+                    if key != "iteration" and isinstance(value, (int, float)) and math.isfinite(value):
                         self._writer.add_scalar(key, value, line["iteration"])
                 # TensorBoard writes in a thread; flushing here raises its failure in this one.
                 self._writer.flush()

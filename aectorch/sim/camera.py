@@ -90,6 +90,22 @@ class PinholeCamera:
         """Angle subtended by one pixel at the image centre, in degrees."""
         return math.degrees(math.atan(1.0 / self.focal_px))
 
+    def magnified(self, factor: float) -> "PinholeCamera":
+        """This camera with its focal length times ``factor`` (> 0): the same pixels, the image
+        magnified ``factor`` times about the principal point (aniseikonia,
+        `aectorch.sim.perturbations`).
+
+        Example:
+            >>> round(PinholeCamera().magnified(1.05).focal_px / PinholeCamera().focal_px, 9)
+            1.05
+        """
+        if not (isinstance(factor, (int, float)) and math.isfinite(factor) and factor > 0):
+            raise ValueError(f"PinholeCamera.magnified: factor must be a number > 0, got {factor!r}")
+        if factor == 1:
+            return self
+        vfov = 2.0 * math.degrees(math.atan((self.height / 2.0) / (self.focal_px * factor)))
+        return PinholeCamera(self.width, self.height, vfov, self.cx, self.cy)
+
     @property
     def full_window(self) -> PixelWindow:
         """The whole image."""

@@ -39,6 +39,7 @@ above); the vergence angle is ``right pan - left pan`` (positive = converged).
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import NamedTuple, Sequence
 
 import torch
@@ -49,6 +50,7 @@ from aectorch.choices import RendererName
 from aectorch.ops.backend import fused_kernels_apply
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.hoap3 import HOAP3Head
+from aectorch.sim.perturbations import NEUTRAL, Optics, blur_margin, defocus, orientation_filter, scale_contrast
 from aectorch.sim.scene import PlaneScene
 from aectorch.sim.protocol import DEFAULT_PROTOCOL, START_PURSUIT_DEG, START_VERGENCE_DEG, TrialProtocol
 from aectorch.sim.textures import TextureBank, pink_noise_images
@@ -340,6 +342,7 @@ class ActiveDepthEnv:
             generator = torch.Generator().manual_seed(20171028)
             background = pink_noise_images(1, 256, 256, generator=generator)[0]
         self.scene = PlaneScene(self.textures.textures, background)
+        self._world, self.optics, self._optics_tensors = self.scene, NEUTRAL, {}  # perturbations: set_optics
         eye_x = float(self.head.eye_x_m)
         farthest = eye_x + max(distances)
         if farthest >= self.scene.background_x_m:
@@ -416,10 +419,11 @@ class ActiveDepthEnv:
         self.pan_deg = self.head.clamp_pan_deg(
             torch.stack((left, left + self._uniform(self.vergence_start_deg)), dim=-1)
         )
-        self.target_m = self._fixation_target(self.pan_deg[:, 0], self.plane_x_m)
+        self.target_m = self._fixation_target(self.eye_pan_deg[:, 0], self.plane_x_m)
         self._start_pans = self.pan_deg
         self._first_image: dict = {}
         self._first_roll: Tensor | None = None
+        self._first_optics: Optics | None = None
         self._moved()
 
     def _moved(self) -> None:
@@ -438,6 +442,9 @@ class ActiveDepthEnv:
     def _fixation_target(self, left_pan_deg: Tensor, plane_x_m: Tensor) -> Tensor:
         """The fixation target ``[N, 3]``: where the left axis meets the plane at the start position."""
         start = self.head.eye_centres(torch.zeros_like(plane_x_m))[:, 0]  # [N, 3]
+        shift = self._eye_shift()
+        if shift is not None:  # the left camera's own place (camera_shift)
+            start = start + shift[0]
         along = torch.tan(torch.deg2rad(left_pan_deg)) * (plane_x_m - start[:, 0])
         return torch.stack((plane_x_m, start[:, 1] + along, start[:, 2]), dim=-1)
 
@@ -461,7 +468,59 @@ class ActiveDepthEnv:
                 f"roll_deg must have shape [2] or [B, 2] = [{self.num_envs}, 2], got {tuple(roll.shape)}"
             )
         self.roll_deg = roll.expand(self.num_envs, 2).clone()
+        self.optics = replace(self.optics, roll_deg=tuple(self.roll_deg[0].tolist()))
         self._moved()
+
+    # -- perturbations ---------------------------------------------------------------------------
+    def set_optics(self, optics: Optics) -> None:
+        """Perturb the eyes and the world (`aectorch.sim.perturbations.Optics`): from now on the
+        eyes are rolled, offset, moved, blurred, dimmed and magnified as ``optics`` says, and the
+        world's textures filtered to its orientation bands. The fixation's first image keeps the
+        optics it was taken with (unless the world changed: it is rendered again in the new one).
+        ``set_optics(NEUTRAL)`` is the unperturbed robot; every environment gets the same optics.
+        """
+        if not isinstance(optics, Optics):
+            raise TypeError(f"optics must be an aectorch.sim.perturbations.Optics, got {type(optics).__name__}")
+        world_changed = optics.orientation_bands != self.optics.orientation_bands
+        self.optics = optics
+        self._optics_tensors = {}
+        self.roll_deg = torch.tensor(optics.roll_deg, dtype=self.dtype, device=self.device).expand(self.num_envs, 2).clone()
+        if world_changed:
+            self._set_world(optics.orientation_bands)
+        self._moved()
+
+    def _set_world(self, bands) -> None:
+        """The world's textures filtered to ``bands`` (none: as built); the renderers are rebuilt."""
+        world = self._world
+        if bands:
+            world = PlaneScene(orientation_filter(world.textures, bands), orientation_filter(world.background, bands))
+        self.close()
+        self.scene = world
+        self.renderer = make_renderer(self.renderer_name, world, self.camera, device=self.device, dtype=self.dtype,
+                                      **self._renderer_options)
+        self._scale_renderer = None
+        self._first_image = {}  # what the eye saw of the old world is rendered again in the new one
+        self._last_left = None
+
+    def _optics_tensor(self, name: str) -> Tensor:
+        """``optics.<name>`` as a tensor of the environment's dtype and device (kept until the optics change)."""
+        tensor = self._optics_tensors.get(name)
+        if tensor is None:
+            tensor = torch.tensor(getattr(self.optics, name), dtype=self.dtype, device=self.device)
+            self._optics_tensors[name] = tensor
+        return tensor
+
+    def _eye_shift(self) -> Tensor | None:
+        """The cameras' translations ``[2, 3]`` (camera_shift), or ``None`` when neither moved."""
+        return None if self.optics.shift_m == NEUTRAL.shift_m else self._optics_tensor("shift_m")
+
+    @property
+    def eye_pan_deg(self) -> Tensor:
+        """Where the eyes point ``[B, 2]`` (left, right; degrees): the commanded pans
+        (:attr:`pan_deg`) plus a squint's offset (`Optics.pan_offset_deg`)."""
+        if self.optics.pan_offset_deg == NEUTRAL.pan_offset_deg:
+            return self.pan_deg
+        return self.pan_deg + self._optics_tensor("pan_offset_deg")
 
     @property
     def left_pan_deg(self) -> Tensor:
@@ -480,13 +539,24 @@ class ActiveDepthEnv:
 
     # -- ground truth ----------------------------------------------------------------------
     def optimal_left_pan_deg(self) -> Tensor:
-        """The left pan that keeps the fixation target on the left axis at the shifted position."""
-        return self.head.pursuit_pan_deg(self.target_m, self.body_shift_m)
+        """The left pan that keeps the fixation target on the left axis at the shifted position
+        (of the left eye's axis: with a squint's offset the command differs by it)."""
+        shift = self._eye_shift()
+        if shift is None:
+            return self.head.pursuit_pan_deg(self.target_m, self.body_shift_m)
+        return self.head.pursuit_pan_deg(self.target_m - shift[0], self.body_shift_m)
 
     def optimal_right_pan_deg(self, left_pan_deg: Tensor | None = None) -> Tensor:
-        """The right pan whose axis meets the plane where the left axis does (current left pan)."""
-        left = self.left_pan_deg if left_pan_deg is None else left_pan_deg
-        return self.head.vergence_pan_deg(left, self.plane_x_m, self.body_shift_m)
+        """The right pan whose axis meets the plane where the left axis does (current left pan,
+        of the eye's axis: :attr:`eye_pan_deg`)."""
+        left = self.eye_pan_deg[:, 0] if left_pan_deg is None else left_pan_deg
+        shift = self._eye_shift()
+        if shift is None:
+            return self.head.vergence_pan_deg(left, self.plane_x_m, self.body_shift_m)
+        # Each camera where camera_shift put it: the left axis from its place, the right eye's pan
+        # toward that point from its own.
+        point = self.head.plane_point_m(left, self.plane_x_m - shift[0, 0], self.body_shift_m) + shift[0]
+        return self.head.pursuit_pan_deg(point - shift[1], self.body_shift_m, eye="right")
 
     def ideal_q_deg(self, distance_m: Tensor | None = None, *, start_pan_deg: float = 0.0) -> Tensor:
         """The final eye movements ``q`` ``[N, 4]`` of a perfectly fixating trial, degrees.
@@ -515,26 +585,85 @@ class ActiveDepthEnv:
 
     # -- observations ----------------------------------------------------------------------
     def _render(self, shift_m: Tensor, pans: Tensor, eyes: slice, roll_deg: Tensor | None = None,
-                scales=None, window: bool = False) -> dict[str, Tensor]:
+                scales=None, window: bool = False, optics: Optics | None = None) -> dict[str, Tensor]:
         roll = self.roll_deg if roll_deg is None else roll_deg
-        poses = self.head.camera_poses(shift_m, pans, roll, convention="opengl")[:, eyes]
+        optics = self.optics if optics is None else optics
+        if optics.pan_offset_deg != NEUTRAL.pan_offset_deg:
+            pans = pans + torch.tensor(optics.pan_offset_deg, dtype=pans.dtype, device=pans.device)
+        poses = self.head.camera_poses(shift_m, pans, roll, convention="opengl")
+        if optics.shift_m != NEUTRAL.shift_m:  # the robot's frame is the world's moved by the body shift
+            poses = poses.clone()
+            poses[..., :3, 3] += torch.tensor(optics.shift_m, dtype=poses.dtype, device=poses.device)
+        poses = poses[:, eyes]
+        indices = tuple(range(*eyes.indices(2)))
+        if not optics.images_neutral(indices):
+            return self._render_optics(poses, indices, optics, scales, window)
         out = {}
         # The indices were checked by set_trial: no host sync per frame.
         if scales is None or window:
             out[WINDOW] = self.renderer(poses, self.plane_x_m, self.texture_index, self.window, check=False).to(self.dtype)
         if scales is None:
             return out
-        if self._scale_renderer is None:
-            self._scale_renderer = make_renderer(self.renderer_name, self.scene, self.camera, device=self.device,
-                                                 dtype=self.dtype, **{**self._renderer_options, **SCALE_FILTER})
         # Each scale's crop with one more of its pixels on every side, for the blur.
         finer = [_finer(s.downsample) for s in scales]
         windows = [(self.camera.central_window(s.crop + 2 * s.downsample), s.downsample // k)
                    for s, k in zip(scales, finer)]
-        images = self._scale_renderer.render_windows(poses, self.plane_x_m, self.texture_index, windows, check=False)
+        images = self._scale_renderer_built().render_windows(poses, self.plane_x_m, self.texture_index, windows,
+                                                             check=False)
         for s, image, k in zip(scales, images, finer):
             out[s.name] = pyramid_blur(_block_mean(image, k), s.levels).to(self.dtype)
         return out
+
+    def _scale_renderer_built(self):
+        if self._scale_renderer is None:
+            self._scale_renderer = make_renderer(self.renderer_name, self.scene, self.camera, device=self.device,
+                                                 dtype=self.dtype, **{**self._renderer_options, **SCALE_FILTER})
+        return self._scale_renderer
+
+    def _margin_window(self, camera: PinholeCamera, size: int, margin: int, what: str) -> PixelWindow:
+        """The central ``size`` crop with ``margin`` more pixels on every side, for a blur."""
+        if size + 2 * margin > min(camera.height, camera.width):
+            raise ValueError(f"the blur of anisometropia ({what}) needs {margin} px beyond the {size} px crop on "
+                             f"every side, more than the {camera.height} x {camera.width} image holds; use a smaller "
+                             "blur disc")
+        return camera.central_window(size + 2 * margin)
+
+    def _render_optics(self, poses: Tensor, eyes: tuple[int, ...], optics: Optics, scales, window: bool):
+        """`_render` of eyes with perturbed images, one eye at a time: each through its own camera
+        (magnified: aniseikonia), rendered with the margin its blur disc needs (anisometropia),
+        blurred, then its contrast scaled about each image's mean (monocular deprivation)."""
+        per_eye = []
+        for j, eye in enumerate(eyes):
+            camera = self.camera.magnified(optics.magnification[eye])
+            arcmin_per_px = 60.0 * camera.degrees_per_pixel
+            radius = optics.blur_arcmin[eye] / 2.0 / arcmin_per_px  # full-resolution pixels of this eye
+            pose, out = poses[:, j:j + 1], {}
+            if scales is None or window:
+                margin = blur_margin(radius)
+                top, left, h, w = self.window
+                grown = PixelWindow(top - margin, left - margin, h + 2 * margin, w + 2 * margin)
+                if margin and (h + 2 * margin > camera.height or w + 2 * margin > camera.width
+                               or top < margin or left < margin):
+                    raise ValueError(f"the blur of anisometropia ({optics.blur_arcmin[eye]:g} arcmin) needs {margin} "
+                                     "px beyond the rendered window, which the image does not hold")
+                image = self.renderer.render_windows(pose, self.plane_x_m, self.texture_index, [(grown, 1)],
+                                                     check=False, camera=camera)[0]
+                out[WINDOW] = defocus(image, radius).to(self.dtype)
+            if scales is not None:
+                finer = [_finer(s.downsample) for s in scales]
+                margins = [blur_margin(radius / s.downsample) for s in scales]
+                windows = [(self._margin_window(camera, s.crop + 2 * s.downsample, s.downsample * m,
+                                                f"{optics.blur_arcmin[eye]:g} arcmin at the {s.name} scale"),
+                            s.downsample // k) for s, k, m in zip(scales, finer, margins)]
+                images = self._scale_renderer_built().render_windows(pose, self.plane_x_m, self.texture_index,
+                                                                     windows, check=False, camera=camera)
+                for s, image, k in zip(scales, images, finer):
+                    image = defocus(_block_mean(image, k), radius / s.downsample)
+                    out[s.name] = pyramid_blur(image, s.levels).to(self.dtype)
+            if optics.contrast[eye] != 1:
+                out = {name: scale_contrast(image, optics.contrast[eye]) for name, image in out.items()}
+            per_eye.append(out)
+        return {name: torch.cat([out[name] for out in per_eye], dim=1) for name in per_eye[0]}
 
     @staticmethod
     def _key(scales, window: bool):
@@ -563,9 +692,13 @@ class ActiveDepthEnv:
         first = self._first_image.get(key)
         if first is None:
             zero = torch.zeros_like(self.body_shift_m)
-            if self._first_roll is None:  # the roll when the fixation's first image was taken
+            if self._first_roll is None:  # the roll and optics when the fixation's first image was taken
                 self._first_roll = self.roll_deg.clone()
-            first = self._render(zero, self._start_pans, slice(0, 1), self._first_roll, scales, window)
+            if self._first_optics is None:
+                self._first_optics = self.optics
+            # (the world's textures are always today's: a change of them rendered it again)
+            first = self._render(zero, self._start_pans, slice(0, 1), self._first_roll, scales, window,
+                                 optics=replace(self._first_optics, orientation_bands=self.optics.orientation_bands))
             self._first_image[key] = first
         cached = self._last_left
         if cached is not None and cached[0] == self._left_view and cached[1] == key:
@@ -608,11 +741,11 @@ class ActiveDepthEnv:
 
     def pursuit_to_optimum(self) -> Tensor:
         """The pursuit increments ``[B]`` that put the left eye at its optimal pan now."""
-        return self.optimal_left_pan_deg() - self.left_pan_deg
+        return self.optimal_left_pan_deg() - self.eye_pan_deg[:, 0]
 
     def vergence_to_optimum(self) -> Tensor:
         """The vergence increments ``[B]`` that put the right eye at its optimal pan now."""
-        return self.optimal_right_pan_deg() - self.right_pan_deg
+        return self.optimal_right_pan_deg() - self.eye_pan_deg[:, 1]
 
     # -- actions -----------------------------------------------------------------------------
     def _check_increment(self, delta_deg, name: str) -> Tensor:
@@ -655,7 +788,8 @@ class ActiveDepthEnv:
         if fixation_end:
             self.q_deg[:, 2 * fixation: 2 * fixation + 2] = self.q_sum_deg / self.q_iterations
             self.q_sum_deg = torch.zeros_like(self.q_sum_deg)
-        info_left, info_right = self.left_pan_deg, self.right_pan_deg
+        eyes = self.eye_pan_deg  # where the eyes point (the commands, unless a squint offsets them)
+        info_left, info_right = eyes[:, 0], eyes[:, 1]
         if trial_end:
             q, distance = self.q_deg.clone(), self.distance_m
             self._new_trial()
@@ -701,6 +835,8 @@ class ActiveDepthEnv:
             num_envs=self.num_envs,
             num_textures=len(self.textures),
             first_roll=None if self._first_roll is None else self._first_roll.clone(),
+            optics=self.optics.to_dict(),
+            first_optics=None if self._first_optics is None else self._first_optics.to_dict(),
         )
         return state
 
@@ -754,6 +890,15 @@ class ActiveDepthEnv:
         self.fixation = int(state["fixation"])
         self.iteration = int(state["iteration"])
         self._generator.set_state(state["generator"])
+        # The optics (None in states saved before perturbations were data, as
+        # `aectorch.runtime.migrations` fills them in: none but the roll, which roll_deg holds);
+        # the roll tensor is the state's own.
+        roll = self.roll_deg
+        self.set_optics(Optics.from_dict(state["optics"]) if state.get("optics") is not None
+                        else replace(NEUTRAL, roll_deg=tuple(roll[0].tolist())))
+        self.roll_deg = roll
+        first_optics = state.get("first_optics")
+        self._first_optics = None if first_optics is None else Optics.from_dict(first_optics)
         self._first_image = {}
         self._moved()
         first_roll = state.get("first_roll")

@@ -18,7 +18,7 @@ from torch import Tensor
 
 from aectorch._checks import check_bool, check_choice, check_int, check_real
 from aectorch.choices import RendererName
-from aectorch.sim.camera import PixelWindow
+from aectorch.sim.camera import PinholeCamera, PixelWindow
 
 __all__ = ["DEFAULT_PROTOCOL", "Renderer", "START_PURSUIT_DEG", "START_VERGENCE_DEG", "TrialProtocol",
            "resolve_protocol"]
@@ -93,7 +93,8 @@ class Renderer(Protocol):
                  window: PixelWindow | None = None, *, check: bool = True) -> Tensor: ...
 
     def render_windows(self, poses: Tensor, plane_x_m: Tensor, texture_index: Tensor,
-                       windows: Sequence[tuple[PixelWindow, int]], *, check: bool = True) -> list[Tensor]: ...
+                       windows: Sequence[tuple[PixelWindow, int]], *, check: bool = True,
+                       camera: PinholeCamera | None = None) -> list[Tensor]: ...
 
     def close(self) -> None: ...
 

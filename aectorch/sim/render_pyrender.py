@@ -366,21 +366,23 @@ class PyrenderRenderer:
     render = __call__
 
     def render_windows(self, poses: Tensor, plane_x_m: Tensor, texture_index: Tensor, windows, *,
-                       check: bool = True) -> list[Tensor]:
-        """Render several windows, each on its own pixel grid; see ``TorchPlaneRenderer.render_windows``.
+                       check: bool = True, camera: PinholeCamera | None = None) -> list[Tensor]:
+        """Render several windows, each on its own pixel grid; see ``TorchPlaneRenderer.render_windows``
+        (``camera``: this call's intrinsics, default the renderer's).
 
         A window at ``downsample`` d is drawn by a camera whose pixels are ``d / samples`` of this
         one's (``samples x samples`` of them then averaged per pixel).
         """
+        camera = self.camera if camera is None else camera
         batch = self.scene.check_render_inputs(poses, plane_x_m, texture_index)
         index = texture_index.cpu().tolist()
         flat_poses = poses.detach().reshape(batch, -1, 4, 4).to("cpu", torch.float64).numpy()
         planes = plane_x_m.detach().to("cpu", torch.float64).numpy()
-        f = self.camera.focal_px
-        pcx, pcy = self.camera.principal_point
+        f = camera.focal_px
+        pcx, pcy = camera.principal_point
         results = []
         for window, downsample in windows:
-            top, left, h, w = self.camera.check_window(window)
+            top, left, h, w = camera.check_window(window)
             if h % downsample or w % downsample:
                 raise ValueError(f"the window's sides {h} x {w} must be multiples of downsample={downsample}")
             factor = self.samples / downsample

@@ -556,20 +556,24 @@ class TorchPlaneRenderer(nn.Module):
         """Nothing to free (the `Renderer` interface: pyrender's frees its OpenGL contexts)."""
 
     def render_windows(self, poses: Tensor, plane_x_m: Tensor, texture_index: Tensor, windows, *,
-                       check: bool = True) -> list[Tensor]:
+                       check: bool = True, camera: PinholeCamera | None = None) -> list[Tensor]:
         """Render several windows, each at its own ``downsample``, in one pass.
 
         Args:
             windows: ``(PixelWindow, downsample)`` pairs (see :func:`pixel_rays`).
+            camera: intrinsics of this call (default the renderer's): a magnified eye
+                (`aectorch.sim.perturbations`, aniseikonia) is a camera of longer focal length.
 
         Returns:
             One ``[B, ..., h // downsample, w // downsample]`` image per window.
         """
+        camera = self.camera if camera is None else camera
         windows = tuple((PixelWindow(*w), int(d)) for w, d in windows)
-        key = (windows, poses.dtype, poses.device)
+        key = (windows, poses.dtype, poses.device) if camera is self.camera else (windows, camera, poses.dtype,
+                                                                                  poses.device)
         rays = None if torch.compiler.is_compiling() else self._rays.get(key)
         if rays is None:
-            rays = pixel_rays(self.camera, windows, dtype=poses.dtype, device=poses.device)
+            rays = pixel_rays(camera, windows, dtype=poses.dtype, device=poses.device)
             if not torch.compiler.is_compiling():
                 self._rays[key] = rays
         flat = render_rays(poses, plane_x_m, texture_index, self.scene, rays, atlas=self._atlas(), check=check,
