@@ -7,7 +7,7 @@ ARGS ?=
 PYTEST_ARGS ?=
 # LEROBOT=0 skips the LeRobot bridge's tests (they run in their own .venv-lerobot).
 LEROBOT ?= 1
-# pytest-xdist worker processes of the main suite (on 2 cores: 5 min 45 s with 2, 11 min 25 s with 1).
+# pytest-xdist worker processes of the main suite (on 2 cores: 6 min 53 s with 2 on an AMD EPYC).
 TEST_WORKERS ?= 2
 
 .PHONY: setup train test bench docs clean
