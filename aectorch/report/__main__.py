@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Sequence
 
 from aectorch.report import compare, tables
+from aectorch.report.adaptation import adaptation_table
 from aectorch.runs import EVALUATION, Run
 
 __all__ = ["main"]
@@ -102,6 +103,10 @@ def _code(args) -> list[str]:
     return lines
 
 
+def _adaptation(args) -> list[str]:
+    return adaptation_table([Run(run) for run in args.runs], args.change, args.before)
+
+
 def _rl(args) -> list[str]:
     return tables.rl_table(args.folder, [Run(run) for run in args.own], args.default_set)
 
@@ -158,6 +163,12 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_argument("--cue", default=None, help="only this cue's dictionaries (e.g. stereo)")
     sub.add_argument("--plot", type=Path, default=None, help="also draw one read-out's histograms side by side")
     sub.add_argument("--readout", default="binocularity", choices=("binocularity", "disparity", "orientation"))
+
+    sub = command("adaptation", _adaptation, adaptation_table)
+    sub.add_argument("runs", nargs="+", type=Path, help="run folders")
+    sub.add_argument("--change", type=int, required=True, help="the iteration the first event acts from")
+    sub.add_argument("--before", type=Path, default=None,
+                     help="the unperturbed run's checkpoint at the change (forked runs)")
 
     sub = command("rl", _rl, tables.rl_table)
     sub.add_argument("folder", type=Path, help="the examples' result files")
