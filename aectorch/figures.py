@@ -10,7 +10,6 @@ with a tight layout, creates the parent folders and returns the :class:`pathlib.
 - :func:`plot_training`: Fig. 3, each eye movement's MAE (deg; pursuit, vergence) and depth MAE (m)
   over training;
 - :func:`plot_perturbation`: Fig. 4, the same around perturbation events;
-- :func:`recovery`: baseline, peak and recovery iteration of an error after a perturbation;
 - :func:`plot_evaluation`: per-distance breakdown of :func:`aectorch.evaluation.evaluate`;
 - :func:`plot_code`: the learned code's read-outs (binocularity, disparity, orientation
   histograms per dictionary, :func:`aectorch.coding.readouts.code_summary`);
@@ -43,7 +42,6 @@ __all__ = [
     "plot_dictionaries",
     "plot_training",
     "plot_perturbation",
-    "recovery",
     "plot_evaluation",
     "plot_code",
     "plot_code_comparison",
@@ -528,82 +526,6 @@ def _recent_panels(ax_eye, ax_depth, ax_within, x: np.ndarray, records: Sequence
     ax_within.set_title("(c) fixation ends within one pixel", loc="left", fontsize=10)
     for ax in (ax_eye, ax_depth, ax_within):
         ax.grid(True, which="major", alpha=0.3)
-
-
-def recovery(records: Sequence[Mapping], key: str, event_iteration: int, *,
-             baseline_records: int = 5, tolerance: float = 0.1) -> dict:
-    """How an error (larger is worse) reacts to a perturbation at ``event_iteration``.
-
-    Records with iteration ``< event_iteration`` are before the event, the others after it;
-    records whose ``key`` is missing, ``None`` or NaN are ignored. ``baseline`` is the mean of
-    ``key`` over the last ``baseline_records`` records before the event, ``peak`` the largest
-    value after it (the first one on ties, at ``peak_iteration``). The error has recovered at
-    the first record after the peak whose value is ``<= baseline + max(tolerance * |baseline|,
-    1e-12)``.
-
-    Args:
-        records: metric dicts with ``'iteration'`` and ``key``.
-        key: the metric, e.g. ``'vergence_mae_deg'``.
-        event_iteration: the iteration of the perturbation.
-        baseline_records: how many records before the event make the baseline (>= 1; fewer are
-            used when fewer exist).
-        tolerance: relative tolerance above the baseline (>= 0).
-
-    Returns:
-        ``{'key', 'event_iteration', 'baseline', 'peak', 'peak_iteration',
-        'recovered_iteration', 'iterations_to_recover'}``; the last two are ``None`` when the
-        error never recovers, ``iterations_to_recover = recovered_iteration - event_iteration``.
-
-    Example:
-        >>> values = [1, 1, 1, 5, 3, 1.05, 1]
-        >>> records = [{"iteration": 10 * i, "e": v} for i, v in enumerate(values)]
-        >>> r = recovery(records, "e", 30, baseline_records=3)
-        >>> r["peak"], r["peak_iteration"], r["recovered_iteration"], r["iterations_to_recover"]
-        (5.0, 30, 50, 20)
-    """
-    x = _check_records(records)
-    if not isinstance(key, str):
-        raise ValueError(f"key must be a str, got {type(key).__name__}")
-    event = _as_float(event_iteration)
-    if not math.isfinite(event) or isinstance(event_iteration, bool):
-        raise ValueError(f"event_iteration must be a finite iteration number, got {event_iteration!r}")
-    check_int(baseline_records, "baseline_records")
-    if not (is_int(tolerance) or isinstance(tolerance, float)) or not tolerance >= 0:  # inf allowed
-        raise ValueError(f"tolerance must be a non-negative number, got {tolerance!r}")
-    y = _series(records, key)
-    valid = np.isfinite(y)
-    order = np.argsort(x, kind="stable")
-    x, y, valid = x[order], y[order], valid[order]
-    before = valid & (x < event)
-    after = valid & (x >= event)
-    if not before.any():
-        raise ValueError(f"records has no finite {key!r} before event_iteration={event_iteration}")
-    if not after.any():
-        raise ValueError(f"records has no finite {key!r} at or after event_iteration={event_iteration}")
-    baseline = float(y[before][-baseline_records:].mean())
-    x_after, y_after = x[after], y[after]
-    peak_index = int(np.argmax(y_after))
-    threshold = baseline + max(tolerance * abs(baseline), 1e-12)
-    recovered = np.nonzero(y_after[peak_index + 1:] <= threshold)[0]
-
-    def _iteration(value: float) -> int | float:
-        return int(value) if float(value).is_integer() else float(value)
-
-    recovered_iteration = _iteration(x_after[peak_index + 1 + recovered[0]]) if recovered.size else None
-    return {
-        "key": key,
-        "event_iteration": event_iteration,
-        "baseline": baseline,
-        "peak": float(y_after[peak_index]),
-        "peak_iteration": _iteration(x_after[peak_index]),
-        "recovered_iteration": recovered_iteration,
-        "iterations_to_recover": (None if recovered_iteration is None
-                                  else _iteration(recovered_iteration - event)),
-    }
-
-
-# ----------------------------------------------------------------------------------------------
-# evaluation
 
 
 def plot_evaluation(result: Mapping, path: str | os.PathLike) -> Path:

@@ -1,4 +1,4 @@
-"""Tests of aectorch.figures: PCA of dictionaries, recovery and the figures."""
+"""Tests of aectorch.figures: PCA of dictionaries and the figures."""
 
 from __future__ import annotations
 
@@ -20,7 +20,6 @@ from aectorch.figures import (
     plot_perturbation,
     plot_training,
     principal_components,
-    recovery,
 )
 
 torch.set_num_threads(1)
@@ -196,52 +195,6 @@ def test_plot_perturbation(tmp_path):
         plot_perturbation(records, tmp_path / "x.png", events=[(5000, "e")], margin=-1)
     with pytest.raises(ValueError, match="records has no record with iteration in"):
         plot_perturbation(records, tmp_path / "x.png", events=[(10 ** 6, "late")], margin=10)
-
-
-# ---------------------------------------------------------------------------------------------
-# recovery
-
-
-def synthetic_curve():
-    """Flat 1.0 at iterations 0..90, 5.0 at the event (100), then halving its excess each record."""
-    values = [1.0] * 10 + [1.0 + 4.0 * 0.5 ** j for j in range(10)]
-    # 100: 5, 110: 3, 120: 2, 130: 1.5, 140: 1.25, 150: 1.125, 160: 1.0625, ...
-    return [{"iteration": 10 * i, "vergence_mae_deg": v} for i, v in enumerate(values)]
-
-
-def test_recovery_hand_computed():
-    r = recovery(synthetic_curve(), "vergence_mae_deg", 100)
-    assert r == {
-        "key": "vergence_mae_deg", "event_iteration": 100, "baseline": 1.0, "peak": 5.0,
-        "peak_iteration": 100, "recovered_iteration": 160, "iterations_to_recover": 60,
-    }
-    # a looser tolerance (1.25 <= 1.3) recovers at 140
-    assert recovery(synthetic_curve(), "vergence_mae_deg", 100, tolerance=0.3)["recovered_iteration"] == 140
-    # baseline from the last 2 records before the event only
-    records = synthetic_curve()
-    records[8]["vergence_mae_deg"] = 3.0  # iteration 80
-    r = recovery(records, "vergence_mae_deg", 100, baseline_records=2, tolerance=0.0)
-    assert r["baseline"] == 2.0 and r["recovered_iteration"] == 120 and r["iterations_to_recover"] == 20
-
-
-def test_recovery_never_and_errors():
-    records = synthetic_curve()[:14]  # ends at 1.25 (iteration 130)
-    r = recovery(records, "vergence_mae_deg", 100)
-    assert r["peak"] == 5.0 and r["recovered_iteration"] is None and r["iterations_to_recover"] is None
-    # NaN / None values are ignored
-    records = synthetic_curve()
-    records[16]["vergence_mae_deg"] = None  # iteration 160 -> recovery at 170
-    assert recovery(records, "vergence_mae_deg", 100)["recovered_iteration"] == 170
-    with pytest.raises(ValueError, match="before event_iteration"):
-        recovery(synthetic_curve(), "vergence_mae_deg", 0)
-    with pytest.raises(ValueError, match="after event_iteration"):
-        recovery(synthetic_curve(), "vergence_mae_deg", 1000)
-    with pytest.raises(ValueError, match="no finite 'depth_mae_m'"):
-        recovery(synthetic_curve(), "depth_mae_m", 100)
-    with pytest.raises(ValueError, match="baseline_records"):
-        recovery(synthetic_curve(), "vergence_mae_deg", 100, baseline_records=0)
-    with pytest.raises(ValueError, match="tolerance"):
-        recovery(synthetic_curve(), "vergence_mae_deg", 100, tolerance=-0.1)
 
 
 # ---------------------------------------------------------------------------------------------
