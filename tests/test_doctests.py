@@ -17,11 +17,12 @@ import aectorch.sim
 
 torch.set_num_threads(1)
 
-# Every submodule of the subpackages (their __init__ only re-exports names and has no examples
-# of its own; doctest does not collect objects defined in other modules).
+# Every module of the subpackages, nested ones included (a package's __init__ only re-exports names
+# and has no examples of its own; doctest does not collect objects defined in other modules).
 PACKAGES = (aectorch.ops, aectorch.coding, aectorch.sim, aectorch.control, aectorch.depth)
 MODULES = sorted(
-    f"{package.__name__}.{m.name}" for package in PACKAGES for m in pkgutil.iter_modules(package.__path__)
+    m.name for package in PACKAGES
+    for m in pkgutil.walk_packages(package.__path__, prefix=f"{package.__name__}.") if not m.ispkg
 ) + ["aectorch.framework.joint", "aectorch.figures", "aectorch.profiling", "aectorch.runtime.watchdog",
      "aectorch.runtime.provenance", "aectorch.evaluation.trials", "aectorch.evaluation.summary", "aectorch._checks", "aectorch.runs"]  # top-level modules with examples
 
@@ -30,7 +31,7 @@ def test_module_discovery_finds_the_modules():
     expected = {
         "coding.dictionary", "coding.encoder", "coding.patches", "coding.pursuit",
         "coding.sparse_code", "sim.camera", "sim.env", "sim.hoap3", "sim.render_pyrender",
-        "sim.render_torch", "sim.scene", "sim.textures",
+        "sim.render_torch", "sim.scene", "sim.textures.bank", "sim.textures.procedural",
     }
     assert expected <= {name.split(".", 1)[1] for name in MODULES}
 

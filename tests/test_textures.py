@@ -12,6 +12,7 @@ import torch
 from PIL import Image, ImageOps
 
 import aectorch.sim.textures as textures_module
+from aectorch.sim.textures import bank, files, procedural, storage
 from aectorch.sim.textures import IMAGE_EXTENSIONS, TextureBank, pink_noise_images
 
 
@@ -143,7 +144,7 @@ def test_bad_size_argument(size, error, tmp_path):
 
 
 def test_pink_noise_images_lives_here():
-    assert pink_noise_images.__module__ == "aectorch.sim.textures"
+    assert pink_noise_images.__module__ == "aectorch.sim.textures.procedural"
 
 
 # ---------------------------------------------------------------------- from_folder
@@ -493,9 +494,9 @@ def test_textures_module_doctests():
     finder = doctest.DocTestFinder(exclude_empty=True)
     runner = doctest.DocTestRunner(verbose=False)
     report: list[str] = []
-    for test in finder.find(textures_module, textures_module.__name__,
-                            globs=vars(textures_module).copy()):
-        runner.run(test, out=report.append)
+    for module in (bank, files, procedural, storage):
+        for test in finder.find(module, module.__name__, globs=vars(module).copy()):
+            runner.run(test, out=report.append)
     failed, attempted = runner.summarize(verbose=False)
     assert attempted > 10
     assert failed == 0, "".join(report)

@@ -28,7 +28,7 @@ from torch import Tensor, nn
 from aectorch._checks import check_int
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.scene import PlaneScene
-from aectorch.sim.textures import empty_textures
+from aectorch.sim.textures.storage import empty_textures
 
 __all__ = ["FILTERS", "MipmapAtlas", "TorchPlaneRenderer", "mipmap_atlas", "mipmap_levels", "pixel_rays",
            "render_planes", "render_rays", "sample_bilinear", "texture_atlas"]
@@ -94,7 +94,7 @@ _MIP_CHUNK_TEXELS = 2**22
 def texture_atlas(textures: Tensor, background: Tensor) -> Tensor:
     """Stack the object textures and the background (same size) into one ``[N + 1, H, W]`` atlas.
 
-    A large atlas lives in a file mapped into memory (`aectorch.sim.textures.empty_textures`).
+    A large atlas lives in a file mapped into memory (`aectorch.sim.textures.storage.empty_textures`).
     """
     if background.shape != textures.shape[-2:]:
         raise ValueError(
@@ -155,7 +155,7 @@ def mipmap_atlas(textures: Tensor, background: Tensor) -> MipmapAtlas:
 
     Memory: about 1.5x the plain atlas (level 0 plus the levels beside it). The layers are
     filtered a chunk at a time into the packed atlas, which lives in a file mapped into memory
-    when it is large (`aectorch.sim.textures.empty_textures`), so no temporary copy of all the
+    when it is large (`aectorch.sim.textures.storage.empty_textures`), so no temporary copy of all the
     textures is made.
     """
     if background.shape != textures.shape[-2:]:

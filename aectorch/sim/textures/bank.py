@@ -1,4 +1,4 @@
-"""Textures for the object plane: 1/f^alpha procedural noise and folders of photographs.
+"""The bank of textures for the object plane: procedural ones or folders of photographs.
 
 The paper puts one of 100 natural-image textures on the plane in front of the robot for each
 fixation, and the AEC lineage holds out 40 more textures for testing. We cannot ship or download
@@ -20,220 +20,26 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-import numpy as np
 import torch
 from torch import Tensor
 
-from aectorch._checks import check_int, is_int, is_real
+from aectorch._checks import is_int, is_real
+from aectorch.sim.textures.files import IMAGE_EXTENSIONS, check_extensions, load_grey
+from aectorch.sim.textures.procedural import dead_leaves_image, pink_noise_images
+from aectorch.sim.textures.storage import empty_textures
 
-__all__ = ["TextureBank", "dead_leaves_image", "empty_textures", "pink_noise_images", "texture_ram_bytes",
-           "DEFAULT_SEEDS", "PROCEDURAL_TEXTURES", "DEFAULT_SIZES", "IMAGE_EXTENSIONS", "TEXTURE_RAM_BYTES"]
+__all__ = ["TextureBank", "DEFAULT_SEEDS", "PROCEDURAL_TEXTURES", "DEFAULT_SIZES"]
 
-#: File extensions `TextureBank.from_folder` loads by default (compared case-insensitively).
-IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg")
 #: Seeds of the procedural stand-ins for the paper's training and held-out texture sets.
 DEFAULT_SEEDS: dict[str, int] = {"train": 2017, "test": 2018}
 #: Names of generated texture sets that a config may give in place of a folder (`TextureBank.from_spec`).
 PROCEDURAL_TEXTURES: tuple[str, ...] = ("dead-leaves",)
 #: Number of textures of each default split (the AEC lineage: 100 train, 40 test).
 DEFAULT_SIZES: dict[str, int] = {"train": 100, "test": 40}
-#: Texture tensors (a bank, the torch renderer's atlas) larger than this many bytes live in a temporary
-#: file mapped into memory instead of in RAM (`empty_textures`); the environment variable
-#: ``AECTORCH_TEXTURE_RAM`` (bytes) overrides it, ``AECTORCH_TEXTURE_DIR`` chooses the file's folder.
-TEXTURE_RAM_BYTES = 2 * 2**30
 _DEFAULT_ALPHA = (1.0, 1.2)
 # Elements per chunk when a whole bank is checked or reduced (bounds the temporaries).
 _CHUNK_ELEMENTS = 2**22
 _PROGRESS_MIN_FILES = 20
-# Pillow modes holding more than 8 bits per grey pixel: read as float and divided by 65535,
-# because Pillow's convert("L") clips them at 255 instead of rescaling.
-_WIDE_GREY_MODES = ("I", "I;16", "I;16L", "I;16B", "I;16N")
-
-
-def pink_noise_images(
-    batch: int,
-    height: int,
-    width: int,
-    *,
-    alpha: float = 1.1,
-    generator: torch.Generator,
-    dtype: torch.dtype = torch.float32,
-    device: torch.device | str | None = None,
-) -> Tensor:
-    """Random textures with a 1/f^alpha amplitude spectrum and uniform random phase.
-
-    The amplitude of every non-zero spatial frequency f (cycles per pixel, radial) is exactly
-    ``f ** -alpha`` before the final rescaling; the phases are i.i.d. uniform in [0, 2 pi).
-    Each image is then rescaled affinely to span [0, 1], which leaves the spectrum's shape
-    (all bins but the mean) unchanged. The textures are periodic (they come from an inverse FFT).
-
-    Args:
-        batch, height, width: output shape (each >= 1).
-        alpha: spectral exponent of the amplitude (natural images: about 1; power falls as
-            f^(-2 alpha)).
-        generator: source of the random phases; its device is used when `device` is None.
-        dtype: float32 or float64.
-        device: device of the output (must match the generator's device type).
-
-    Returns:
-        Grey images in [0, 1], min 0 and max 1 per image.
-
-    Shape:
-        output: `[batch, height, width]`.
-
-    Example:
-        >>> g = torch.Generator().manual_seed(0)
-        >>> x = pink_noise_images(2, 240, 336, generator=g)
-        >>> x.shape, float(x.amin()), float(x.amax())
-        (torch.Size([2, 240, 336]), 0.0, 1.0)
-    """
-    for name, value in (("batch", batch), ("height", height), ("width", width)):
-        check_int(value, name)
-    if not math.isfinite(alpha):
-        raise ValueError(f"alpha must be finite, got {alpha!r}")
-    if dtype not in (torch.float32, torch.float64):
-        raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
-    device = torch.device(device) if device is not None else generator.device
-
-    fy = torch.fft.fftfreq(height, dtype=dtype, device=device)
-    fx = torch.fft.rfftfreq(width, dtype=dtype, device=device)
-    radius = torch.sqrt(fy[:, None].square() + fx[None, :].square())
-    # The mean (f = 0) gets amplitude 0: it is set by the rescaling anyway.
-    amplitude = torch.where(radius > 0, radius.clamp_min(1e-12).pow(-alpha), torch.zeros_like(radius))
-    phase = torch.rand(
-        (batch, height, width // 2 + 1), generator=generator, dtype=dtype, device=device
-    ) * (2 * math.pi)
-    images = torch.fft.irfft2(torch.polar(amplitude.expand_as(phase), phase), s=(height, width))
-
-    low = images.amin(dim=(-2, -1), keepdim=True)
-    span = (images.amax(dim=(-2, -1), keepdim=True) - low).clamp_min(torch.finfo(dtype).tiny)
-    return ((images - low) / span).clamp_(0.0, 1.0)
-
-
-def dead_leaves_image(
-    height: int,
-    width: int,
-    *,
-    generator: torch.Generator,
-    radius_px: tuple[float, float] = (2.0, 96.0),
-    leaves: int | None = None,
-    inner_contrast: float = 0.15,
-    dtype: torch.dtype = torch.float32,
-) -> Tensor:
-    """A dead-leaves texture (Lee, Mumford and Huang 2001): opaque discs of uniform random grey
-    fall on the image one after the other, each hiding what lies under it.
-
-    The radii follow the scale-invariant density ``r ** -3`` between ``radius_px``'s bounds, so
-    the image has natural images' 1/f-like spectrum together with what Gaussian 1/f noise lacks:
-    sharp occluding edges, flat regions and non-Gaussian statistics. Each disc carries a faint
-    1/f texture (``inner_contrast`` of a `pink_noise_images` field), so that no region is
-    exactly flat. The result spans [0, 1].
-
-    Args:
-        height, width: the image's size (each >= 2).
-        generator: the source of every random draw (CPU).
-        radius_px: the smallest and largest radius, pixels (0 < low <= high).
-        leaves: how many discs fall (default: enough to cover the image about 5 times over
-            on average, so that almost none of the first layer shows).
-        inner_contrast: the faint texture's share of the grey range (>= 0).
-        dtype: float32 or float64.
-
-    Example:
-        >>> x = dead_leaves_image(64, 64, generator=torch.Generator().manual_seed(0))
-        >>> x.shape, float(x.amin()) >= 0, float(x.amax()) <= 1
-        (torch.Size([64, 64]), True, True)
-    """
-    check_int(height, "height", 2)
-    check_int(width, "width", 2)
-    low, high = (float(r) for r in radius_px)
-    if not (math.isfinite(low) and math.isfinite(high) and 0 < low <= high):
-        raise ValueError(f"radius_px must be (low, high) with 0 < low <= high, got {radius_px!r}")
-    if not (is_real(inner_contrast) and inner_contrast >= 0):
-        raise ValueError(f"inner_contrast must be a number >= 0, got {inner_contrast!r}")
-    if leaves is None:  # the mean disc area under r^-3 on [low, high]: 2 pi ln(high/low) / (low^-2 - high^-2)
-        area = 2 * math.pi * math.log(high / low) / (low ** -2 - high ** -2) if high > low else math.pi * low ** 2
-        leaves = max(1, math.ceil(5 * height * width / area))
-    check_int(leaves, "leaves", 1)
-    u = torch.rand(leaves, generator=generator, dtype=torch.float64)
-    radii = (low ** -2 - u * (low ** -2 - high ** -2)) ** -0.5  # inverse CDF of the r^-3 density
-    centres_y = torch.rand(leaves, generator=generator, dtype=torch.float64) * height
-    centres_x = torch.rand(leaves, generator=generator, dtype=torch.float64) * width
-    greys = torch.rand(leaves, generator=generator, dtype=torch.float64)
-    # numpy for the loop over the discs: thousands of small in-place writes.
-    canvas = np.full((height, width), 0.5)
-    ys = np.arange(height)[:, None] + 0.5
-    xs = np.arange(width)[None, :] + 0.5
-    for r, cy, cx, grey in zip(radii.tolist(), centres_y.tolist(), centres_x.tolist(), greys.tolist()):
-        top, bottom = max(0, int(cy - r)), min(height, int(cy + r) + 1)
-        left, right = max(0, int(cx - r)), min(width, int(cx + r) + 1)
-        if top >= bottom or left >= right:
-            continue
-        inside = (ys[top:bottom] - cy) ** 2 + (xs[:, left:right] - cx) ** 2 <= r * r
-        canvas[top:bottom, left:right][inside] = grey
-    canvas = torch.from_numpy(canvas)
-    if inner_contrast > 0:
-        texture = pink_noise_images(1, height, width, generator=generator, dtype=torch.float64)[0]
-        canvas = (1 - inner_contrast) * canvas + inner_contrast * texture
-    low_value, high_value = canvas.amin(), canvas.amax()
-    return ((canvas - low_value) / (high_value - low_value).clamp_min(1e-12)).to(dtype)
-
-
-def texture_ram_bytes() -> int:
-    """The size above which `empty_textures` maps a file: ``AECTORCH_TEXTURE_RAM`` (bytes, an
-    integer >= 0) when set, else `TEXTURE_RAM_BYTES`.
-
-    Raises:
-        ValueError: ``AECTORCH_TEXTURE_RAM`` is not a non-negative integer.
-    """
-    text = os.environ.get("AECTORCH_TEXTURE_RAM")
-    if text is None or not text.strip():
-        return TEXTURE_RAM_BYTES
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if value < 0:
-        raise ValueError(f"AECTORCH_TEXTURE_RAM must be a number of bytes (an integer >= 0), got {text!r}")
-    return value
-
-
-def empty_textures(shape: Sequence[int], dtype: torch.dtype = torch.float32,
-                   device: torch.device | str | None = None) -> Tensor:
-    """An uninitialised CPU (or `device`) tensor for textures, in RAM or, when it is larger than
-    `texture_ram_bytes`, in a temporary file mapped into memory.
-
-    The file (in ``AECTORCH_TEXTURE_DIR``, else the system's temporary folder) is reserved in
-    full at once, so a full disk fails here with ``OSError`` rather than later inside a write to
-    the mapping, and it is unlinked at once: it takes disk space only while the tensor lives and
-    disappears with the process. The operating system keeps the pages it has room for in its
-    page cache, so a bank of 10,000 photographs costs disk, not the process's memory.
-    Tensors on other devices than the CPU are plain ``torch.empty``.
-
-    Example:
-        >>> empty_textures((3, 8, 8)).shape
-        torch.Size([3, 8, 8])
-    """
-    shape = tuple(int(n) for n in shape)
-    device = torch.device(device) if device is not None else torch.device("cpu")
-    numel = math.prod(shape)
-    nbytes = numel * torch.empty((), dtype=dtype).element_size()
-    if device.type != "cpu" or nbytes <= texture_ram_bytes() or numel == 0:
-        return torch.empty(shape, dtype=dtype, device=device)
-    import tempfile
-
-    folder = os.environ.get("AECTORCH_TEXTURE_DIR") or None
-    fd, path = tempfile.mkstemp(prefix="aectorch-textures-", suffix=".bin", dir=folder)
-    try:
-        try:
-            os.posix_fallocate(fd, 0, nbytes)
-        except OSError as err:
-            raise OSError(err.errno, f"cannot reserve {nbytes / 2**30:.2f} GiB for textures in "
-                                     f"{os.path.dirname(path)!r} ({err.strerror}); free disk space or set "
-                                     f"AECTORCH_TEXTURE_DIR to a folder with room") from err
-        return torch.from_file(path, shared=True, size=numel, dtype=dtype).view(shape)
-    finally:
-        os.close(fd)
-        os.unlink(path)
 
 
 class TextureBank:
@@ -495,7 +301,7 @@ class TextureBank:
         """
         folder = Path(os.fspath(path)).expanduser()
         height, width = _check_size(size)
-        suffixes = _check_extensions(extensions)
+        suffixes = check_extensions(extensions)
         dtype = _check_dtype(dtype)
         if not folder.exists():
             raise FileNotFoundError(f"texture folder {str(folder)!r} does not exist")
@@ -524,7 +330,7 @@ class TextureBank:
             progress = len(files) >= _PROGRESS_MIN_FILES and sys.stderr.isatty()
         textures = empty_textures((len(files), height, width), dtype=dtype, device=device)
         for i, file in enumerate(tqdm(files, desc="textures", unit="img", disable=not progress)):
-            textures[i] = torch.from_numpy(_load_grey(file, height, width))
+            textures[i] = torch.from_numpy(load_grey(file, height, width))
         return cls(
             textures,
             [p.relative_to(folder).as_posix() for p in files],
@@ -740,42 +546,6 @@ class TextureBank:
 # ---------------------------------------------------------------------- helpers
 
 
-def _load_grey(file: Path, height: int, width: int):
-    """One image file as a float32 numpy array `[height, width]` in [0, 1] (see from_folder)."""
-    import numpy as np
-    from PIL import Image, ImageOps
-
-    try:
-        with Image.open(file) as image:
-            image.load()
-            image = ImageOps.exif_transpose(image)
-            if image.mode in _WIDE_GREY_MODES:
-                grey, scale = image.convert("F"), 65535.0
-            else:
-                if image.mode not in ("1", "L", "LA", "P", "PA", "RGB", "RGBA", "RGBX", "La"):
-                    image = image.convert("RGB")  # CMYK, YCbCr, LAB, HSV: through RGB
-                grey, scale = image.convert("L").convert("F"), 255.0
-    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
-        raise ValueError(f"cannot read image file {str(file)!r}: {exc}") from exc
-
-    w, h = grey.size
-    # The largest centred window with the output's aspect ratio, in source pixels (fractional,
-    # so the crop is exactly centred and the aspect ratio exactly kept), resampled to the output
-    # size in one step: the same as resizing so that the image just covers the output size and
-    # cutting out the centre, without rounding the intermediate size.
-    if w * height >= h * width:  # wider than the output: crop the sides
-        crop_w, crop_h = h * width / height, float(h)
-    else:  # taller: crop top and bottom
-        crop_w, crop_h = float(w), w * height / width
-    left, top = (w - crop_w) / 2, (h - crop_h) / 2
-    if (w, h) != (width, height):
-        grey = grey.resize(
-            (width, height), Image.Resampling.LANCZOS, box=(left, top, left + crop_w, top + crop_h)
-        )
-    array = np.asarray(grey, dtype=np.float32) / np.float32(scale)
-    return np.clip(array, 0.0, 1.0)
-
-
 def _check_textures(textures: Tensor) -> None:
     if not isinstance(textures, Tensor):
         raise TypeError(f"textures must be a torch.Tensor [N, H, W], got {type(textures).__name__}")
@@ -845,17 +615,3 @@ def _check_dtype(dtype) -> torch.dtype:
     if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
         raise TypeError(f"dtype must be a floating torch.dtype, got {dtype!r}")
     return dtype
-
-
-def _check_extensions(extensions) -> tuple[str, ...]:
-    if isinstance(extensions, str):
-        extensions = (extensions,)
-    if not isinstance(extensions, Sequence) or not extensions:
-        raise ValueError(f"extensions must be a non-empty sequence of str, got {extensions!r}")
-    out = []
-    for ext in extensions:
-        if not isinstance(ext, str) or not ext.strip("."):
-            raise ValueError(f"extensions must be non-empty str like '.png', got {ext!r}")
-        ext = ext.lower()
-        out.append(ext if ext.startswith(".") else "." + ext)
-    return tuple(dict.fromkeys(out))
