@@ -5,8 +5,8 @@ Every plotting function takes plain data (tensors, lists of metric dicts), draws
 global backend state is touched; the PNG is rendered by Agg), writes the file at ``dpi=120``
 with a tight layout, creates the parent folders and returns the :class:`pathlib.Path` written.
 
-- :func:`principal_components`: PCA of a dictionary's atoms (scores and explained variance);
-- :func:`plot_dictionaries`: Fig. 2, every dictionary on its first two PCs, initial vs trained;
+- :func:`plot_dictionaries`: Fig. 2, every dictionary on its first two PCs, initial vs trained
+  (:func:`aectorch.coding.readouts.principal_components`);
 - :func:`plot_training`: Fig. 3, each eye movement's MAE (deg; pursuit, vergence) and depth MAE (m)
   over training;
 - :func:`plot_perturbation`: Fig. 4, the same around perturbation events;
@@ -35,7 +35,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from aectorch._checks import check_int, is_int
+from aectorch._checks import is_int
+from aectorch.coding.readouts import principal_components  # re-exported: its public path before it moved to the read-outs
 
 __all__ = [
     "principal_components",
@@ -236,58 +237,13 @@ def _as_matrix(value: Any, name: str) -> Tensor:
 # Fig. 2: dictionaries
 
 
-def principal_components(atoms: Tensor, k: int = 2) -> tuple[Tensor, Tensor]:
-    r"""PCA of a dictionary's atoms: their scores on the first ``k`` principal axes.
-
-    The ``N`` atoms (columns of ``atoms``) are the samples: the mean atom is subtracted and the
-    centred ``[N, P]`` matrix is decomposed by SVD. Scores and ratios equal scikit-learn's
-    ``PCA(n_components=k).fit_transform(atoms.T)`` and ``explained_variance_ratio_`` up to the
-    sign of each axis; here the sign is fixed so that each axis's largest-magnitude loading
-    (first one on ties) is positive.
-
-    Args:
-        atoms: dictionary ``[P, N]``, floating point, finite; ``N >= 2`` atoms of dimension ``P``.
-        k: number of principal axes, ``1 <= k <= min(N, P)``.
-
-    Returns:
-        ``(scores [N, k], explained_variance_ratio [k])`` in the dtype and on the device of
-        ``atoms``. The ratio is the share of the total variance of the atoms per axis (zeros when
-        all atoms are equal).
-
-    Example:
-        >>> atoms = torch.tensor([[0., 1., 2., 3.], [0., 2., 4., 6.], [1., 1., 1., 1.]])
-        >>> scores, ratio = principal_components(atoms, k=1)
-        >>> scores[:, 0]
-        tensor([-3.3541, -1.1180,  1.1180,  3.3541])
-        >>> ratio
-        tensor([1.])
-    """
-    atoms = _as_matrix(atoms, "atoms")
-    p, n = atoms.shape
-    if not (is_int(k) and 1 <= k <= min(n, p)):
-        raise ValueError(f"k must be an int in [1, min(N, P)] = [1, {min(n, p)}] for atoms of shape {(p, n)}, got {k!r}")
-    if n < 2:
-        raise ValueError(f"atoms must hold at least 2 atoms (columns), got shape {(p, n)}")
-    x = atoms.detach().T
-    x = x - x.mean(dim=0, keepdim=True)
-    u, s, vh = torch.linalg.svd(x, full_matrices=False)
-    u, s, vh = u[:, :k], s[:k], vh[:k]
-    columns = vh.abs().argmax(dim=1)
-    signs = torch.sign(vh.gather(1, columns[:, None]).squeeze(1))
-    signs = torch.where(signs == 0, torch.ones_like(signs), signs)
-    scores = u * (s * signs)
-    variance = (x * x).sum()
-    ratio = s.square() / variance if bool(variance > 0) else torch.zeros_like(s)
-    return scores, ratio
-
-
 def plot_dictionaries(initial: Mapping[str, Tensor], trained: Mapping[str, Tensor],
                       path: str | os.PathLike) -> Path:
     """Fig. 2: every dictionary's atoms on its first two principal components, initial vs trained.
 
     One row per key (in the order of ``initial``), two panels: the initial and the trained
     dictionary, each a scatter of its ``N`` atoms' PC1 / PC2 scores (PCA of that dictionary,
-    :func:`principal_components`); axis labels give the explained variance in %.
+    :func:`aectorch.coding.readouts.principal_components`); axis labels give the explained variance in %.
 
     Args:
         initial: dictionaries before training, ``{key: atoms [P, N]}``, e.g. keys

@@ -1,4 +1,4 @@
-"""Tests of aectorch.figures: PCA of dictionaries and the figures."""
+"""Tests of aectorch.figures: the figures, from plain data to a PNG."""
 
 from __future__ import annotations
 
@@ -6,10 +6,8 @@ import json
 import math
 
 import matplotlib.image
-import numpy as np
 import pytest
 import torch
-from sklearn.decomposition import PCA
 
 from aectorch.figures import (
     DPI,
@@ -19,7 +17,6 @@ from aectorch.figures import (
     plot_evaluation,
     plot_perturbation,
     plot_training,
-    principal_components,
 )
 
 torch.set_num_threads(1)
@@ -47,76 +44,6 @@ def records_run(n=60, event=None):
             "depth_mae_m": math.nan if i < 20 else 0.5 / (1 + i),
         })
     return out
-
-
-# ---------------------------------------------------------------------------------------------
-# principal_components
-
-
-def canonical_signs(scores, components):
-    """Flip sklearn's axes with the module's convention: largest-|loading| component positive."""
-    idx = np.abs(components).argmax(axis=1)
-    signs = np.sign(components[np.arange(len(idx)), idx])
-    return scores * signs
-
-
-@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_principal_components_matches_sklearn(dtype):
-    gen = torch.Generator().manual_seed(1)
-    atoms = torch.randn(30, 50, generator=gen, dtype=torch.float64) * torch.linspace(0.2, 3, 30, dtype=torch.float64)[:, None]
-    atoms = atoms.to(dtype)
-    scores, ratio = principal_components(atoms, k=2)
-    assert scores.shape == (50, 2) and ratio.shape == (2,)
-    assert scores.dtype == dtype and ratio.dtype == dtype
-    pca = PCA(n_components=2, svd_solver="full").fit(atoms.double().numpy().T)
-    expected = canonical_signs(pca.transform(atoms.double().numpy().T), pca.components_)
-    tol = 1e-4 if dtype == torch.float32 else 1e-10
-    np.testing.assert_allclose(scores.double().numpy(), expected, atol=tol * 10, rtol=tol)
-    np.testing.assert_allclose(ratio.double().numpy(), pca.explained_variance_ratio_, rtol=tol)
-
-
-def test_principal_components_sign_convention_is_deterministic():
-    gen = torch.Generator().manual_seed(2)
-    atoms = torch.randn(10, 25, generator=gen, dtype=torch.float64)
-    scores, _ = principal_components(atoms, k=3)
-    # a sign flip of the data flips the scores but the convention fixes the axes: scores of -atoms
-    # are the negated scores (each axis's loadings keep their orientation)
-    flipped, _ = principal_components(-atoms, k=3)
-    np.testing.assert_allclose(flipped.numpy(), -scores.numpy(), atol=1e-10)
-    # the largest |loading| of each axis is positive: projections of the centred atoms reproduce it
-    centred = atoms.T - atoms.T.mean(0)
-    loadings = torch.linalg.lstsq(centred, scores).solution  # [P, k], centred @ loadings = scores
-    top = loadings.abs().argmax(0)
-    assert bool((loadings[top, torch.arange(3)] > 0).all())
-
-
-def test_principal_components_recovers_two_dimensional_structure():
-    gen = torch.Generator().manual_seed(3)
-    basis = torch.linalg.qr(torch.randn(40, 2, generator=gen, dtype=torch.float64)).Q  # [P, 2] orthonormal
-    latent = torch.randn(2, 60, generator=gen, dtype=torch.float64) * torch.tensor([[5.0], [2.0]])
-    latent = latent - latent.mean(1, keepdim=True)
-    atoms = basis @ latent + 0.7  # a 2-D plane (offset by a constant atom)
-    scores, ratio = principal_components(atoms, k=2)
-    assert float(ratio.sum()) == pytest.approx(1.0, abs=1e-12)
-    # the scores are the latent coordinates up to a rotation: same Gram matrix
-    np.testing.assert_allclose((scores @ scores.T).numpy(), (latent.T @ latent).numpy(), atol=1e-9)
-    # axes ordered by variance
-    assert float(scores[:, 0].var()) > float(scores[:, 1].var())
-
-
-def test_principal_components_constant_atoms_and_bad_input():
-    scores, ratio = principal_components(torch.ones(5, 4), k=2)
-    assert bool((scores == 0).all()) and bool((ratio == 0).all())
-    with pytest.raises(ValueError, match="atoms"):
-        principal_components(torch.randn(5), k=1)
-    with pytest.raises(ValueError, match="atoms"):
-        principal_components(torch.ones(5, 4, dtype=torch.int64))
-    with pytest.raises(ValueError, match="atoms"):
-        principal_components(torch.tensor([[1.0, math.nan], [0.0, 1.0]]))
-    with pytest.raises(ValueError, match="k must"):
-        principal_components(torch.randn(5, 4), k=5)
-    with pytest.raises(ValueError, match="k must"):
-        principal_components(torch.randn(5, 4), k=0)
 
 
 # ---------------------------------------------------------------------------------------------

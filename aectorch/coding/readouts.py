@@ -21,6 +21,8 @@ means removed (:func:`atom_halves`).
 - :func:`orientation_preference`: the orientation of the plane wave that best fits the atom (the
   peak of its periodogram on a polar grid) and how concentrated its power is in orientation;
   :func:`orientation_histogram` bins it.
+- :func:`principal_components`: PCA of a dictionary's atoms (scores and explained variance), the
+  axes of Fig. 2 (:func:`aectorch.figures.plot_dictionaries`).
 - :func:`code_summary`: all of it for one dictionary as plain, JSON-ready numbers (what a run's
   ``summary.json`` records per dictionary under ``"code"``).
 """
@@ -33,7 +35,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from aectorch._checks import check_int
+from aectorch._checks import check_int, is_int
 
 __all__ = [
     "DisparityPreference",
@@ -46,6 +48,7 @@ __all__ = [
     "disparity_histogram",
     "orientation_preference",
     "orientation_histogram",
+    "principal_components",
     "code_summary",
 ]
 
@@ -406,6 +409,66 @@ def orientation_histogram(orientation_deg: Tensor, bins: int = ORIENTATION_BINS)
     centres = torch.arange(bins, dtype=orientation_deg.dtype if orientation_deg.is_floating_point()
                            else torch.float32, device=orientation_deg.device) * width
     return _counts(which, bins), centres
+
+
+def _check_dictionary(value) -> Tensor:
+    if not isinstance(value, Tensor):
+        try:
+            value = torch.as_tensor(value)
+        except Exception as exc:  # noqa: BLE001 - re-raised as the documented ValueError
+            raise ValueError(f"atoms must be a [P, N] tensor, got {type(value).__name__}") from exc
+    if value.ndim != 2:
+        raise ValueError(f"atoms must be a 2-D [P, N] tensor (atoms as columns), got shape {tuple(value.shape)}")
+    if not value.is_floating_point():
+        raise ValueError(f"atoms must be a floating-point tensor, got dtype {value.dtype}")
+    if not bool(torch.isfinite(value).all()):
+        raise ValueError("atoms contains non-finite values (NaN or inf)")
+    return value
+
+
+def principal_components(atoms: Tensor, k: int = 2) -> tuple[Tensor, Tensor]:
+    r"""PCA of a dictionary's atoms: their scores on the first ``k`` principal axes.
+
+    The ``N`` atoms (columns of ``atoms``) are the samples: the mean atom is subtracted and the
+    centred ``[N, P]`` matrix is decomposed by SVD. Scores and ratios equal scikit-learn's
+    ``PCA(n_components=k).fit_transform(atoms.T)`` and ``explained_variance_ratio_`` up to the
+    sign of each axis; here the sign is fixed so that each axis's largest-magnitude loading
+    (first one on ties) is positive.
+
+    Args:
+        atoms: dictionary ``[P, N]``, floating point, finite; ``N >= 2`` atoms of dimension ``P``.
+        k: number of principal axes, ``1 <= k <= min(N, P)``.
+
+    Returns:
+        ``(scores [N, k], explained_variance_ratio [k])`` in the dtype and on the device of
+        ``atoms``. The ratio is the share of the total variance of the atoms per axis (zeros when
+        all atoms are equal).
+
+    Example:
+        >>> atoms = torch.tensor([[0., 1., 2., 3.], [0., 2., 4., 6.], [1., 1., 1., 1.]])
+        >>> scores, ratio = principal_components(atoms, k=1)
+        >>> scores[:, 0]
+        tensor([-3.3541, -1.1180,  1.1180,  3.3541])
+        >>> ratio
+        tensor([1.])
+    """
+    atoms = _check_dictionary(atoms)
+    p, n = atoms.shape
+    if not (is_int(k) and 1 <= k <= min(n, p)):
+        raise ValueError(f"k must be an int in [1, min(N, P)] = [1, {min(n, p)}] for atoms of shape {(p, n)}, got {k!r}")
+    if n < 2:
+        raise ValueError(f"atoms must hold at least 2 atoms (columns), got shape {(p, n)}")
+    x = atoms.detach().T
+    x = x - x.mean(dim=0, keepdim=True)
+    u, s, vh = torch.linalg.svd(x, full_matrices=False)
+    u, s, vh = u[:, :k], s[:k], vh[:k]
+    columns = vh.abs().argmax(dim=1)
+    signs = torch.sign(vh.gather(1, columns[:, None]).squeeze(1))
+    signs = torch.where(signs == 0, torch.ones_like(signs), signs)
+    scores = u * (s * signs)
+    variance = (x * x).sum()
+    ratio = s.square() / variance if bool(variance > 0) else torch.zeros_like(s)
+    return scores, ratio
 
 
 def code_summary(atoms: Tensor, *, binocularity_bins: int = BINOCULARITY_BINS,
