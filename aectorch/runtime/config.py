@@ -400,7 +400,8 @@ class RecordConfig:
 
     Attributes:
         lerobot: a new folder to record into (``null``: no recording). Every finished fixation of
-            the recorded environments becomes an episode. On resume it is taken from the command
+            the recorded environments becomes an episode (run ``train.py`` with
+            ``.venv-lerobot/bin/python``; docs/lerobot.md). On resume it is taken from the command
             line (a resumed run records into a new folder, or not at all).
         envs: how many of the ``env.num_envs`` environments to record (the first ones, >= 1).
     """

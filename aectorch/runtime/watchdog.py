@@ -57,7 +57,9 @@ class WatchdogConfig:
         entropy_grace_iterations: ... within this many first iterations of the run (>= 0; five
             trials by default) is an early collapse of exploration. A count, not a fraction of
             ``train.iterations``, so that a long run does not call its learned policy a collapse.
-        entropy_window: iterations (>= 1) the entropy is averaged over before it is compared.
+        entropy_window: iterations (>= 1) the entropy is averaged over before it is compared (a
+            default run's pursuit policy is deterministic at a trial's first iteration, while its
+            25-iteration average is about 1.5 nats).
         dead_atoms_window: iterations (>= 1) over which atom selections are counted.
         dead_atoms_max_fraction: more than this fraction ((0, 1]) of a dictionary's atoms chosen
             never in a window means the dictionary is dying.
