@@ -28,7 +28,7 @@ PAPER_ACTIONS_DEG = (-0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2)
 #: The default action set: the paper's seven increments plus +-0.5 and +-1 degrees, so that a
 #: fixation's 30 iterations can reach the 5.7 degrees of pursuit that 1 m needs in six steps (the
 #: paper's largest step, 0.2 degrees, needs 29 of them). A largest step of 2 degrees made the
-#: greedy policy of near trials cycle between states 2 degrees apart (docs/history.md, "A smaller largest step").
+#: greedy policy of near trials cycle between states 2 degrees apart (CHANGELOG.md).
 DEFAULT_ACTIONS_DEG = (-1.0, -0.5, -0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2, 0.5, 1.0)
 
 #: Sums a tensor over the processes that share a batch (an all-reduce), or ``None`` for one process.

@@ -259,7 +259,7 @@ class TrainConfig:
             (``JointLearner.calibrate_depth``; during training the MLP learns from trials with
             *sampled* actions). Written to ``calibrated.pt``, which the evaluation then
             evaluates. 0 (default) turns it off; fewer than 10 skip it (>= 0; not in the paper;
-            docs/history.md, "Depth calibration", says why it is off).
+            docs/results.md, "Depth", says why it is off).
     """
 
     iterations: int = 2400
