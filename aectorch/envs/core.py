@@ -91,7 +91,8 @@ class TaskConfig:
             textures, ``TextureBank.default("train")``).
         distances_m: the plane distances a trial draws from (default 1.0 to 3.0 m in 0.1 m steps).
         fixation_iterations: h, the steps of a fixation (default 30).
-        scales: the foveal scales of the observation and of the encoder (default wide, coarse, fine).
+        scales: the foveal scales of the observation and of the encoder (default `DEFAULT_SCALES`:
+            wide, coarse, fine, full).
         encoder: the internal encoder's settings (`EncoderConfig`; default the learner's).
         learn_encoder: the internal encoder takes one dictionary step per step (default true).
         feature_scale: the features observed are ``feature_scale * f`` (default 10).
