@@ -25,7 +25,12 @@ def test_the_layering_contract_is_kept():
         pytest.fail("lint-imports is missing: install the test extra (pip install -e .[test]), which has import-linter")
     done = subprocess.run([str(lint), "--no-cache"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-2000:]
-    assert "0 broken" in done.stdout and "2 kept" in done.stdout, done.stdout[-2000:]
+    try:
+        import tomllib
+    except ImportError:  # Python 3.10
+        tomllib = pytest.importorskip("tomli")
+    contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
+    assert "0 broken" in done.stdout and f"{len(contracts)} kept" in done.stdout, done.stdout[-2000:]
 
 
 def test_every_package_and_module_of_aectorch_is_in_a_layer():
@@ -36,7 +41,7 @@ def test_every_package_and_module_of_aectorch_is_in_a_layer():
         tomllib = pytest.importorskip("tomli")
 
     contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
-    (layers,) = [c["layers"] for c in contracts if c["type"] == "layers"]
+    (layers,) = [c["layers"] for c in contracts if c["type"] == "layers" and c["containers"] == ["aectorch"]]
     placed = {name.strip() for layer in layers for name in layer.replace(":", "|").split("|")}
     children = {p.stem if p.suffix == ".py" else p.name for p in PACKAGE.iterdir()
                 if (p.suffix == ".py" and p.stem != "__init__") or (p / "__init__.py").exists()}
