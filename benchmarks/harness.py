@@ -1,0 +1,187 @@
+"""The benchmark suite's harness: the size, the default run, interleaved rounds, timing and results.
+
+Every benchmark is a pytest test (``benchmarks/test_*.py``, variants as parameters) that measures
+through this module. ``make test`` collects them at the tiny size, so a change that breaks one
+fails there; ``AECTORCH_BENCH=full`` runs them at full size (``make bench``). A run with
+``AECTORCH_BENCH_SAVE=<folder>`` writes each suite's rows there as ``<suite>.<machine>.json``, in
+one schema (`check`), with the provenance of `aectorch.runtime.provenance`.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Callable
+
+import torch
+import torch.utils.benchmark
+
+from aectorch.runtime.provenance import cpu_model, provenance
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+SCHEMA = "aectorch-benchmark/1"
+SUITES = ("train_rate", "loop", "coding", "render", "depth", "rl_envs")
+_SIZE = os.environ.get("AECTORCH_BENCH", "tiny")
+if _SIZE not in ("tiny", "full"):
+    raise ValueError(f"AECTORCH_BENCH must be 'tiny' or 'full', got {_SIZE!r}")
+FULL = _SIZE == "full"
+#: ``AECTORCH_BENCH_ISA=avx2`` runs what a CPU without AVX-512 executes, on this machine's cores:
+#: these variables, set for the benchmark's processes before torch starts (`isa_environment`).
+AVX2 = {"AECTORCH_NATIVE_MARCH": "x86-64-v3", "ATEN_CPU_CAPABILITY": "avx2", "MKL_ENABLE_INSTRUCTIONS": "AVX2",
+        "ONEDNN_MAX_CPU_ISA": "AVX2"}
+_rows: dict[tuple[str, str], list[dict]] = {}
+
+
+def size(tiny, full):
+    """``full`` under ``AECTORCH_BENCH=full``, else ``tiny``: every size of a benchmark goes through here."""
+    return full if FULL else tiny
+
+
+def isa() -> str:
+    """``"avx2"`` where the process runs under the `AVX2` variables, else ``"native"``."""
+    return "avx2" if all(os.environ.get(k) == v for k, v in AVX2.items()) else "native"
+
+
+@functools.cache
+def default_run(num_envs: int, device: str = "cpu"):
+    """train.py's default environments and learner (``ExperimentConfig()``) at B = ``num_envs``,
+    built once per process. At the tiny size the 100 default textures are four small ones."""
+    from aectorch.runtime import build_env, build_learner
+    from aectorch.runtime.config import ExperimentConfig
+    from aectorch.sim import ActiveDepthEnv, TextureBank
+
+    cfg = ExperimentConfig()
+    cfg.env.num_envs, cfg.env.device = num_envs, device
+    env = build_env(cfg) if FULL else ActiveDepthEnv(
+        num_envs, textures=TextureBank.procedural(4, size=(96, 96), seed=0), seed=cfg.seed, device=device)
+    return env, build_learner(cfg)
+
+
+def interleaved(workloads: dict[str, Callable[[], object]], rounds: int, calls: int = 1, warmup: int = 1,
+                clock: Callable[[], float] = time.perf_counter) -> dict[str, list[float]]:
+    """Seconds per call of each workload, in ``rounds`` rounds that each run every workload
+    ``calls`` times in turn, so the machine's drift (25 % within minutes on a shared virtual
+    machine) hits all of them alike: compare ratios within one run, not across runs."""
+    if rounds < 1 or calls < 1:
+        raise ValueError(f"rounds and calls must be >= 1, got {rounds} and {calls}")
+    for fn in workloads.values():
+        for _ in range(warmup):
+            fn()
+    times: dict[str, list[float]] = {name: [] for name in workloads}
+    for _ in range(rounds):
+        for name, fn in workloads.items():
+            for _ in range(calls):
+                start = clock()
+                fn()
+                times[name].append(clock() - start)
+    return times
+
+
+def median_seconds(fn: Callable[[], object], min_run_time: float | None = None) -> float:
+    """Median seconds per call of ``fn``, by ``torch.utils.benchmark.Timer.blocked_autorange``
+    (at least ``min_run_time`` seconds of calls; the tiny size: one call)."""
+    if not FULL and min_run_time is None:
+        start = time.perf_counter()
+        fn()
+        return time.perf_counter() - start
+    timer = torch.utils.benchmark.Timer(stmt="fn()", globals={"fn": fn}, num_threads=torch.get_num_threads())
+    return timer.blocked_autorange(min_run_time=min_run_time or 1.0).median
+
+
+def worktree(commit: str) -> Path:
+    """A git worktree of ``commit`` beside the system's temporary folder, made once."""
+    folder = Path(os.environ.get("TMPDIR", "/tmp")) / f"aectorch-{commit}"
+    if not (folder / "train.py").exists():
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(folder), commit], check=True,
+                       stdout=subprocess.DEVNULL)
+    return folder
+
+
+def train_py(overrides: list[str], cwd: Path = ROOT, env: dict | None = None) -> float:
+    """Wall seconds of one ``python train.py`` process in ``cwd`` (evaluation, figures, TensorBoard,
+    checkpoints and the progress bar off), with this Python; raises with its stderr if it fails."""
+    import tempfile
+
+    quiet = ["eval.enabled=false", "train.figures=false", "train.progress=false", "train.tensorboard=false",
+             "train.checkpoint_every=100000"]
+    with tempfile.TemporaryDirectory() as out:
+        command = [sys.executable, "train.py", f"hydra.run.dir={out}", *quiet, *overrides]
+        environment = dict(os.environ, PYOPENGL_PLATFORM=os.environ.get("PYOPENGL_PLATFORM", "osmesa"), **(env or {}))
+        start = time.perf_counter()
+        done = subprocess.run(command, cwd=cwd, env=environment, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                              text=True)
+        wall = time.perf_counter() - start
+    if done.returncode:
+        raise RuntimeError(f"train.py {' '.join(overrides)} in {cwd} failed ({done.returncode}):\n{done.stderr[-2000:]}")
+    return wall
+
+
+def machine(device: str = "cpu") -> dict:
+    """What a result is filed under: the CPU, its cores and the GPU (where one ran), torch."""
+    import platform
+
+    gpu = torch.cuda.get_device_name(torch.device(device)) if torch.device(device).type == "cuda" else None
+    return {"cpu": cpu_model(), "cores": os.cpu_count(), "gpu": gpu, "torch": torch.__version__,
+            "platform": platform.platform()}
+
+
+def slug(record: dict) -> str:
+    """A machine record's file-name part: ``nvidia-h200``, ``amd-epyc-2c``."""
+    if record.get("gpu"):
+        return re.sub(r"[^a-z0-9]+", "-", record["gpu"].lower()).strip("-")
+    cpu = re.sub(r"\((r|tm)\)|processor|cpu\b|@.*", "", record["cpu"].lower())
+    return re.sub(r"[^a-z0-9]+", "-", cpu).strip("-") + f"-{record['cores']}c"
+
+
+def record(suite: str, rows: list[dict], benchmark=None, device: str = "cpu") -> None:
+    """Files ``rows`` (one dict per variant, ``"variant"`` naming it) under ``suite`` for this run's
+    results (`save`), checked against the schema; also into pytest-benchmark's ``extra_info``."""
+    document = {"schema": SCHEMA, "suite": suite, "machine": machine(device), "rows": rows}
+    check(document)
+    _rows.setdefault((suite, device), []).extend(rows)
+    if benchmark is not None:
+        benchmark.extra_info.update({row["variant"]: {k: v for k, v in row.items() if k != "variant"} for row in rows})
+
+
+def save(folder: Path, command: str) -> list[Path]:
+    """Writes each suite's rows of this run to ``folder/<suite>.<machine>.json``; returns the paths."""
+    import json
+
+    written = []
+    for (suite, device), rows in _rows.items():
+        document = {"schema": SCHEMA, "suite": suite, "machine": machine(device), "command": command,
+                    "provenance": provenance(device), "rows": rows}
+        check(document)
+        path = Path(folder) / f"{suite}.{slug(document['machine'])}.json"
+        path.write_text(json.dumps(document, indent=1) + "\n")
+        written.append(path)
+    return written
+
+
+def check(document: dict, name: str | None = None) -> None:
+    """Raises ``ValueError`` naming what is wrong where ``document`` is not a result of the schema
+    (and, given its file ``name``, where that is not ``<suite>.<machine>.json``)."""
+    def need(ok: bool, what: str) -> None:
+        if not ok:
+            raise ValueError(f"{name or 'result'}: {what}")
+
+    need(document.get("schema") == SCHEMA, f"schema must be {SCHEMA!r}, got {document.get('schema')!r}")
+    need(document.get("suite") in SUITES, f"suite must be one of {SUITES}, got {document.get('suite')!r}")
+    record_ = document.get("machine")
+    need(isinstance(record_, dict) and {"cpu", "cores", "torch"} <= set(record_),
+         f"machine must hold cpu, cores and torch, got {record_!r}")
+    rows = document.get("rows")
+    need(isinstance(rows, list) and len(rows) > 0, "rows must be a non-empty list")
+    for row in rows:
+        need(isinstance(row.get("variant"), str), f"each row needs a 'variant' string, got {row!r:.200}")
+        need(any(isinstance(v, (int, float)) and not isinstance(v, bool) for v in row.values()),
+             f"row {row['variant']!r} holds no number")
+    if name is not None:
+        need(name == f"{document['suite']}.{slug(record_)}.json",
+             f"the file of this suite and machine is {document['suite']}.{slug(record_)}.json")
