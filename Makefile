@@ -10,7 +10,14 @@ LEROBOT ?= 1
 # pytest-xdist worker processes of the main suite (on 2 cores: 6 min 53 s with 2 on an AMD EPYC).
 TEST_WORKERS ?= 2
 
-.PHONY: setup train test bench docs clean
+# `make bench`: the benchmark suite at full size, its results written to benchmarks/results
+# (docs/performance.md); BENCH_ARGS picks tests, e.g. BENCH_ARGS=benchmarks/test_coding.py, and
+# ISA=avx2 runs what a CPU without AVX-512 executes (benchmarks.harness.AVX2).
+BENCH_ARGS ?= benchmarks
+ISA ?= native
+AVX2_ENV := AECTORCH_NATIVE_MARCH=x86-64-v3 ATEN_CPU_CAPABILITY=avx2 MKL_ENABLE_INSTRUCTIONS=AVX2 ONEDNN_MAX_CPU_ISA=AVX2
+
+.PHONY: setup train test bench bench-compare docs clean
 
 setup:
 	bash scripts/setup.sh
@@ -29,7 +36,12 @@ docs: setup
 	NO_MKDOCS_2_WARNING=1 .venv/bin/mkdocs build --strict
 
 bench: setup
-	$(VENV_PY) benchmarks/omp.py
+	$(if $(filter avx2,$(ISA)),$(AVX2_ENV)) AECTORCH_BENCH=full AECTORCH_BENCH_SAVE=benchmarks/results \
+	PYOPENGL_PLATFORM=osmesa OMP_WAIT_POLICY=PASSIVE $(VENV_PY) -m pytest -q -p no:xdist $(BENCH_ARGS)
+
+# Two commits on the suite, one after the other: make bench-compare A=main B=HEAD
+bench-compare: setup
+	bash benchmarks/compare.sh $(A) $(B) $(BENCH_ARGS)
 
 clean:
 	rm -rf .venv .venv-lerobot site .pytest_cache .hypothesis build dist *.egg-info

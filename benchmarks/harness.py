@@ -123,19 +123,21 @@ def train_py(overrides: list[str], cwd: Path = ROOT, env: dict | None = None) ->
 
 
 def machine(device: str = "cpu") -> dict:
-    """What a result is filed under: the CPU, its cores and the GPU (where one ran), torch."""
+    """What a result is filed under: the CPU, its widest vectors, its cores, the GPU (where one ran), torch."""
     import platform
 
     gpu = torch.cuda.get_device_name(torch.device(device)) if torch.device(device).type == "cuda" else None
-    return {"cpu": cpu_model(), "cores": os.cpu_count(), "gpu": gpu, "torch": torch.__version__,
+    flags = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""
+    vectors = "avx512" if " avx512f" in flags else "avx2" if " avx2" in flags else None
+    return {"cpu": cpu_model(), "vectors": vectors, "cores": os.cpu_count(), "gpu": gpu, "torch": torch.__version__,
             "platform": platform.platform()}
 
 
 def slug(record: dict) -> str:
-    """A machine record's file-name part: ``nvidia-h200``, ``amd-epyc-2c``."""
+    """A machine record's file-name part: ``nvidia-h200``, ``amd-epyc-avx512-2c``."""
     if record.get("gpu"):
         return re.sub(r"[^a-z0-9]+", "-", record["gpu"].lower()).strip("-")
-    cpu = re.sub(r"\((r|tm)\)|processor|cpu\b|@.*", "", record["cpu"].lower())
+    cpu = re.sub(r"\((r|tm)\)|processor|cpu\b|@.*", "", record["cpu"].lower()) + " " + (record.get("vectors") or "")
     return re.sub(r"[^a-z0-9]+", "-", cpu).strip("-") + f"-{record['cores']}c"
 
 

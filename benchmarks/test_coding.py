@@ -68,7 +68,7 @@ def sklearn_omp(d: np.ndarray, gram: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.parametrize("threads", harness.size([1], [1, 2]))
-@pytest.mark.parametrize("size", harness.size([113], [113, 1808, 14464]))
+@pytest.mark.parametrize("size", harness.size([113], [113, 1808, 14464, 115712]))
 @pytest.mark.parametrize("method", METHODS)
 def test_coding(benchmark, method, size, threads):
     from threadpoolctl import threadpool_limits

@@ -18,13 +18,14 @@ and Nguyen-Widrow weights for every method of a seed. Methods:
 with no early stopping, where each method's training MSE is divided by MINPACK's from the same
 start. Reported: medians over the seeds of the train and test MAE (mm; test on fresh samples),
 the test MAE over the noise floor (the Bayes estimator's: the posterior median of d given q),
-epochs and wall seconds.
+epochs and wall seconds. ``AECTORCH_BENCH_SEEDS`` sets the number of seeds.
 """
 
 from __future__ import annotations
 
 import copy
 import functools
+import os
 import statistics
 import time
 
@@ -160,7 +161,7 @@ def fitted(method: str, n: int, seed: int, validation: float) -> dict:
 @pytest.mark.parametrize(("validation", "size"), CASES)
 @pytest.mark.parametrize("method", list(METHODS))
 def test_depth(benchmark, method, validation, size):
-    seeds = range(harness.size(1, 5 if validation else 3))
+    seeds = range(int(os.environ.get("AECTORCH_BENCH_SEEDS", 0)) or harness.size(1, 5 if validation else 3))
     runs = benchmark.pedantic(lambda: [fitted(method, size, seed, validation) for seed in seeds])
     row = {"variant": f"{method}, N={size}, validation {validation}", "method": method, "N": size,
            "validation": validation, "seeds": len(seeds), "stops": sorted({r["stop"] for r in runs}),

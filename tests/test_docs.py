@@ -34,16 +34,18 @@ def test_tutorial_code_runs_in_order(tmp_path):
 
 
 def test_every_result_file_is_cited_and_every_cited_one_exists():
-    """``benchmarks/results``: a file no page cites is a lab notebook's leftover; a cited path
-    (or glob) that matches nothing is a broken reference."""
+    """``benchmarks/results`` (speed) and ``docs/measurements`` (learning): a file no page cites is a lab
+    notebook's leftover; a cited path (or glob) that matches nothing is a broken reference."""
     pages = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
     text = "\n".join(page.read_text() for page in pages)
-    cited = set(re.findall(r"benchmarks/results/([A-Za-z0-9_.*-]+\.json)", text))
-    for pattern in sorted(cited):
-        assert list((ROOT / "benchmarks" / "results").glob(pattern)), f"cited but missing: benchmarks/results/{pattern}"
-    for path in sorted((ROOT / "benchmarks" / "results").iterdir()):
-        assert any(Path(path.name).match(pattern) for pattern in cited) or path.name in text, \
-            f"benchmarks/results/{path.name} is cited by no page of docs/ or the README"
+    for folder in ("benchmarks/results", "docs/measurements"):
+        # ``<commit>:benchmarks/results/...`` names a file in git history (``git show``), not the tree
+        cited = set(re.findall(r"(?<![0-9a-f]{7}:)" + re.escape(folder) + r"/([A-Za-z0-9_.*-]+\.json)", text))
+        for pattern in sorted(cited):
+            assert list((ROOT / folder).glob(pattern)), f"cited but missing: {folder}/{pattern}"
+        for path in sorted((ROOT / folder).iterdir()):
+            assert any(Path(path.name).match(pattern) for pattern in cited) or path.name in text, \
+                f"{folder}/{path.name} is cited by no page of docs/ or the README"
 
 
 def test_site_builds_strictly(tmp_path):

@@ -50,7 +50,7 @@ from aectorch.coding.sparse_code import SparseCode
 __all__ = ["omp", "matching_pursuit", "gram_matrix", "use_backend", "DEFAULT_BLOCK_SIZE", "BACKENDS"]
 
 #: Rows per block on CPU. 512 x 288 float32 correlations are 0.6 MB: they and the
-#: per-step temporaries fit a 2 MB L2 cache (measured by benchmarks/omp.py).
+#: per-step temporaries fit a 2 MB L2 cache (benchmarks/test_coding.py measures it).
 DEFAULT_BLOCK_SIZE = 512
 
 _INDEX_BITS = 29  # spare mantissa bits of float64 over float32

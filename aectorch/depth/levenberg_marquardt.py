@@ -31,7 +31,7 @@ exception, the damping factors (see below):
   and ``mu`` can settle anywhere (there: 10-50x lower); the same runs end at
   0.95-1.04x MINPACK's MSE (10 of 10 seeds; trainlm's factors 0.98-1.07x, 7 of
   10 within 1.05x) and get there in fewer epochs; with a validation split the
-  test error is unchanged (`benchmarks/depth.py`, docs/performance.md).
+  test error is unchanged (`benchmarks/test_depth.py`, docs/performance.md).
 * The damping is ``mu I`` (Levenberg's form, as trainlm), not Marquardt's
   ``mu diag(J^T J)`` that MINPACK (``scipy.optimize.least_squares(method="lm")``)
   uses with its own trust-region rule: same fixed point, different path.

@@ -22,12 +22,12 @@ warning that says why; results agree within float rounding (tests/test_pursuit.p
 ``AECTORCH_NATIVE=0`` to never use it, and ``AECTORCH_CACHE`` to move the cache
 (default ``~/.cache/aectorch``). On x86-64 the kernels are compiled for this CPU
 (``-march=native``); ``AECTORCH_NATIVE_MARCH`` names another target, e.g. ``x86-64-v3`` (AVX2,
-no AVX-512) to measure what a machine without AVX-512 would run (``benchmarks/stages.py --isa``).
+no AVX-512) to measure what a machine without AVX-512 would run (``make bench ISA=avx2``).
 
 The kernels' float32 matrix products (the pursuit's correlations, the Gram matrix) run in oneDNN
 (torch's ``mkldnn::_linear_pointwise``), not in torch's ``@`` (MKL on x86): on an AMD CPU with
 AVX-512, MKL runs its AVX2 code and oneDNN about twice as fast (at AVX2 they ran at about the
-same rate; ``benchmarks/stages.py`` records both rates). The two libraries sum in different
+same rate; ``benchmarks/test_loop.py`` records both rates). The two libraries sum in different
 orders, so the codes agree with the torch code's within rounding (and are the same bits on any
 number of threads). ``AECTORCH_ONEDNN=0`` keeps torch's product (read once per process); float64
 always uses it.

@@ -75,7 +75,7 @@ log = logging.getLogger("aectorch")
 #: ``torch.utils.deterministic.fill_uninitialized_memory`` during a run with ``train.deterministic``.
 #: Deterministic mode would also fill every new tensor's memory with NaN, a guard against reading
 #: memory never written: about 360 fills per default iteration, 5 % of its self CPU time in torch's
-#: profiler (``python benchmarks/loop_ops.py``).
+#: profiler (measured at commit c196118 by its ``benchmarks/loop_ops.py``).
 #: A run never reads such memory: its checkpoint is bit-identical either way
 #: (``tests/test_reliability.py::test_the_nan_fill_of_new_tensors_changes_no_bit``).
 FILL_UNINITIALIZED_MEMORY = False
