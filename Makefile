@@ -39,9 +39,15 @@ bench: setup
 	$(if $(filter avx2,$(ISA)),$(AVX2_ENV)) AECTORCH_BENCH=full AECTORCH_BENCH_SAVE=benchmarks/results \
 	PYOPENGL_PLATFORM=osmesa OMP_WAIT_POLICY=PASSIVE $(VENV_PY) -m pytest -q -p no:xdist $(BENCH_ARGS)
 
-# Two commits on the suite, one after the other: make bench-compare A=main B=HEAD
+# Two commits on the suite (each in a git worktree, one after the other; for a ratio that counts on a
+# shared machine prefer a side-by-side variant, e.g. AECTORCH_BENCH_BASELINE), then pytest-benchmark's
+# comparison: make bench-compare A=main B=HEAD
 bench-compare: setup
-	bash benchmarks/compare.sh $(A) $(B) $(BENCH_ARGS)
+	set -e; out=$$(mktemp -d); for c in $(A) $(B); do dir=$${TMPDIR:-/tmp}/aectorch-$$c; \
+	  [ -e $$dir/train.py ] || git worktree add --detach $$dir $$c; \
+	  (cd $$dir && AECTORCH_BENCH=full PYOPENGL_PLATFORM=osmesa $(CURDIR)/$(VENV_PY) -m pytest -q -p no:xdist \
+	    --benchmark-only --benchmark-json=$$out/$$c.json $(BENCH_ARGS)); done; \
+	.venv/bin/pytest-benchmark compare $$out/$(A).json $$out/$(B).json --columns=min,median,iqr,rounds
 
 clean:
 	rm -rf .venv .venv-lerobot site .pytest_cache .hypothesis build dist *.egg-info

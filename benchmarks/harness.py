@@ -1,10 +1,8 @@
 """The benchmark suite's harness: the size, the default run, interleaved rounds, timing and results.
 
-Every benchmark is a pytest test (``benchmarks/test_*.py``, variants as parameters) that measures
-through this module. ``make test`` collects them at the tiny size, so a change that breaks one
-fails there; ``AECTORCH_BENCH=full`` runs them at full size (``make bench``). A run with
-``AECTORCH_BENCH_SAVE=<folder>`` writes each suite's rows there as ``<suite>.<machine>.json``, in
-one schema (`check`), with the provenance of `aectorch.runtime.provenance`.
+The tests (``benchmarks/test_*.py``) run at a tiny size unless ``AECTORCH_BENCH=full``; with
+``AECTORCH_BENCH_SAVE=<folder>`` a run writes each suite's rows there as ``<suite>.<machine>.json``
+in one schema (`check`), with the provenance of `aectorch.runtime.provenance`.
 """
 
 from __future__ import annotations
@@ -27,12 +25,10 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 SCHEMA = "aectorch-benchmark/1"
 SUITES = ("train_rate", "loop", "coding", "render", "depth", "rl_envs")
-_SIZE = os.environ.get("AECTORCH_BENCH", "tiny")
-if _SIZE not in ("tiny", "full"):
-    raise ValueError(f"AECTORCH_BENCH must be 'tiny' or 'full', got {_SIZE!r}")
-FULL = _SIZE == "full"
-#: ``AECTORCH_BENCH_ISA=avx2`` runs what a CPU without AVX-512 executes, on this machine's cores:
-#: these variables, set for the benchmark's processes before torch starts (`isa_environment`).
+FULL = {"tiny": False, "full": True}.get(os.environ.get("AECTORCH_BENCH", "tiny"))
+if FULL is None:
+    raise ValueError(f"AECTORCH_BENCH must be 'tiny' or 'full', got {os.environ['AECTORCH_BENCH']!r}")
+#: What a CPU without AVX-512 executes, on this machine's cores: set before torch starts (`isa`).
 AVX2 = {"AECTORCH_NATIVE_MARCH": "x86-64-v3", "ATEN_CPU_CAPABILITY": "avx2", "MKL_ENABLE_INSTRUCTIONS": "AVX2",
         "ONEDNN_MAX_CPU_ISA": "AVX2"}
 _rows: dict[tuple[str, str], list[dict]] = {}
@@ -44,7 +40,7 @@ def size(tiny, full):
 
 
 def isa() -> str:
-    """``"avx2"`` where the process runs under the `AVX2` variables, else ``"native"``."""
+    """``"avx2"`` under the `AVX2` variables, else ``"native"``."""
     return "avx2" if all(os.environ.get(k) == v for k, v in AVX2.items()) else "native"
 
 
@@ -52,8 +48,7 @@ def isa() -> str:
 def default_run(num_envs: int, device: str = "cpu"):
     """train.py's default environments and learner (``ExperimentConfig()``) at B = ``num_envs``,
     built once per process. At the tiny size the 100 default textures are four small ones."""
-    from aectorch.runtime import build_env, build_learner
-    from aectorch.runtime.config import ExperimentConfig
+    from aectorch.runtime import ExperimentConfig, build_env, build_learner
     from aectorch.sim import ActiveDepthEnv, TextureBank
 
     cfg = ExperimentConfig()
@@ -65,9 +60,8 @@ def default_run(num_envs: int, device: str = "cpu"):
 
 def interleaved(workloads: dict[str, Callable[[], object]], rounds: int, calls: int = 1, warmup: int = 1,
                 clock: Callable[[], float] = time.perf_counter) -> dict[str, list[float]]:
-    """Seconds per call of each workload, in ``rounds`` rounds that each run every workload
-    ``calls`` times in turn, so the machine's drift (25 % within minutes on a shared virtual
-    machine) hits all of them alike: compare ratios within one run, not across runs."""
+    """Seconds per call of each workload, in ``rounds`` rounds that each run every workload ``calls`` times
+    in turn, so a shared machine's drift hits all alike: compare ratios within one run, not across runs."""
     if rounds < 1 or calls < 1:
         raise ValueError(f"rounds and calls must be >= 1, got {rounds} and {calls}")
     for fn in workloads.values():
@@ -84,8 +78,7 @@ def interleaved(workloads: dict[str, Callable[[], object]], rounds: int, calls: 
 
 
 def median_seconds(fn: Callable[[], object], min_run_time: float | None = None) -> float:
-    """Median seconds per call of ``fn``, by ``torch.utils.benchmark.Timer.blocked_autorange``
-    (at least ``min_run_time`` seconds of calls; the tiny size: one call)."""
+    """Median seconds per call of ``fn`` by ``torch.utils.benchmark`` (the tiny size: one call)."""
     if not FULL and min_run_time is None:
         start = time.perf_counter()
         fn()
@@ -95,27 +88,25 @@ def median_seconds(fn: Callable[[], object], min_run_time: float | None = None) 
 
 
 def worktree(commit: str) -> Path:
-    """A git worktree of ``commit`` beside the system's temporary folder, made once."""
+    """A git worktree of ``commit`` in the temporary folder (``compare.sh`` uses the same), made once."""
     folder = Path(os.environ.get("TMPDIR", "/tmp")) / f"aectorch-{commit}"
     if not (folder / "train.py").exists():
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(folder), commit], check=True,
-                       stdout=subprocess.DEVNULL)
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(folder), commit], check=True)
     return folder
 
 
 def train_py(overrides: list[str], cwd: Path = ROOT, env: dict | None = None) -> float:
-    """Wall seconds of one ``python train.py`` process in ``cwd`` (evaluation, figures, TensorBoard,
-    checkpoints and the progress bar off), with this Python; raises with its stderr if it fails."""
+    """Wall seconds of one ``python train.py`` process in ``cwd`` with this Python (evaluation,
+    figures, TensorBoard, checkpoints and the progress bar off); raises with its stderr if it fails."""
     import tempfile
 
     quiet = ["eval.enabled=false", "train.figures=false", "train.progress=false", "train.tensorboard=false",
              "train.checkpoint_every=100000"]
     with tempfile.TemporaryDirectory() as out:
-        command = [sys.executable, "train.py", f"hydra.run.dir={out}", *quiet, *overrides]
-        environment = dict(os.environ, PYOPENGL_PLATFORM=os.environ.get("PYOPENGL_PLATFORM", "osmesa"), **(env or {}))
         start = time.perf_counter()
-        done = subprocess.run(command, cwd=cwd, env=environment, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                              text=True)
+        done = subprocess.run([sys.executable, "train.py", f"hydra.run.dir={out}", *quiet, *overrides], cwd=cwd,
+                              env={"PYOPENGL_PLATFORM": "osmesa", **os.environ, **(env or {})},
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         wall = time.perf_counter() - start
     if done.returncode:
         raise RuntimeError(f"train.py {' '.join(overrides)} in {cwd} failed ({done.returncode}):\n{done.stderr[-2000:]}")
@@ -128,24 +119,21 @@ def machine(device: str = "cpu") -> dict:
 
     gpu = torch.cuda.get_device_name(torch.device(device)) if torch.device(device).type == "cuda" else None
     flags = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""
-    vectors = "avx512" if " avx512f" in flags else "avx2" if " avx2" in flags else None
-    return {"cpu": cpu_model(), "vectors": vectors, "cores": os.cpu_count(), "gpu": gpu, "torch": torch.__version__,
-            "platform": platform.platform()}
+    return {"cpu": cpu_model(), "vectors": next((v for v in ("avx512", "avx2") if f" {v}" in flags), None),
+            "cores": os.cpu_count(), "gpu": gpu, "torch": torch.__version__, "platform": platform.platform()}
 
 
 def slug(record: dict) -> str:
     """A machine record's file-name part: ``nvidia-h200``, ``amd-epyc-avx512-2c``."""
-    if record.get("gpu"):
-        return re.sub(r"[^a-z0-9]+", "-", record["gpu"].lower()).strip("-")
-    cpu = re.sub(r"\((r|tm)\)|processor|cpu\b|@.*", "", record["cpu"].lower()) + " " + (record.get("vectors") or "")
-    return re.sub(r"[^a-z0-9]+", "-", cpu).strip("-") + f"-{record['cores']}c"
+    name = record.get("gpu") or re.sub(r"\((r|tm)\)|processor|cpu\b|@.*", "", record["cpu"].lower()) + " " + (
+        record.get("vectors") or "") + f" {record['cores']}c"
+    return re.sub(r"[^a-z0-9]+", "-", name.lower()).strip("-")
 
 
 def record(suite: str, rows: list[dict], benchmark=None, device: str = "cpu") -> None:
     """Files ``rows`` (one dict per variant, ``"variant"`` naming it) under ``suite`` for this run's
     results (`save`), checked against the schema; also into pytest-benchmark's ``extra_info``."""
-    document = {"schema": SCHEMA, "suite": suite, "machine": machine(device), "rows": rows}
-    check(document)
+    check({"schema": SCHEMA, "suite": suite, "machine": machine(device), "rows": rows})
     _rows.setdefault((suite, device), []).extend(rows)
     if benchmark is not None:
         benchmark.extra_info.update({row["variant"]: {k: v for k, v in row.items() if k != "variant"} for row in rows})
@@ -159,10 +147,9 @@ def save(folder: Path, command: str) -> list[Path]:
     for (suite, device), rows in _rows.items():
         document = {"schema": SCHEMA, "suite": suite, "machine": machine(device), "command": command,
                     "provenance": provenance(device), "rows": rows}
-        check(document)
-        path = Path(folder) / f"{suite}.{slug(document['machine'])}.json"
-        path.write_text(json.dumps(document, indent=1) + "\n")
-        written.append(path)
+        written.append(Path(folder) / f"{suite}.{slug(document['machine'])}.json")
+        check(document, written[-1].name)
+        written[-1].write_text(json.dumps(document, indent=1) + "\n")
     return written
 
 

@@ -1,8 +1,5 @@
-"""The tables of docs/performance.md, from the results under benchmarks/results.
-
-``python -m benchmarks.report`` prints them; ``--write docs/performance.md`` replaces each table
-that follows a ``<!-- table: NAME -->`` line there (tests/test_benchmarks.py checks they agree).
-"""
+"""The tables of docs/performance.md from benchmarks/results: ``python -m benchmarks.report`` prints
+them, ``--write docs/performance.md`` replaces each table after a ``<!-- table: NAME -->`` line."""
 
 from __future__ import annotations
 
@@ -20,8 +17,17 @@ def rows(name: str, **match) -> list[dict]:
     return [r for r in found if all(r.get(k) == v for k, v in match.items())]
 
 
-def floor_ms(row: dict) -> float:
-    return 1e3 * sum(row["flops_per_env_iteration"].values()) / row["matmul_flops_per_s"]
+def stages() -> list[list]:
+    pair = [rows("loop.amd-epyc-avx512-2c", isa=isa)[0] for isa in ("native", "avx2")]
+    ms = lambda r, *names: sum(r["ms_per_env_iteration"][n] for n in names or r["ms_per_env_iteration"])  # noqa: E731
+    floor = lambda r: 1e3 * sum(r["flops_per_env_iteration"].values()) / r["matmul_flops_per_s"]  # noqa: E731
+    cells = {**{name: lambda r, n=name: f"{ms(r, n):.3f}" for name in ("render", "encode", "dictionary", "rl")},
+             "env + metrics": lambda r: f"{ms(r, 'env', 'metrics'):.3f}",
+             "**all** (env-iterations/s)": lambda r: f"{ms(r):.3f} ({r['env_iterations_per_s']:,.0f})",
+             "floor (matmul GFLOP/s)": lambda r: f"{floor(r):.3f} ({r['matmul_flops_per_s'] / 1e9:.0f})",
+             "**x floor**": lambda r: f"**{ms(r) / floor(r):.1f}x**",
+             "peak memory rise (MB)": lambda r: f"{r['peak_memory_mb']:.0f}"}
+    return [[label, *(cell(r) for r in pair)] for label, cell in cells.items()]
 
 
 def train_rate() -> list[list]:
@@ -31,22 +37,6 @@ def train_rate() -> list[list]:
              f"{r['env_iterations_per_s'] / base[r['isa']]['env_iterations_per_s']:.2f}x",
              f"{statistics.median(r['per_round_ratio_to_baseline']):.2f}x" if r is not base[r["isa"]] else ""]
             for r in found]
-
-
-def stages() -> list[list]:
-    native, avx2 = (rows("loop.amd-epyc-avx512-2c", isa=isa)[0] for isa in ("native", "avx2"))
-    out = [[name, *(f"{r['ms_per_env_iteration'][name]:.3f}" for r in (native, avx2))]
-           for name in ("render", "encode", "dictionary", "rl")]
-    out.append(["env + metrics", *(f"{r['ms_per_env_iteration']['env'] + r['ms_per_env_iteration']['metrics']:.3f}"
-                                   for r in (native, avx2))])
-    out.append(["**all** (env-iterations/s)", *(f"{sum(r['ms_per_env_iteration'].values()):.3f} "
-                                                f"({r['env_iterations_per_s']:,.0f})" for r in (native, avx2))])
-    out.append(["floor (matmul GFLOP/s)", *(f"{floor_ms(r):.3f} ({r['matmul_flops_per_s'] / 1e9:.0f})"
-                                            for r in (native, avx2))])
-    out.append(["**x floor**", *(f"**{sum(r['ms_per_env_iteration'].values()) / floor_ms(r):.1f}x**"
-                                 for r in (native, avx2))])
-    out.append(["peak memory rise (MB)", *(f"{r['peak_memory_mb']:.0f}" for r in (native, avx2))])
-    return out
 
 
 def gpu() -> list[list]:
@@ -82,14 +72,9 @@ def render() -> list[list]:
             for r in sorted(rows("render.intel-xeon-avx512-2c"), key=lambda r: (r["window"] != "full", r["B"], r["threads"]))]
 
 
-def depth() -> list[list]:
+def depth(name: str, **match) -> list[list]:
     return [[f"{r['N']:,}", r["method"], f"{r['train_mae_mm']:.2f}", f"{r['test_over_floor']:.3f}", f"{r['epochs']:g}",
-             f"{r['seconds']:.3f}", ", ".join(r["stops"])] for r in rows("depth.intel-xeon-avx512-2c", validation=0.15)]
-
-
-def depth_defaults() -> list[list]:
-    return [[f"{r['N']:,}", r["method"], f"{r['test_over_floor']:.3f}", f"{r['epochs']:g}", f"{r['seconds']:.3f}",
-             ", ".join(r["stops"])] for r in rows("depth.amd-epyc-avx512-2c")]
+             f"{r['seconds']:.3f}", ", ".join(r["stops"])] for r in rows(name, **match)]
 
 
 def minpack() -> list[list]:
@@ -98,6 +83,7 @@ def minpack() -> list[list]:
             for r in rows("depth.intel-xeon-avx512-2c", validation=0.0)]
 
 
+DEPTH = ["N", "method", "train MAE (mm)", "test / floor", "epochs", "wall (s)", "stop"]
 TABLES = {  # name: (header, right-aligned columns from, rows)
     "train_rate": (["code", "ISA", "rounds (env-it/s)", "median", "x b39d619", "per-round ratio"], 3, train_rate),
     "stages": (["stage (ms / env-iteration)", "native (AVX-512)", "AVX2"], 1, stages),
@@ -106,8 +92,8 @@ TABLES = {  # name: (header, right-aligned columns from, rows)
     "coding_target": (["method", "patches/s", "x sklearn", "support = sklearn", "of the FLOP floor"], 1, coding_target),
     "coding_sweep": (["method (x sklearn)", "M = 113", "1,808", "14,464", "115,712"], 1, coding_sweep),
     "render": (["window", "B", "threads", "torch", "pyrender (OSMesa)", "torch / pyrender"], 1, render),
-    "depth": (["N", "method", "train MAE (mm)", "test / floor", "epochs", "wall (s)", "stop"], 2, depth),
-    "depth_defaults": (["N", "method", "test / floor", "epochs", "wall (s)", "stop"], 2, depth_defaults),
+    "depth": (DEPTH, 2, lambda: depth("depth.intel-xeon-avx512-2c", validation=0.15)),
+    "depth_defaults": (DEPTH, 2, lambda: depth("depth.amd-epyc-avx512-2c")),
     "minpack": (["method", "train MSE / MINPACK's, per seed", "median", "test / floor", "epochs", "wall (s)"], 1, minpack),
 }
 
@@ -127,9 +113,9 @@ def write(page: Path) -> str:
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--write", type=Path, help="the page whose marked tables to regenerate in place")
-    args = parser.parse_args(argv)
-    if args.write:
-        args.write.write_text(write(args.write))
+    page = parser.parse_args(argv).write
+    if page:
+        page.write_text(write(page))
     else:
         print("\n\n".join(f"<!-- table: {name} -->\n{table(name)}" for name in TABLES))
 

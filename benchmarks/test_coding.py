@@ -1,21 +1,13 @@
-"""Patches per second of aectorch's batched OMP and MP against scikit-learn's OMP, side by side.
-
-Signals are real binocular patches: foveal patches (coarse and fine scale) cut from the two
-photographs scikit-learn ships, paired with a copy shifted by a few pixels, as the coder sees
-them. P = 200, N = 288, k = 10, float32; the dictionary random and unit-norm, as at the start of
-training. Each variant alternates with scikit-learn's ``orthogonal_mp_gram`` (Gram matrix
-precomputed, its ``D^T X`` timed, as ours is) in interleaved rounds. ``omp`` and ``mp`` are the
-defaults (on CPU the fused kernel ``torch.ops.aectorch.pursuit``), ``*_torch`` the pure-torch code
-(the CUDA path and the fallback), ``*_compiled`` under ``torch.compile(fullgraph=True)``. Also the
-fraction of patches whose support equals scikit-learn's (for MP, another algorithm: information
-only) and the FLOP floor: the float32 matmul rate measured in the same run over one patch's FLOPs.
+"""Patches per second of aectorch's batched OMP and MP against scikit-learn's ``orthogonal_mp_gram``,
+interleaved in one run, on real binocular patches of scikit-learn's photographs (P = 200, N = 288,
+k = 10, float32, a random unit-norm dictionary); also the fraction of patches with scikit-learn's
+atoms and the FLOP floor (docs/performance.md).
 """
 
 from __future__ import annotations
 
 import functools
 import statistics
-import warnings
 
 import numpy as np
 import pytest
@@ -52,25 +44,18 @@ def photo_patches(count: int, seed: int = 0) -> torch.Tensor:
 
 
 def flops_per_patch(method: str) -> int:
-    """FLOPs per patch of the Gram-form algorithms: the correlations, then one Gram-row axpy per MP
-    step but the last (OMP: i + 1 rows at step i, and the k x k triangles)."""
+    # the correlations, one Gram-row axpy per MP step but the last (OMP: i + 1 rows at step i, and the triangles)
     if method.startswith("mp"):
         return 2 * P * N + (K - 1) * 2 * N
     return 2 * P * N + sum(2 * N * (i + 1) + 2 * N for i in range(K - 1)) + 2 * K**3
 
 
-def sklearn_omp(d: np.ndarray, gram: np.ndarray, x: np.ndarray) -> np.ndarray:
-    from sklearn.linear_model import orthogonal_mp_gram
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return orthogonal_mp_gram(gram, d.T @ x.T, n_nonzero_coefs=K).T
-
-
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")  # scikit-learn's on a residual reached early
 @pytest.mark.parametrize("threads", harness.size([1], [1, 2]))
 @pytest.mark.parametrize("size", harness.size([113], [113, 1808, 14464, 115712]))
 @pytest.mark.parametrize("method", METHODS)
 def test_coding(benchmark, method, size, threads):
+    from sklearn.linear_model import orthogonal_mp_gram
     from threadpoolctl import threadpool_limits
 
     torch.set_num_threads(threads)
@@ -82,7 +67,7 @@ def test_coding(benchmark, method, size, threads):
         torch._dynamo.config.recompile_limit = 64  # a graph per size and backend
         fn = torch.compile(fn, fullgraph=True, dynamic=False)
     ours = lambda: fn(x, d, K, gram=gram, check=False)  # noqa: E731
-    theirs = functools.partial(sklearn_omp, d.numpy(), gram.numpy(), x.numpy())
+    theirs = lambda: orthogonal_mp_gram(gram.numpy(), d.numpy().T @ x.numpy().T, n_nonzero_coefs=K).T  # noqa: E731
     with threadpool_limits(threads):
         times = harness.interleaved({"ours": ours, "sklearn": theirs}, rounds=harness.size(1, 5))
         benchmark.pedantic(ours, rounds=harness.size(1, 5))

@@ -1,18 +1,8 @@
-"""The training loop in one process: env-iterations/s of train.py's default run, where an iteration
-goes stage by stage beside its floor, and the memory it takes.
+"""The training loop in one process: env-iterations/s of train.py's default run, each stage's ms per
+env-iteration beside the floor of its matrix-product FLOPs at the matmul rate measured in the same
+process (docs/performance.md), and the peak memory's rise (on CUDA, ``max_memory_allocated``).
 
-For each B and kernel-thread count (torch's own operations on one thread, as ``train.threads=0``
-runs them): `harness.default_run`, warm-up iterations, then timed ones under
-`aectorch.profiling.StageTimer`, the heap frozen as the training loop runs it. Per stage: ms per
-env-iteration and the matrix-product FLOPs per env-iteration (``FlopCounterMode`` stage by stage,
-with the pure-torch pursuit so that the products inside the fused kernel count; the dictionary
-step's are those of the sparse gradient it runs, ``2 M k P`` per dictionary). The floor is those
-FLOPs at the float32 matmul rate measured in the same process on the loop's largest product, the
-faster of torch's (MKL) and oneDNN's, which the fused kernels call. Also the peak resident memory's
-rise over the process's before the run is built (on CUDA, ``torch.cuda.max_memory_allocated``).
-
-``AECTORCH_BENCH_DEVICE=cuda`` runs on a GPU (the pure-torch code), where ``mode=compile`` is
-``train.compile=true``; on CPU that flag compiles nothing (`aectorch.runtime.builders.compile_hot_path`).
+``AECTORCH_BENCH_DEVICE=cuda`` runs on a GPU, where ``mode=compile`` is ``train.compile=true``.
 """
 
 from __future__ import annotations
@@ -27,8 +17,8 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from aectorch import profiling
 from aectorch.ops import native, use_backend
+from aectorch.runtime.builders import compile_hot_path
 from aectorch.runtime.loop import frozen_heap
-from aectorch.sim.env import _finer
 from benchmarks import harness
 
 DEVICE = os.environ.get("AECTORCH_BENCH_DEVICE", "cpu")
@@ -36,9 +26,7 @@ STAGES = ("render", "encode", "dictionary", "rl", "env", "metrics", "depth")
 
 
 class FlopStages(profiling.StageTimer):
-    """Matrix-product FLOPs per stage: one ``FlopCounterMode`` per stage."""
-
-    def __init__(self):
+    def __init__(self):  # one FlopCounterMode per stage
         super().__init__()
         self.flops: dict[str, int] = {}
         self._counters: list[FlopCounterMode] = []
@@ -55,8 +43,8 @@ class FlopStages(profiling.StageTimer):
 
 
 def _rss_mb(field: str) -> float:
-    lines = Path("/proc/self/status").read_text().splitlines()
-    return next(int(line.split()[1]) / 1024 for line in lines if line.startswith(field + ":"))
+    return next(int(line.split()[1]) / 1024 for line in Path("/proc/self/status").read_text().splitlines()
+                if line.startswith(field + ":"))
 
 
 def flops_per_env_iteration(learner, env, batch: int) -> dict[str, float]:
@@ -93,8 +81,6 @@ def test_loop(benchmark, batch, kernel_threads, mode):
     base = _rss_mb("VmRSS")
     env, learner = harness.default_run(batch, DEVICE)
     if mode == "compile":
-        from aectorch.runtime.builders import compile_hot_path
-
         compile_hot_path(learner, env)
     sync = torch.cuda.synchronize if DEVICE != "cpu" else (lambda: None)
     iterations = harness.size(2, max(8, 40 * 32 // batch))
@@ -106,15 +92,11 @@ def test_loop(benchmark, batch, kernel_threads, mode):
     benchmark.pedantic(learner.iteration, args=(env,), rounds=harness.size(1, 5))
     peak = torch.cuda.max_memory_allocated() / 2**20 if DEVICE != "cpu" else _rss_mb("VmHWM") - base
     rates = matmul_rates(batch, DEVICE)
-    scale_pixels = sum(((s.crop + 2 * s.downsample) * _finer(s.downsample) // s.downsample) ** 2
-                       for s in next(iter(learner.cues.values())).encoder.scales)
     row = {"variant": f"B={batch}, kernel threads {kernel_threads}, {harness.isa()}, {mode}, {DEVICE}",
            "B": batch, "kernel_threads": kernel_threads, "isa": harness.isa(), "mode": mode, "device": DEVICE,
            "env_iterations_per_s": batch / statistics.median(times),
            "ms_per_env_iteration": {k: 1e3 * stages.seconds.get(k, 0.0) / iterations / batch for k in STAGES},
            "flops_per_env_iteration": flops_per_env_iteration(learner, env, batch),
-           "matmul_flops_per_s": max(rates.values()), "matmul_flops_per_s_by_library": rates,
-           "rendered_pixels_per_eye_image": scale_pixels, "peak_memory_mb": peak}
-    floor_ms = 1e3 * sum(row["flops_per_env_iteration"].values()) / row["matmul_flops_per_s"]
-    assert floor_ms > 0 and row["ms_per_env_iteration"]["encode"] > 0
+           "matmul_flops_per_s": max(rates.values()), "matmul_flops_per_s_by_library": rates, "peak_memory_mb": peak}
+    assert sum(row["flops_per_env_iteration"].values()) > 0 and row["ms_per_env_iteration"]["encode"] > 0
     harness.record("loop", [row], benchmark, DEVICE)

@@ -1,12 +1,7 @@
-"""Frames per second of the two plane renderers side by side: aectorch's torch renderer against
-pyrender on OSMesa (llvmpipe), what a user of the MATLAB/V-REP lineage would otherwise reach for.
-
-One frame is one eye camera's grey image. Each of B environments looks at its own texture (a bank
-of 100 textures of 512 x 512, as ``TextureBank.default()``; at the tiny size 4 of 64 x 64), at its
-own distance, body shift and eye pans. The torch renderer renders ``[B, 2]`` frames per call;
-pyrender draws one frame at a time, so its rate does not depend on B and it is timed on at most
-128 frames per call. Windows: the whole 320 x 240 frame, and the 128 x 128 central window. Threads:
-the process's (``OMP_NUM_THREADS`` and llvmpipe's ``LP_NUM_THREADS``, set before the run starts).
+"""Frames per second of aectorch's torch renderer against pyrender on OSMesa, interleaved: one frame
+is one eye's grey image, each of B environments with its own texture, distance and pans; pyrender
+draws one frame at a time (timed on at most 64 environments a call). Threads: the process's
+(``OMP_NUM_THREADS``, llvmpipe's ``LP_NUM_THREADS``).
 """
 
 from __future__ import annotations
@@ -18,30 +13,27 @@ import statistics
 import pytest
 import torch
 
+import aectorch.sim
 from benchmarks import harness
 
 
 @functools.cache
 def renderers():
     os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
-    from aectorch.sim import PlaneScene, TextureBank, TorchPlaneRenderer
-    from aectorch.sim.camera import PinholeCamera
+    from aectorch.sim import PinholeCamera, PlaneScene, TextureBank, TorchPlaneRenderer
     from aectorch.sim.render_pyrender import PyrenderRenderer
 
     bank = TextureBank.default("train") if harness.FULL else TextureBank.procedural(4, size=(64, 64), seed=0)
-    scene = PlaneScene(bank.textures, TextureBank.procedural(1, size=(256, 256), seed=1).textures[0])
-    camera = PinholeCamera()
+    scene, camera = PlaneScene(bank.textures, TextureBank.procedural(1, size=(256, 256), seed=1).textures[0]), PinholeCamera()
     return camera, len(bank), TorchPlaneRenderer(scene, camera), PyrenderRenderer(scene, camera)
 
 
 @pytest.mark.parametrize("batch", harness.size([1], [1, 64, 256]))
 @pytest.mark.parametrize("window", ["full", "crops"])
 def test_render(benchmark, window, batch):
-    from aectorch.sim import HOAP3Head
-
     camera, textures, ours, theirs = renderers()
     generator = torch.Generator().manual_seed(0)
-    poses = HOAP3Head().camera_poses((torch.rand(batch, generator=generator) - 0.5) * 0.2,
+    poses = aectorch.sim.HOAP3Head().camera_poses((torch.rand(batch, generator=generator) - 0.5) * 0.2,
                                      (torch.rand(batch, 2, generator=generator) - 0.5) * 10)
     plane_x = 1.03 + 2 * torch.rand(batch, generator=generator)
     index = torch.arange(batch) % textures

@@ -1,16 +1,6 @@
-"""Env-iterations per second of the standard RL environments beside the training loop, in one process.
-
-Workloads, interleaved round by round (`harness.interleaved`), medians over the steps:
-
-* ``train loop``: ``JointLearner.iteration`` on train.py's default run (`harness.default_run`):
-  B env-iterations per iteration.
-* ``Vergence-v0``: ``gymnasium.make_vec("aectorch/Vergence-v0", num_envs=N,
-  vectorization_mode="vector_entry_point")`` stepped with random actions, the internal encoder
-  learning, NumPy conversion at Gymnasium's boundary included: N env-iterations per step; with
-  each reward, and with ``observation="images"``, which needs no encoder.
-
-``AECTORCH_BENCH_CLOCK=cpu`` times each step by the process's CPU time (``time.process_time``): on
-a machine shared with other jobs, the time they take the cores away is then left out.
+"""Env-iterations per second of ``aectorch/Vergence-v0`` (``gymnasium.make_vec``, random actions, each
+reward and observation) beside the training loop's default run, interleaved in one process.
+``AECTORCH_BENCH_CLOCK=cpu`` times the process's CPU time, which leaves out what other jobs take.
 """
 
 from __future__ import annotations
@@ -33,9 +23,8 @@ def _vergence(num_envs: int, **options):
 
     import aectorch.envs  # noqa: F401  (registers the ids)
 
-    kwargs = {} if harness.FULL else {"textures": torch.rand(4, 96, 96)}
     envs = gym.make_vec("aectorch/Vergence-v0", num_envs=num_envs, vectorization_mode="vector_entry_point",
-                        **kwargs, **options)
+                        **harness.size({"textures": torch.rand(4, 96, 96)}, {}), **options)
     envs.reset(seed=0)
     envs.action_space.seed(0)
     return envs

@@ -1,13 +1,7 @@
-"""Env-iterations per second of ``python train.py`` itself: what a user sees.
-
-Each variant runs ``train.py`` in fresh processes of ``short`` and ``long`` iterations (evaluation,
-figures, TensorBoard, checkpoints and the progress bar off); the rate is
-``(long - short) x B / (wall(long) - wall(short))``, so start-up (imports, textures, the native
-kernels) cancels. ``AECTORCH_BENCH_BASELINE=<commit>`` runs that commit's ``train.py`` (a git
-worktree, with this Python) beside today's in every round (`harness.interleaved`), so the drift of
-a shared machine hits both alike: the ratio to it is what counts. ``isa=avx2`` runs both under
-`harness.AVX2`: what a CPU without AVX-512 executes, on this machine's cores. At the tiny size one
-process of one iteration per variant (the rate then includes start-up).
+"""Env-iterations per second of ``python train.py`` itself: ``(long - short) x B / (wall(long) -
+wall(short))`` over fresh processes, so start-up cancels (at the tiny size: one process of one
+iteration). ``AECTORCH_BENCH_BASELINE=<commit>`` runs that commit's ``train.py`` (a git worktree,
+this Python) beside today's in every round; ``isa=avx2`` runs both under `harness.AVX2`.
 """
 
 from __future__ import annotations
@@ -31,8 +25,7 @@ VARIANTS = {
 @pytest.mark.parametrize("isa", harness.size(["native"], ["native", "avx2"]))
 @pytest.mark.parametrize("variant", harness.size(["defaults"], list(VARIANTS)))
 def test_train_rate(benchmark, variant, isa):
-    short, long = harness.size((0, 1), (20, 520))
-    batch = harness.size(2, 32)
+    (short, long), batch = harness.size((0, 1), (20, 520)), harness.size(2, 32)
     environment = harness.AVX2 if isa == "avx2" else {}
     commits = {"today": harness.ROOT}
     baseline = os.environ.get("AECTORCH_BENCH_BASELINE")
@@ -43,17 +36,18 @@ def test_train_rate(benchmark, variant, isa):
         for n in (short, long) if short else (long,):
             overrides = [f"train.iterations={n}", f"env.num_envs={batch}", *VARIANTS[variant]]
             workloads[(commit, n)] = lambda o=overrides, c=cwd: harness.train_py(o, c, environment)
+        if harness.FULL:  # once untimed: builds the native kernels and warms the caches
+            harness.train_py(["train.iterations=1", *VARIANTS[variant]], cwd, environment)
     times = benchmark.pedantic(harness.interleaved, args=(workloads,), kwargs=dict(
         rounds=harness.size(1, 5), warmup=0))
     rows = []
     for commit in commits:
-        walls = [(times[(commit, short)][i] if short else 0.0, t) for i, t in enumerate(times[(commit, long)])]
-        rates = [(long - short) * batch / (b - a) for a, b in walls]
+        rates = [(long - short) * batch / (t - (times[(commit, short)][i] if short else 0.0))
+                 for i, t in enumerate(times[(commit, long)])]
         rows.append({"variant": f"{commit}, {variant}, {isa}", "commit": commit, "learner": variant, "isa": isa,
                      "B": batch, "short": short, "long": long, "rates": rates,
                      "env_iterations_per_s": statistics.median(rates)})
     if baseline:
-        ratios = [a / b for a, b in zip(rows[0]["rates"], rows[1]["rates"])]
-        rows[0]["per_round_ratio_to_baseline"] = ratios
+        rows[0]["per_round_ratio_to_baseline"] = [a / b for a, b in zip(rows[0]["rates"], rows[1]["rates"])]
     assert all(rate > 0 for row in rows for rate in row["rates"])
     harness.record("train_rate", rows, benchmark)
