@@ -79,12 +79,8 @@ def interleaved(workloads: dict[str, Callable[[], object]], rounds: int, calls: 
 
 def median_seconds(fn: Callable[[], object], min_run_time: float | None = None) -> float:
     """Median seconds per call of ``fn`` by ``torch.utils.benchmark`` (the tiny size: one call)."""
-    if not FULL and min_run_time is None:
-        start = time.perf_counter()
-        fn()
-        return time.perf_counter() - start
     timer = torch.utils.benchmark.Timer(stmt="fn()", globals={"fn": fn}, num_threads=torch.get_num_threads())
-    return timer.blocked_autorange(min_run_time=min_run_time or 1.0).median
+    return timer.blocked_autorange(min_run_time=min_run_time or 1.0).median if FULL or min_run_time else timer.timeit(1).median
 
 
 def worktree(commit: str) -> Path:
@@ -140,16 +136,21 @@ def record(suite: str, rows: list[dict], benchmark=None, device: str = "cpu") ->
 
 
 def save(folder: Path, command: str) -> list[Path]:
-    """Writes each suite's rows of this run to ``folder/<suite>.<machine>.json``; returns the paths."""
+    """Writes each suite's rows of this run to ``folder/<suite>.<machine>.json``, in place of the rows of
+    the same variants there (each row keeps its run's ``measured`` time); returns the paths."""
     import json
 
     written = []
     for (suite, device), rows in _rows.items():
+        info = provenance(device)
         document = {"schema": SCHEMA, "suite": suite, "machine": machine(device), "command": command,
-                    "provenance": provenance(device), "rows": rows}
-        written.append(Path(folder) / f"{suite}.{slug(document['machine'])}.json")
-        check(document, written[-1].name)
-        written[-1].write_text(json.dumps(document, indent=1) + "\n")
+                    "provenance": info, "rows": [dict(row, measured=info["started"]) for row in rows]}
+        path = Path(folder) / f"{suite}.{slug(document['machine'])}.json"
+        kept = json.loads(path.read_text())["rows"] if path.exists() else []
+        document["rows"][:0] = [r for r in kept if r["variant"] not in {row["variant"] for row in rows}]
+        check(document, path.name)
+        path.write_text(json.dumps(document, indent=1) + "\n")
+        written.append(path)
     return written
 
 

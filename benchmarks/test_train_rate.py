@@ -27,10 +27,8 @@ VARIANTS = {
 def test_train_rate(benchmark, variant, isa):
     (short, long), batch = harness.size((0, 1), (20, 520)), harness.size(2, 32)
     environment = harness.AVX2 if isa == "avx2" else {}
-    commits = {"today": harness.ROOT}
     baseline = os.environ.get("AECTORCH_BENCH_BASELINE")
-    if baseline:
-        commits[baseline] = harness.worktree(baseline)
+    commits = {"today": harness.ROOT, **({baseline: harness.worktree(baseline)} if baseline else {})}
     workloads = {}
     for commit, cwd in commits.items():
         for n in (short, long) if short else (long,):

@@ -60,3 +60,9 @@ def test_a_run_saves_its_rows_per_suite_and_machine_with_provenance(tmp_path, mo
     harness.check(document, path.name)
     assert [r["variant"] for r in document["rows"]] == ["omp", "mp"]
     assert document["provenance"]["git"] is None or len(document["provenance"]["git"]["commit"]) == 40
+    # a later run (another ISA, say) replaces its own variants and keeps the others
+    monkeypatch.setattr(harness, "_rows", {})
+    harness.record("coding", [{"variant": "mp", "patches_per_s": 3.0}])
+    harness.save(tmp_path, "pytest benchmarks -k mp")
+    rows = json.loads(path.read_text())["rows"]
+    assert [(r["variant"], r["patches_per_s"]) for r in rows] == [("omp", 1.0), ("mp", 3.0)]
