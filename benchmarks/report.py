@@ -1,8 +1,6 @@
 """The tables of docs/performance.md from benchmarks/results: ``python -m benchmarks.report`` prints
 them, ``--write docs/performance.md`` replaces each table after a ``<!-- table: NAME -->`` line."""
 
-from __future__ import annotations
-
 import argparse
 import json
 import re

@@ -4,8 +4,6 @@ k = 10, float32, a random unit-norm dictionary); also the fraction of patches wi
 atoms and the FLOP floor (docs/performance.md).
 """
 
-from __future__ import annotations
-
 import functools
 import statistics
 

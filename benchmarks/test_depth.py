@@ -6,8 +6,6 @@ method's training MSE is divided by MINPACK's from the same start. ``AECTORCH_BE
 the number of seeds.
 """
 
-from __future__ import annotations
-
 import copy
 import functools
 import os

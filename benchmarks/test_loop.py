@@ -5,8 +5,6 @@ process (docs/performance.md), and the peak memory's rise (on CUDA, ``max_memory
 ``AECTORCH_BENCH_DEVICE=cuda`` runs on a GPU, where ``mode=compile`` is ``train.compile=true``.
 """
 
-from __future__ import annotations
-
 import os
 import statistics
 from pathlib import Path

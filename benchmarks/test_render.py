@@ -4,8 +4,6 @@ draws one frame at a time (timed on at most 64 environments a call). Threads: th
 (``OMP_NUM_THREADS``, llvmpipe's ``LP_NUM_THREADS``).
 """
 
-from __future__ import annotations
-
 import functools
 import os
 import statistics

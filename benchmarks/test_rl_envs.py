@@ -3,8 +3,6 @@ reward and observation) beside the training loop's default run, interleaved in o
 ``AECTORCH_BENCH_CLOCK=cpu`` times the process's CPU time, which leaves out what other jobs take.
 """
 
-from __future__ import annotations
-
 import os
 import statistics
 import time

@@ -4,13 +4,13 @@ iteration). ``AECTORCH_BENCH_BASELINE=<commit>`` runs that commit's ``train.py``
 this Python) beside today's in every round; ``isa=avx2`` runs both under `harness.AVX2`.
 """
 
-from __future__ import annotations
-
 import os
 import statistics
 
+import PIL.Image
 import pytest
 
+from aectorch.sim import TextureBank
 from benchmarks import harness
 
 SCALES = "[wide,coarse,fine]"
@@ -24,7 +24,10 @@ VARIANTS = {
 
 @pytest.mark.parametrize("isa", harness.size(["native"], ["native", "avx2"]))
 @pytest.mark.parametrize("variant", harness.size(["defaults"], list(VARIANTS)))
-def test_train_rate(benchmark, variant, isa):
+def test_train_rate(benchmark, variant, isa, tmp_path):
+    if not harness.FULL:  # four small textures in place of the 100 default ones, which take seconds to make
+        for i, image in enumerate(TextureBank.procedural(4, size=(96, 96), seed=0).textures):
+            PIL.Image.fromarray((image * 255).byte().numpy()).save(tmp_path / f"{i}.png")
     (short, long), batch = harness.size((0, 1), (20, 520)), harness.size(2, 32)
     environment = harness.AVX2 if isa == "avx2" else {}
     baseline = os.environ.get("AECTORCH_BENCH_BASELINE")
@@ -32,7 +35,8 @@ def test_train_rate(benchmark, variant, isa):
     workloads = {}
     for commit, cwd in commits.items():
         for n in (short, long) if short else (long,):
-            overrides = [f"train.iterations={n}", f"env.num_envs={batch}", *VARIANTS[variant]]
+            overrides = [f"train.iterations={n}", f"env.num_envs={batch}", *VARIANTS[variant],
+                         *harness.size([f"env.textures={tmp_path}"], [])]
             workloads[(commit, n)] = lambda o=overrides, c=cwd: harness.train_py(o, c, environment)
         if harness.FULL:  # once untimed: builds the native kernels and warms the caches
             harness.train_py(["train.iterations=1", *VARIANTS[variant]], cwd, environment)
