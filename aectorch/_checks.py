@@ -13,7 +13,7 @@ from typing import Any, Sequence, TypeVar
 
 import torch
 
-__all__ = ["check_bool", "check_choice", "check_device", "check_distances", "check_finite",
+__all__ = ["check_bool", "check_choice", "check_device", "check_distances", "check_range", "check_finite",
            "check_int", "check_real", "is_int", "is_real"]
 
 E = TypeVar("E", bound=Enum)
@@ -91,6 +91,25 @@ def check_choice(value: Any, name: str, choices: type[E]) -> E:
     except ValueError:
         names = ", ".join(repr(str(member.value)) for member in choices)
         raise ValueError(f"{name} must be one of {names}, got {value!r}") from None
+
+
+def check_range(value, name: str, *, unit: str = "") -> tuple[float, float]:
+    """A ``(low, high)`` pair of finite numbers with low <= high, as floats, else ``ValueError``
+    naming ``name`` (``unit``, e.g. ``"degrees per iteration"``, is added to the message).
+
+    Example:
+        >>> check_range([-1, 1], "env.object_speed_deg")
+        (-1.0, 1.0)
+    """
+    try:
+        low, high = value  # type: ignore[misc]
+        ok = is_real(low) and is_real(high) and low <= high
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError(f"{name} must be a (low, high) pair of finite numbers with low <= high"
+                         f"{f' ({unit})' if unit else ''}, got {value!r}")
+    return float(low), float(high)
 
 
 def check_distances(value: Sequence[float], name: str) -> list[float]:

@@ -298,7 +298,8 @@ def _register_fake() -> None:
         return images.new_empty(images.shape[0], images.shape[1] - 2, images.shape[2] - 2)
 
     @torch.library.register_fake("aectorch::render_trilinear")
-    def _(poses, plane_x, texture_index, atlas, xs, ys, steps, scene, tex_h, tex_w, levels, lod_bias, samples):
+    def _(poses, plane_x, texture_index, atlas, xs, ys, steps, scene, tex_h, tex_w, levels, lod_bias, samples,
+          plane_y=None):
         return poses.new_empty(poses.shape[0], poses.shape[1], xs.shape[0])
 
 

@@ -38,6 +38,7 @@
 #include <torch/library.h>
 
 #include <algorithm>
+#include <optional>
 #include <climits>
 #include <cmath>
 #include <cstring>
@@ -569,11 +570,12 @@ template <typename T>
 void render(const at::Tensor& poses, const at::Tensor& plane_x, const at::Tensor& texture_index,
             const at::Tensor& atlas, const at::Tensor& xs_t, const at::Tensor& ys_t,
             const at::Tensor& steps_t, const std::vector<double>& scene, int64_t tex_h, int64_t tex_w,
-            int64_t levels, double lod_bias, int64_t samples, at::Tensor& out) {
+            int64_t levels, double lod_bias, int64_t samples, const at::Tensor* plane_y, at::Tensor& out) {
   const int64_t batch = poses.size(0), cams = poses.size(1), pixels = xs_t.size(0);
   const int64_t layers = atlas.size(0), rows = atlas.size(1), cols = atlas.size(2);
   const T* pose = poses.data_ptr<T>();
   const T* px = plane_x.data_ptr<T>();
+  const T* py = plane_y == nullptr ? nullptr : plane_y->data_ptr<T>();  // the object's lateral offsets
   const int64_t* index = texture_index.data_ptr<int64_t>();
   T* result = out.data_ptr<T>();
   const T obj_cy = scene[0], obj_cz = scene[1], obj_w = scene[2], obj_h = scene[3];
@@ -624,7 +626,8 @@ void render(const at::Tensor& poses, const at::Tensor& plane_x, const at::Tensor
     R.r20 = m[8], R.r21 = m[9], R.r22 = m[10];
     const T o0 = m[3], o1 = m[7], o2 = m[11];
     R.reach_o = px[b] - o0, R.reach_b = bg_x - o0;
-    R.uo0 = (obj_cy + T(0.5) * obj_w - o1) / obj_w, R.vo0 = (obj_cz + T(0.5) * obj_h - o2) / obj_h;
+    const T cy = py == nullptr ? obj_cy : obj_cy + py[b];
+    R.uo0 = (cy + T(0.5) * obj_w - o1) / obj_w, R.vo0 = (obj_cz + T(0.5) * obj_h - o2) / obj_h;
     R.ub0 = (bg_cy + T(0.5) * bg_w - o1) / bg_w, R.vb0 = (bg_cz + T(0.5) * bg_h - o2) / bg_h;
     R.ro_w = R.reach_o / obj_w, R.ro_h = R.reach_o / obj_h, R.rb_w = R.reach_b / bg_w, R.rb_h = R.reach_b / bg_h;
     R.object_layer = index[b];
@@ -642,7 +645,8 @@ void render(const at::Tensor& poses, const at::Tensor& plane_x, const at::Tensor
 at::Tensor render_trilinear(const at::Tensor& poses, const at::Tensor& plane_x, const at::Tensor& texture_index,
                             const at::Tensor& atlas, const at::Tensor& xs, const at::Tensor& ys,
                             const at::Tensor& steps, at::ArrayRef<double> scene, int64_t tex_h, int64_t tex_w,
-                            int64_t levels, double lod_bias, int64_t samples) {
+                            int64_t levels, double lod_bias, int64_t samples,
+                            const std::optional<at::Tensor>& plane_y) {
   TORCH_CHECK(poses.dim() == 4 && poses.size(2) == 4 && poses.size(3) == 4, "poses must be [B, C, 4, 4]");
   TORCH_CHECK(atlas.dim() == 3, "atlas must be [L, H, W]");
   TORCH_CHECK(scene.size() == 9, "scene must hold 9 numbers");
@@ -650,13 +654,16 @@ at::Tensor render_trilinear(const at::Tensor& poses, const at::Tensor& plane_x, 
   auto dtype = poses.scalar_type();
   auto p = poses.contiguous();
   auto x = plane_x.to(dtype).contiguous();
+  TORCH_CHECK(!plane_y.has_value() || plane_y->numel() == poses.size(0), "plane_y must be [B]");
+  const at::Tensor y = plane_y.has_value() ? plane_y->to(dtype).contiguous() : at::Tensor();
   auto idx = texture_index.to(at::kLong).contiguous();
   auto a = atlas.to(dtype).contiguous();
   auto cx = xs.to(dtype).contiguous(), cy = ys.to(dtype).contiguous(), st = steps.to(dtype).contiguous();
   auto out = at::empty({poses.size(0), poses.size(1), xs.size(0)}, poses.options());
   std::vector<double> sc(scene.begin(), scene.end());
   AT_DISPATCH_FLOATING_TYPES(dtype, "render_trilinear", [&] {
-    render<scalar_t>(p, x, idx, a, cx, cy, st, sc, tex_h, tex_w, levels, lod_bias, samples, out);
+    render<scalar_t>(p, x, idx, a, cx, cy, st, sc, tex_h, tex_w, levels, lod_bias, samples,
+                     plane_y.has_value() ? &y : nullptr, out);
   });
   return out;
 }
@@ -715,7 +722,8 @@ at::Tensor pyramid_blur(const at::Tensor& images, double centre, double side) {
 
 TORCH_LIBRARY_FRAGMENT(aectorch, m) {
   m.def("render_trilinear(Tensor poses, Tensor plane_x, Tensor texture_index, Tensor atlas, Tensor xs, "
-        "Tensor ys, Tensor steps, float[] scene, int tex_h, int tex_w, int levels, float lod_bias, int samples)"
+        "Tensor ys, Tensor steps, float[] scene, int tex_h, int tex_w, int levels, float lod_bias, int samples, "
+        "Tensor? plane_y=None)"
         " -> Tensor");
   m.def("pyramid_blur(Tensor images, float centre, float side) -> Tensor");
 }

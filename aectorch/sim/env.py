@@ -50,6 +50,7 @@ from aectorch.choices import RendererName
 from aectorch.ops.backend import fused_kernels_apply
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.hoap3 import HOAP3Head
+from aectorch.sim.motion import check_object_motion, object_place
 from aectorch.sim.perturbations import NEUTRAL, Optics, blur_margin, defocus, orientation_filter, scale_contrast
 from aectorch.sim.scene import PlaneScene
 from aectorch.sim.protocol import DEFAULT_PROTOCOL, START_PURSUIT_DEG, START_VERGENCE_DEG, TrialProtocol
@@ -188,6 +189,18 @@ def _native_blur(images: Tensor) -> bool:
         and not (torch.is_grad_enabled() and images.requires_grad) and fused_kernels_apply(images)
 
 
+#: A moving object's state in `ActiveDepthEnv.state_dict` (its key -> the attribute), each ``[B, ...]``
+#: and present only while it is not ``None``.
+_OBJECT_STATE = {"object_speed": "object_speed", "object_pinned_speed": "_pinned_speed",
+                 "object_trial_depth_speed": "_trial_depth_speed", "object_start_target_m": "_start_target_m"}
+
+
+def _sideways(plane_y_m: Tensor | None) -> dict:
+    """The renderers' ``plane_y_m`` argument where the object moved sideways (none otherwise: a
+    renderer of the still object is called as it always was)."""
+    return {} if plane_y_m is None else {"plane_y_m": plane_y_m}
+
+
 def _block_mean(images: Tensor, k: int) -> Tensor:
     if k == 1:
         return images
@@ -240,6 +253,10 @@ class ActiveDepthEnv:
             moves the dominant (left) eye alone and the right eye must follow through vergence.
         q_iterations: each fixation's q (left pan and vergence) is the mean over its last this
             many iterations (default 1: the last iteration's, the paper), `TrialProtocol`.
+        object_speed_deg, object_depth_speed_m: a moving object (`TrialProtocol`,
+            `aectorch.sim.motion`): the ranges its sideways speed (degrees per iteration, drawn per
+            fixation) and its depth speed (metres per iteration, drawn per trial) are drawn from;
+            ``(0, 0)`` both (default): it stands still. :meth:`set_object_speed` pins them.
         pursuit_start_deg: left-eye pan at each fixation's start: a number or a ``(low, high)``
             range drawn uniformly per environment and fixation.
         vergence_start_deg: right pan minus left pan at each fixation's start (0 = parallel),
@@ -292,6 +309,8 @@ class ActiveDepthEnv:
         shift_iterations: int = DEFAULT_PROTOCOL.shift_iterations,
         yoked_pursuit: bool = DEFAULT_PROTOCOL.yoked_pursuit,
         q_iterations: int = DEFAULT_PROTOCOL.q_iterations,
+        object_speed_deg: tuple[float, float] = DEFAULT_PROTOCOL.object_speed_deg,
+        object_depth_speed_m: tuple[float, float] = DEFAULT_PROTOCOL.object_depth_speed_m,
         pursuit_start_deg=START_PURSUIT_DEG,
         vergence_start_deg=START_VERGENCE_DEG,
         window: str | PixelWindow = "crops",
@@ -305,7 +324,8 @@ class ActiveDepthEnv:
         batch_slice: tuple[int, int] | None = None,
     ) -> None:
         check_int(num_envs, "num_envs")
-        protocol = TrialProtocol(renderer, fixation_iterations, shift_m, shift_iterations, yoked_pursuit, q_iterations)
+        protocol = TrialProtocol(renderer, fixation_iterations, shift_m, shift_iterations, yoked_pursuit, q_iterations,
+                                 object_speed_deg, object_depth_speed_m)
         renderer = str(protocol.renderer)
         distances = check_distances(distances_m, "distances_m")
         if dtype not in (torch.float32, torch.float64):
@@ -352,6 +372,16 @@ class ActiveDepthEnv:
                 f"{self.scene.background_x_m - eye_x:.2f} m"
             )
         self.distances_m = torch.tensor(distances, dtype=dtype, device=self.device)
+        self.object_speed_deg, self.object_depth_speed_m = protocol.object_speed_deg, protocol.object_depth_speed_m
+        check_object_motion(self.object_speed_deg, self.object_depth_speed_m, distances, fixation_iterations,
+                            self.scene.background_x_m - eye_x)
+        # The moving object's speeds [B, 2] (sideways deg, depth m per iteration; None: it stands
+        # still), pinned by set_object_speed, and its sideways offsets [B] (None: not moved).
+        self.object_speed: Tensor | None = None
+        self._pinned_speed: Tensor | None = None
+        self._trial_depth_speed: Tensor | None = None
+        self._start_target_m: Tensor | None = None
+        self.plane_y_m: Tensor | None = None
         self.renderer_name, self._renderer_options = renderer, dict(renderer_options or {})
         self.renderer = make_renderer(
             renderer, self.scene, self.camera, device=self.device, dtype=dtype, **self._renderer_options
@@ -419,12 +449,77 @@ class ActiveDepthEnv:
         self.pan_deg = self.head.clamp_pan_deg(
             torch.stack((left, left + self._uniform(self.vergence_start_deg)), dim=-1)
         )
+        moves = self._pinned_speed is not None or self.object_speed_deg != (0.0, 0.0) \
+            or self.object_depth_speed_m != (0.0, 0.0)
+        if moves or self.moving:  # the object back at its start (the trial's distance, straight ahead)
+            self.plane_x_m = self.distance_m + float(self.head.eye_x_m)
+            self.object_speed = self.plane_y_m = None
         self.target_m = self._fixation_target(self.eye_pan_deg[:, 0], self.plane_x_m)
         self._start_pans = self.pan_deg
         self._first_image: dict = {}
         self._first_roll: Tensor | None = None
         self._first_optics: Optics | None = None
+        if moves:
+            self._start_object(fixation)
         self._moved()
+
+    @property
+    def moving(self) -> bool:
+        """Whether the object moves in this fixation: speed ranges other than ``(0, 0)``, or
+        speeds pinned by :meth:`set_object_speed`, when it began."""
+        return self.object_speed is not None
+
+    def set_object_speed(self, speed_deg=None, depth_speed_m=None) -> None:
+        """Pin the moving object's speeds from the next fixation on (an evaluation's speeds):
+        sideways ``speed_deg`` (degrees per iteration) and ``depth_speed_m`` (metres per
+        iteration), each ``[B]`` or a number (``None``: 0). ``set_object_speed()`` with neither
+        unpins them (the configured ranges are drawn again). The motion's limits are those of
+        the constructor's ranges (`aectorch.sim.motion.check_object_motion`).
+        """
+        if speed_deg is None and depth_speed_m is None:
+            self._pinned_speed = None
+            return
+        b = self.num_envs
+        columns = []
+        for value, name in ((speed_deg, "speed_deg"), (depth_speed_m, "depth_speed_m")):
+            column = torch.as_tensor(0.0 if value is None else value, dtype=self.dtype, device=self.device)
+            if column.shape not in ((), (b,)) or not bool(torch.isfinite(column).all()):
+                raise ValueError(f"{name} must be a finite number or a [B] = [{b}] tensor, got {value!r}")
+            columns.append(column.expand(b))
+        speed = torch.stack(columns, -1)
+        check_object_motion((float(speed[:, 0].min()), float(speed[:, 0].max())),
+                            (float(speed[:, 1].min()), float(speed[:, 1].max())),
+                            self.distances_m.tolist(), self.fixation_iterations,
+                            self.scene.background_x_m - float(self.head.eye_x_m))
+        self._pinned_speed = speed
+
+    def _start_object(self, fixation: int) -> None:
+        """A fixation's object motion: its speeds (pinned, or drawn: sideways per fixation, in
+        depth per trial), the target it starts from, and its place in the first iteration."""
+        if self._pinned_speed is not None:
+            self.object_speed = self._pinned_speed.clone()
+        else:
+            sideways = self._uniform(self.object_speed_deg)
+            depth = self._uniform(self.object_depth_speed_m) if fixation == 0 or self._trial_depth_speed is None \
+                else self._trial_depth_speed
+            self._trial_depth_speed = depth
+            self.object_speed = torch.stack((sideways, depth), -1)
+        self._start_target_m = self.target_m
+        self._start_plane = (self.plane_x_m, torch.zeros_like(self.plane_x_m))
+        self._place_object(0)
+
+    def _place_object(self, iteration: int) -> None:
+        """The object where it is during ``iteration`` of the fixation (`aectorch.sim.motion`);
+        the fixation target moves with it."""
+        distance, y = object_place(self.distance_m, self.object_speed, iteration + 1)
+        self.plane_x_m, self.plane_y_m = distance + float(self.head.eye_x_m), y
+        start = self._start_target_m
+        self.target_m = torch.stack((self.plane_x_m, start[:, 1] + y, start[:, 2]), -1)
+
+    @property
+    def object_distance_m(self) -> Tensor:
+        """The object's distance now ``[B]`` (metres; the trial's distance unless it moves)."""
+        return self.plane_x_m - float(self.head.eye_x_m) if self.moving else self.distance_m
 
     def _moved(self) -> None:
         """The left eye's view changed (pan, roll or body): a stereo frame can no longer be reused."""
@@ -585,7 +680,11 @@ class ActiveDepthEnv:
 
     # -- observations ----------------------------------------------------------------------
     def _render(self, shift_m: Tensor, pans: Tensor, eyes: slice, roll_deg: Tensor | None = None,
-                scales=None, window: bool = False, optics: Optics | None = None) -> dict[str, Tensor]:
+                scales=None, window: bool = False, optics: Optics | None = None,
+                plane: tuple[Tensor, Tensor | None] | None = None) -> dict[str, Tensor]:
+        """The eyes' images at ``shift_m`` and ``pans``, the object plane at ``plane`` (its x and
+        sideways offset; default where it is now)."""
+        plane_x, plane_y = (self.plane_x_m, self.plane_y_m) if plane is None else plane
         roll = self.roll_deg if roll_deg is None else roll_deg
         optics = self.optics if optics is None else optics
         if optics.pan_offset_deg != NEUTRAL.pan_offset_deg:
@@ -597,19 +696,20 @@ class ActiveDepthEnv:
         poses = poses[:, eyes]
         indices = tuple(range(*eyes.indices(2)))
         if not optics.images_neutral(indices):
-            return self._render_optics(poses, indices, optics, scales, window)
+            return self._render_optics(poses, indices, optics, scales, window, plane_x, plane_y)
         out = {}
         # The indices were checked by set_trial: no host sync per frame.
         if scales is None or window:
-            out[WINDOW] = self.renderer(poses, self.plane_x_m, self.texture_index, self.window, check=False).to(self.dtype)
+            out[WINDOW] = self.renderer(poses, plane_x, self.texture_index, self.window, check=False,
+                                        **_sideways(plane_y)).to(self.dtype)
         if scales is None:
             return out
         # Each scale's crop with one more of its pixels on every side, for the blur.
         finer = [_finer(s.downsample) for s in scales]
         windows = [(self.camera.central_window(s.crop + 2 * s.downsample), s.downsample // k)
                    for s, k in zip(scales, finer)]
-        images = self._scale_renderer_built().render_windows(poses, self.plane_x_m, self.texture_index, windows,
-                                                             check=False)
+        images = self._scale_renderer_built().render_windows(poses, plane_x, self.texture_index, windows,
+                                                             check=False, **_sideways(plane_y))
         for s, image, k in zip(scales, images, finer):
             out[s.name] = pyramid_blur(_block_mean(image, k), s.levels).to(self.dtype)
         return out
@@ -628,7 +728,8 @@ class ActiveDepthEnv:
                              "blur disc")
         return camera.central_window(size + 2 * margin)
 
-    def _render_optics(self, poses: Tensor, eyes: tuple[int, ...], optics: Optics, scales, window: bool):
+    def _render_optics(self, poses: Tensor, eyes: tuple[int, ...], optics: Optics, scales, window: bool,
+                       plane_x: Tensor, plane_y: Tensor | None):
         """`_render` of eyes with perturbed images, one eye at a time: each through its own camera
         (magnified: aniseikonia), rendered with the margin its blur disc needs (anisometropia),
         blurred, then its contrast scaled about each image's mean (monocular deprivation)."""
@@ -646,8 +747,8 @@ class ActiveDepthEnv:
                                or top < margin or left < margin):
                     raise ValueError(f"the blur of anisometropia ({optics.blur_arcmin[eye]:g} arcmin) needs {margin} "
                                      "px beyond the rendered window, which the image does not hold")
-                image = self.renderer.render_windows(pose, self.plane_x_m, self.texture_index, [(grown, 1)],
-                                                     check=False, camera=camera)[0]
+                image = self.renderer.render_windows(pose, plane_x, self.texture_index, [(grown, 1)],
+                                                     check=False, camera=camera, **_sideways(plane_y))[0]
                 out[WINDOW] = defocus(image, radius).to(self.dtype)
             if scales is not None:
                 finer = [_finer(s.downsample) for s in scales]
@@ -655,8 +756,9 @@ class ActiveDepthEnv:
                 windows = [(self._margin_window(camera, s.crop + 2 * s.downsample, s.downsample * m,
                                                 f"{optics.blur_arcmin[eye]:g} arcmin at the {s.name} scale"),
                             s.downsample // k) for s, k, m in zip(scales, finer, margins)]
-                images = self._scale_renderer_built().render_windows(pose, self.plane_x_m, self.texture_index,
-                                                                     windows, check=False, camera=camera)
+                images = self._scale_renderer_built().render_windows(pose, plane_x, self.texture_index,
+                                                                     windows, check=False, camera=camera,
+                                                                     **_sideways(plane_y))
                 for s, image, k in zip(scales, images, finer):
                     image = defocus(_block_mean(image, k), radius / s.downsample)
                     out[s.name] = pyramid_blur(image, s.levels).to(self.dtype)
@@ -698,7 +800,8 @@ class ActiveDepthEnv:
                 self._first_optics = self.optics
             # (the world's textures are always today's: a change of them rendered it again)
             first = self._render(zero, self._start_pans, slice(0, 1), self._first_roll, scales, window,
-                                 optics=replace(self._first_optics, orientation_bands=self.optics.orientation_bands))
+                                 optics=replace(self._first_optics, orientation_bands=self.optics.orientation_bands),
+                                 plane=self._start_plane if self.moving else None)
             self._first_image[key] = first
         cached = self._last_left
         if cached is not None and cached[0] == self._left_view and cached[1] == key:
@@ -791,7 +894,7 @@ class ActiveDepthEnv:
         eyes = self.eye_pan_deg  # where the eyes point (the commands, unless a squint offsets them)
         info_left, info_right = eyes[:, 0], eyes[:, 1]
         if trial_end:
-            q, distance = self.q_deg.clone(), self.distance_m
+            q, distance = self.q_deg.clone(), self.object_distance_m
             self._new_trial()
         elif fixation_end:
             self._start_fixation(1)
@@ -799,6 +902,9 @@ class ActiveDepthEnv:
             self.iteration += 1
             if self.shift_iterations > self.iteration:  # the body moves on
                 self.body_shift_m = self._body_shift(self.iteration)
+                self._moved()
+            if self.moving:  # and so does the object
+                self._place_object(self.iteration)
                 self._moved()
         return IterationInfo(
             left_pan_deg=info_left,
@@ -838,6 +944,9 @@ class ActiveDepthEnv:
             optics=self.optics.to_dict(),
             first_optics=None if self._first_optics is None else self._first_optics.to_dict(),
         )
+        for name, attribute in _OBJECT_STATE.items():  # a moving object's (absent while it stands still)
+            if getattr(self, attribute) is not None:
+                state[name] = getattr(self, attribute).clone()
         return state
 
     @classmethod
@@ -851,7 +960,7 @@ class ActiveDepthEnv:
         for name, value in first.items():
             if name == "num_envs":
                 whole[name] = sum(int(s[name]) for s in states)
-            elif name in cls._STATE_TENSORS or name == "first_roll":
+            elif name in cls._STATE_TENSORS or name == "first_roll" or name in _OBJECT_STATE:
                 whole[name] = None if value is None else torch.cat([s[name] for s in states])
             elif name == "generator":
                 if any(not torch.equal(s[name], value) for s in states):
@@ -869,7 +978,7 @@ class ActiveDepthEnv:
         if not 0 <= start < stop <= total:
             raise ValueError(f"rows {start}..{stop - 1} are not within the {total} environments of the state")
         rows = dict(state, num_envs=stop - start)
-        for name in (*cls._STATE_TENSORS, "first_roll"):
+        for name in (*cls._STATE_TENSORS, "first_roll", *_OBJECT_STATE):
             if rows.get(name) is not None:
                 rows[name] = state[name][start:stop].clone()
         return rows
@@ -903,6 +1012,13 @@ class ActiveDepthEnv:
         self._moved()
         first_roll = state.get("first_roll")
         self._first_roll = None if first_roll is None else first_roll.to(self.roll_deg)
+        for name, attribute in _OBJECT_STATE.items():
+            value = state.get(name)
+            setattr(self, attribute, None if value is None else value.to(device=self.device, dtype=self.dtype).clone())
+        self.plane_y_m = None
+        if self.object_speed is not None:  # the object where it was
+            self._start_plane = (self.distance_m + float(self.head.eye_x_m), torch.zeros_like(self.distance_m))
+            self._place_object(self.iteration)
 
     def close(self) -> None:
         """Free the renderers' resources (pyrender's OpenGL contexts); the environment cannot

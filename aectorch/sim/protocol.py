@@ -16,7 +16,7 @@ from typing import Protocol, Sequence, runtime_checkable
 
 from torch import Tensor
 
-from aectorch._checks import check_bool, check_choice, check_int, check_real
+from aectorch._checks import check_bool, check_choice, check_int, check_range, check_real
 from aectorch.choices import RendererName
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 
@@ -44,6 +44,15 @@ class TrialProtocol:
         q_iterations: the trial's eye movements q (the depth MLP's input) are each fixation's
             pan and vergence averaged over its last this many iterations (1, the paper: the
             last iteration's; at most ``fixation_iterations``).
+        object_speed_deg: a moving object: ``(low, high)``, the range of its sideways speed in
+            degrees per iteration, drawn uniformly per environment and fixation (positive: toward
+            the robot's left; ``(-1, 1)`` draws both directions). The object's centre turns by it
+            about the eyes' midpoint, from its start straight ahead at each fixation's start.
+            ``(0, 0)`` (default): the object stands still, the paper's.
+        object_depth_speed_m: the range of the object's speed in depth, metres per iteration,
+            drawn per trial (negative: approaching; both fixations of a trial move alike from the
+            trial's distance, so both end at the same distance, the depth's ground truth).
+            ``(0, 0)`` (default): no motion in depth.
 
     Example:
         >>> protocol = TrialProtocol(fixation_iterations=10)
@@ -59,6 +68,8 @@ class TrialProtocol:
     shift_iterations: int = 20
     yoked_pursuit: bool = True
     q_iterations: int = 1
+    object_speed_deg: tuple[float, float] = (0.0, 0.0)
+    object_depth_speed_m: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "renderer", check_choice(self.renderer, "renderer", RendererName))
@@ -67,6 +78,15 @@ class TrialProtocol:
         check_int(self.shift_iterations, "shift_iterations")
         check_bool(self.yoked_pursuit, "yoked_pursuit")
         check_int(self.q_iterations, "q_iterations")
+        object.__setattr__(self, "object_speed_deg", check_range(self.object_speed_deg, "object_speed_deg",
+                                                                 unit="degrees per iteration"))
+        object.__setattr__(self, "object_depth_speed_m", check_range(self.object_depth_speed_m, "object_depth_speed_m",
+                                                                     unit="metres per iteration"))
+
+    @property
+    def moving(self) -> bool:
+        """Whether the object moves (either speed range is not ``(0, 0)``)."""
+        return self.object_speed_deg != (0.0, 0.0) or self.object_depth_speed_m != (0.0, 0.0)
 
     def env_kwargs(self) -> dict:
         """The keyword arguments of `ActiveDepthEnv` this protocol sets."""
@@ -90,11 +110,12 @@ class Renderer(Protocol):
     """
 
     def __call__(self, poses: Tensor, plane_x_m: Tensor, texture_index: Tensor,
-                 window: PixelWindow | None = None, *, check: bool = True) -> Tensor: ...
+                 window: PixelWindow | None = None, *, check: bool = True,
+                 plane_y_m: Tensor | None = None) -> Tensor: ...
 
     def render_windows(self, poses: Tensor, plane_x_m: Tensor, texture_index: Tensor,
                        windows: Sequence[tuple[PixelWindow, int]], *, check: bool = True,
-                       camera: PinholeCamera | None = None) -> list[Tensor]: ...
+                       camera: PinholeCamera | None = None, plane_y_m: Tensor | None = None) -> list[Tensor]: ...
 
     def close(self) -> None: ...
 

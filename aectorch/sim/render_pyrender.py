@@ -354,6 +354,7 @@ class PyrenderRenderer:
         window: PixelWindow | None = None,
         *,
         check: bool = True,
+        plane_y_m: Tensor | None = None,
     ) -> Tensor:
         """Render ``[B, ..., h, w]`` images; the arguments are those of :func:`render_planes`.
 
@@ -361,23 +362,26 @@ class PyrenderRenderer:
         checked, since they go to the host anyway.
         """
         window = self.camera.check_window(window)
-        return self.render_windows(poses, plane_x_m, texture_index, [(window, 1)])[0]
+        return self.render_windows(poses, plane_x_m, texture_index, [(window, 1)], plane_y_m=plane_y_m)[0]
 
     render = __call__
 
     def render_windows(self, poses: Tensor, plane_x_m: Tensor, texture_index: Tensor, windows, *,
-                       check: bool = True, camera: PinholeCamera | None = None) -> list[Tensor]:
+                       check: bool = True, camera: PinholeCamera | None = None,
+                       plane_y_m: Tensor | None = None) -> list[Tensor]:
         """Render several windows, each on its own pixel grid; see ``TorchPlaneRenderer.render_windows``
-        (``camera``: this call's intrinsics, default the renderer's).
+        (``camera``: this call's intrinsics, default the renderer's; ``plane_y_m``: the object
+        planes' sideways offsets ``[B]``, a moving object).
 
         A window at ``downsample`` d is drawn by a camera whose pixels are ``d / samples`` of this
         one's (``samples x samples`` of them then averaged per pixel).
         """
         camera = self.camera if camera is None else camera
-        batch = self.scene.check_render_inputs(poses, plane_x_m, texture_index)
+        batch = self.scene.check_render_inputs(poses, plane_x_m, texture_index, plane_y_m=plane_y_m)
         index = texture_index.cpu().tolist()
         flat_poses = poses.detach().reshape(batch, -1, 4, 4).to("cpu", torch.float64).numpy()
         planes = plane_x_m.detach().to("cpu", torch.float64).numpy()
+        sideways = np.zeros(batch) if plane_y_m is None else plane_y_m.detach().to("cpu", torch.float64).numpy()
         f = camera.focal_px
         pcx, pcy = camera.principal_point
         results = []
@@ -395,7 +399,7 @@ class PyrenderRenderer:
                 self._show_texture(index[b])
                 node = self._texture_nodes[index[b]]
                 pose = np.eye(4)
-                pose[:3, 3] = [planes[b], y, z]
+                pose[:3, 3] = [planes[b], y + sideways[b], z]
                 self._gl_scene.set_pose(node, pose)
                 for c in range(flat_poses.shape[1]):
                     self._gl_scene.set_pose(self._camera_node, flat_poses[b, c])

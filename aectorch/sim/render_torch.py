@@ -271,6 +271,7 @@ def render_planes(
     filter: str = "linear",
     lod_bias: float = 0.0,
     samples: int = 1,
+    plane_y_m: Tensor | None = None,
 ) -> Tensor:
     """Render grey images of the plane scene for a batch of cameras.
 
@@ -314,6 +315,8 @@ def render_planes(
             each at the level of detail of a sub-pixel. Two (with ``lod_bias=-0.5``) is within
             0.5 % of the exact area average of the texture (docs/simulation.md); one sample is
             OpenGL's.
+        plane_y_m: each environment's object plane moved sideways by this much from
+            ``scene.object_center_yz_m`` (world y, metres, ``[B]``; a moving object); ``None``: not moved.
 
     Returns:
         Intensities in [0, 1]; the object plane occludes the background; pixels whose ray hits
@@ -325,7 +328,8 @@ def render_planes(
     window = camera.check_window(window)
     rays = pixel_rays(camera, [(window, downsample)], dtype=poses.dtype, device=poses.device)
     image = render_rays(poses, plane_x_m, texture_index, scene, rays, textures=textures, background=background,
-                        atlas=atlas, check=check, filter=filter, lod_bias=lod_bias, samples=samples)
+                        atlas=atlas, check=check, filter=filter, lod_bias=lod_bias, samples=samples,
+                        plane_y_m=plane_y_m)
     return image.reshape(image.shape[:-1] + (window.height // downsample, window.width // downsample))
 
 
@@ -345,13 +349,14 @@ def render_rays(
     filter: str = "linear",
     lod_bias: float = 0.0,
     samples: int = 1,
+    plane_y_m: Tensor | None = None,
 ) -> Tensor:
     """:func:`render_planes` for the flattened pixels of :func:`pixel_rays`: ``[B, ..., P]``.
 
     Several windows (for example every foveal scale, each on its own pixel grid) then render in
     one pass: the same elementwise operations and one texture lookup for all of them.
     """
-    batch = scene.check_render_inputs(poses, plane_x_m, texture_index, check_range=check)
+    batch = scene.check_render_inputs(poses, plane_x_m, texture_index, check_range=check, plane_y_m=plane_y_m)
     if filter not in FILTERS:
         raise ValueError(f"filter must be one of {FILTERS}, got {filter!r}")
     check_int(samples, "samples")
@@ -376,7 +381,8 @@ def render_rays(
                    *scene.background_center_yz_m, background_w, background_h]
         flat = torch.ops.aectorch.render_trilinear(
             poses.reshape(batch, -1, 4, 4), plane_x_m, texture_index, mip.packed, *rays, numbers,
-            int(scene.textures.shape[-2]), int(scene.textures.shape[-1]), mip.levels, float(lod_bias), samples)
+            int(scene.textures.shape[-2]), int(scene.textures.shape[-1]), mip.levels, float(lod_bias), samples,
+            plane_y_m)
         return flat.reshape(poses.shape[:-2] + (flat.shape[-1],))
     atlas = (mip.packed if trilinear else atlas).to(dtype=dtype, device=device)
     layers = atlas.shape[0]
@@ -394,7 +400,10 @@ def render_rays(
     ry, rz = d[1] * inv, d[2] * inv  # [B, C, P]
 
     plane_x = plane_x_m.to(dtype)[:, None, None]
-    u, v, on_object, reach = _plane_coords(o, ry, rz, plane_x, scene.object_center_yz_m, scene.object_size_m)
+    centre = scene.object_center_yz_m
+    if plane_y_m is not None:  # a moving object: its centre moved sideways
+        centre = (plane_y_m.to(dtype)[:, None, None] + centre[0], centre[1])
+    u, v, on_object, reach = _plane_coords(o, ry, rz, plane_x, centre, scene.object_size_m)
     ub, vb, on_background, reach_b = _plane_coords(
         o, ry, rz, torch.full_like(plane_x, scene.background_x_m),
         scene.background_center_yz_m, scene.background_size_m,
@@ -543,11 +552,13 @@ class TorchPlaneRenderer(nn.Module):
         *,
         check: bool = True,
         downsample: int = 1,
+        plane_y_m: Tensor | None = None,
     ) -> Tensor:
         """Render ``[B, ..., h, w]`` images; see :func:`render_planes` for the arguments."""
         return render_planes(
             poses, plane_x_m, texture_index, self.scene, self.camera, window, atlas=self._atlas(),
             check=check, downsample=downsample, filter=self.filter, lod_bias=self.lod_bias, samples=self.samples,
+            plane_y_m=plane_y_m,
         )
 
     render = forward
@@ -556,13 +567,15 @@ class TorchPlaneRenderer(nn.Module):
         """Nothing to free (the `Renderer` interface: pyrender's frees its OpenGL contexts)."""
 
     def render_windows(self, poses: Tensor, plane_x_m: Tensor, texture_index: Tensor, windows, *,
-                       check: bool = True, camera: PinholeCamera | None = None) -> list[Tensor]:
+                       check: bool = True, camera: PinholeCamera | None = None,
+                       plane_y_m: Tensor | None = None) -> list[Tensor]:
         """Render several windows, each at its own ``downsample``, in one pass.
 
         Args:
             windows: ``(PixelWindow, downsample)`` pairs (see :func:`pixel_rays`).
             camera: intrinsics of this call (default the renderer's): a magnified eye
                 (`aectorch.sim.perturbations`, aniseikonia) is a camera of longer focal length.
+            plane_y_m: the object planes' sideways offsets ``[B]`` (see :func:`render_planes`).
 
         Returns:
             One ``[B, ..., h // downsample, w // downsample]`` image per window.
@@ -577,7 +590,7 @@ class TorchPlaneRenderer(nn.Module):
             if not torch.compiler.is_compiling():
                 self._rays[key] = rays
         flat = render_rays(poses, plane_x_m, texture_index, self.scene, rays, atlas=self._atlas(), check=check,
-                           filter=self.filter, lod_bias=self.lod_bias, samples=self.samples)
+                           filter=self.filter, lod_bias=self.lod_bias, samples=self.samples, plane_y_m=plane_y_m)
         shapes = [(w.height // d, w.width // d) for w, d in windows]
         parts = flat.split([h * w for h, w in shapes], dim=-1)
         return [part.reshape(part.shape[:-1] + shape) for part, shape in zip(parts, shapes)]

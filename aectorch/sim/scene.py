@@ -104,7 +104,8 @@ class PlaneScene:
         return float(self.background_width_m), float(self.background_width_m) * h / w
 
     def check_render_inputs(
-        self, poses: Tensor, plane_x_m: Tensor, texture_index: Tensor, *, check_range: bool = True
+        self, poses: Tensor, plane_x_m: Tensor, texture_index: Tensor, *, check_range: bool = True,
+        plane_y_m: Tensor | None = None,
     ) -> int:
         """Validate what both renderers take; returns the batch size B.
 
@@ -114,6 +115,7 @@ class PlaneScene:
             texture_index: integer ``[B]``, each in ``[0, num_textures)``.
             check_range: also check the index values (one host sync; callers that validated
                 them already, such as :class:`ActiveDepthEnv` on every frame, pass ``False``).
+            plane_y_m: ``[B]`` or ``None``: the object planes' sideways offsets (a moving object).
         """
         if poses.ndim < 3 or poses.shape[-2:] != (4, 4):
             raise ValueError(f"poses must have shape [B, ..., 4, 4], got {tuple(poses.shape)}")
@@ -122,6 +124,11 @@ class PlaneScene:
             raise ValueError(
                 f"plane_x_m must have shape [B] = [{batch}] (the batch of poses), "
                 f"got {tuple(plane_x_m.shape)}"
+            )
+        if plane_y_m is not None and (not isinstance(plane_y_m, Tensor) or plane_y_m.shape != (batch,)):
+            raise ValueError(
+                f"plane_y_m must be None or a tensor of shape [B] = [{batch}] (the batch of poses), "
+                f"got {tuple(getattr(plane_y_m, 'shape', ())) or type(plane_y_m).__name__}"
             )
         if not isinstance(texture_index, Tensor) or texture_index.dtype not in (
             torch.int32,
