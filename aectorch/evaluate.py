@@ -18,7 +18,8 @@ from omegaconf import MISSING
 from aectorch._checks import check_int, check_real
 from aectorch.choices import Policy, Readout, RendererName
 from aectorch.evaluation import BEYOND_DEG, EVAL_BATCH_SIZE, WITHIN_DEG, evaluate
-from aectorch.figures import plot_evaluation
+from aectorch.evaluation.trials import TRACKING_SKIP, run_tracking, tracking_by_speed, tracking_rows
+from aectorch.figures import plot_evaluation, plot_tracking
 from aectorch.runtime.builders import trial_protocol
 from aectorch.runtime.checkpoint import load_checkpoint, load_learner
 from aectorch.runtime.command import run
@@ -47,6 +48,13 @@ class EvaluateConfig:
             policies as in training, to see what greediness costs).
         readout: argmax or mean, the greedy increment of every cue: the most probable action's, or
             the policy's mean increment (default: the run's, learner.cues.<cue>.readout).
+        tracking: a moving object's test instead of the paper's: the object's sideways speeds,
+            degrees per iteration (e.g. [0,0.5,1]); every texture x depth x speed runs one trial
+            (aectorch.evaluation.run_tracking), and the result holds the tracking errors per
+            speed and per trial.
+        depth_speed: with tracking, the object's speed in depth, metres per iteration (negative:
+            approaching).
+        skip: with tracking, each fixation's first this many iterations are left out of the errors.
     """
 
     checkpoint: str = MISSING
@@ -60,6 +68,9 @@ class EvaluateConfig:
     progress: bool = True
     policy: Policy = Policy.greedy
     readout: Optional[Readout] = None
+    tracking: Optional[list[float]] = None
+    depth_speed: float = 0.0
+    skip: int = TRACKING_SKIP
 
     def __post_init__(self) -> None:
         if not self.depths:
@@ -68,6 +79,13 @@ class EvaluateConfig:
             check_real(depth, "depths", above=0.0, unit="metres")
         check_int(self.batch_size, "batch_size", minimum=1)
         check_int(self.seed, "seed", minimum=0)
+        check_int(self.skip, "skip", minimum=0)
+        check_real(self.depth_speed, "depth_speed", unit="metres per iteration")
+        if self.tracking is not None:
+            if not self.tracking:
+                raise ValueError("tracking must be a list of speeds >= 0 such as [0,0.5,1], got []")
+            for speed in self.tracking:
+                check_real(speed, "tracking", minimum=0.0, unit="degrees per iteration")
         if self.textures is not None and not os.path.isdir(self.textures):
             raise ValueError(f"textures: no such folder {self.textures!r}")
         if not os.path.isfile(self.checkpoint):
@@ -95,6 +113,8 @@ def _evaluate(args: EvaluateConfig) -> int:
             raise ValueError(f"textures: {err}") from err
         textures = args.textures
     protocol = resolve_protocol(trial_protocol(cfg), renderer=args.renderer)
+    if args.tracking is not None:
+        return _tracking(args, learner, bank, textures, protocol, iteration)
     result = evaluate(learner, bank, distances_m=list(args.depths), protocol=protocol, batch_size=args.batch_size,
                       seed=args.seed, progress=args.progress, policy=args.policy)
     result.update(checkpoint=args.checkpoint, textures=textures, renderer=str(protocol.renderer),
@@ -121,6 +141,31 @@ def _evaluate(args: EvaluateConfig) -> int:
         deg = result["vergence_test"]["degrees"]
         rows.append(f"vergence test: RMSE {deg['rmse']:.4f} deg, median {deg['median']:.4f} deg, n {deg['n']}")
     rows.append(f"{result['trials']} trials, checkpoint iteration {iteration}; written to {args.out}")
+    print("\n".join(rows))
+    return 0
+
+
+def _tracking(args: EvaluateConfig, learner, bank: TextureBank, textures: str, protocol, iteration: int) -> int:
+    """The moving object's test (``tracking=[...]``): its JSON, figure and table."""
+    trials = run_tracking(learner, bank, speeds_deg=list(args.tracking), depth_speed_m=args.depth_speed,
+                          distances_m=list(args.depths), protocol=protocol, skip=args.skip, batch_size=args.batch_size,
+                          seed=args.seed, policy=args.policy, progress=args.progress)
+    per_speed = tracking_by_speed(trials)
+    result = {"tracking": {"skip": args.skip, "depth_speed_m": args.depth_speed, "per_speed": per_speed,
+                           "per_trial": tracking_rows(trials, bank.names)},
+              "checkpoint": args.checkpoint, "textures": textures, "renderer": str(protocol.renderer),
+              "iteration": iteration, "policy": str(args.policy)}
+    with open(args.out, "w") as f:
+        json.dump(result, f, indent=2)
+        f.write("\n")
+    if args.figure:
+        plot_tracking([per_speed], args.figure)
+    keys = [key for key in per_speed[0] if key.endswith("_tracking_deg")]
+    rows = [f"{'speed_deg':>10} " + " ".join(f"{k:>{len(k) + 1}}" for k in keys)]
+    rows += [f"{row['speed_deg']:>10.2f} " + " ".join(f"{row[k]:>{len(k) + 1}.4f}" for k in keys) for row in per_speed]
+    rows.append(f"mean |error| after each fixation's first {args.skip} iterations, depth speed {args.depth_speed:g} "
+                f"m per iteration; {len(result['tracking']['per_trial'])} trials, checkpoint iteration {iteration}; "
+                f"written to {args.out}")
     print("\n".join(rows))
     return 0
 

@@ -44,6 +44,7 @@ __all__ = [
     "plot_training",
     "plot_perturbation",
     "plot_evaluation",
+    "plot_tracking",
     "plot_code",
     "plot_code_comparison",
 ]
@@ -546,6 +547,58 @@ def plot_evaluation(result: Mapping, path: str | os.PathLike) -> Path:
     overall = ", ".join(f"{key[: -len('_mae_deg')]} {_as_float(result[key]):.3g} deg" for key in eyes)
     fig.suptitle(f"Evaluation: {overall}, depth {_as_float(result['depth_mae_m']):.3g} m MAE "
                  f"({result['trials']} trials)", fontsize=11)
+    return _save(fig, path)
+
+
+def plot_tracking(runs: Sequence[Sequence[Mapping]], path: str | os.PathLike, *, target_deg: float | None = None,
+                  title: str = "Tracking a moving object") -> Path:
+    """Tracking error against the object's speed (`aectorch.evaluation.tracking_by_speed`), one
+    panel per eye movement: each run's curve (thin) and their mean (thick, with markers).
+
+    Args:
+        runs: one list of rows per run (seed), each row ``{"speed_deg": v,
+            "<movement>_tracking_deg": e, ...}``.
+        path: the image file to write.
+        target_deg: draw this error as a dotted line (a target), when given.
+        title: the figure's title.
+
+    Returns:
+        The path written.
+
+    Example:
+        >>> import tempfile
+        >>> rows = [{"speed_deg": v, "pursuit_tracking_deg": 0.1 * v, "vergence_tracking_deg": 0.05} for v in (0, 1, 2)]
+        >>> plot_tracking([rows, rows], Path(tempfile.mkdtemp()) / "tracking.png", target_deg=0.2).exists()
+        True
+    """
+    if isinstance(runs, (str, bytes, Mapping)) or not isinstance(runs, Sequence) or not runs:
+        raise ValueError("runs must be a non-empty list of runs, each a list of rows of tracking_by_speed")
+    checked = [list(rows) for rows in runs]
+    keys = _keys(checked[0], "_tracking_deg") if all(isinstance(r, Mapping) for r in checked[0]) else []
+    if not keys or any(not rows or not all(isinstance(r, Mapping) and "speed_deg" in r for r in rows)
+                       for rows in checked):
+        raise ValueError("each run must be a non-empty list of rows with 'speed_deg' and '<movement>_tracking_deg' "
+                         "(tracking_by_speed's rows)")
+    fig = _new_figure((4.2 * len(keys), 3.6))
+    axes = np.atleast_1d(fig.subplots(1, len(keys)))
+    for i, (ax, key) in enumerate(zip(axes, keys)):
+        curves = []
+        for rows in checked:
+            rows = sorted(rows, key=lambda r: _as_float(r["speed_deg"]))
+            speed, error = _series(rows, "speed_deg"), _series(rows, key)
+            ax.plot(speed, error, color=_color(i), alpha=0.35, linewidth=1)
+            curves.append(error)
+        if len({len(c) for c in curves}) == 1:
+            ax.plot(speed, np.mean(curves, axis=0), color=_color(i), marker="o", linewidth=2,
+                    label=f"mean of {len(curves)}")
+            ax.legend(fontsize=8)
+        if target_deg is not None:
+            ax.axhline(target_deg, **EVENT_STYLE)
+        ax.set_xlabel("object speed (deg per iteration)")
+        ax.set_ylabel(f"{key[: -len('_tracking_deg')]} error (deg)")
+        ax.grid(True, alpha=0.3)
+        ax.set_ylim(bottom=0)
+    fig.suptitle(title, fontsize=11)
     return _save(fig, path)
 
 

@@ -14,10 +14,17 @@ from aectorch.choices import Policy
 from aectorch.evaluation.summary import LAST_ITERATIONS, LAST_SUFFIX
 from aectorch.sim import DEFAULT_DISTANCES_M, ActiveDepthEnv, TextureBank, TrialProtocol, resolve_protocol
 
-__all__ = ["EVAL_BATCH_SIZE", "LAST_ITERATIONS", "LAST_SUFFIX", "frozen_iterations", "run_trials"]
+__all__ = ["EVAL_BATCH_SIZE", "LAST_ITERATIONS", "LAST_SUFFIX", "TRACKING_SKIP", "TRACKING_SPEEDS_DEG",
+           "frozen_iterations", "run_trials", "run_tracking", "tracking_by_speed", "tracking_rows"]
 
 #: Environments simulated at once by default.
 EVAL_BATCH_SIZE = 256
+#: A moving object's tracking error leaves out each fixation's first this many iterations (the eyes
+#: catch up with it): the mean |error| of the rest.
+TRACKING_SKIP = 5
+#: The sideways speeds (degrees per iteration) of `run_tracking` by default: up to Wilmot et al.'s
+#: (2021) fastest screens.
+TRACKING_SPEEDS_DEG = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.25)
 
 
 def _all_conditions(num_textures: int, distances: Sequence[float]) -> tuple[Tensor, Tensor]:
@@ -217,3 +224,124 @@ def run_trials(
                             policy == Policy.greedy, bar)
 
 
+
+
+def _tracking_trials(learner, index: Tensor, distance: Tensor, speed: Tensor, env_for, batch_size: int,
+                     fixation_iterations: int, skip: int, greedy: bool, bar) -> dict[str, Tensor]:
+    """One trial per row of (texture index, distance, speed ``[N, 2]``: sideways deg and depth m
+    per iteration), the object pinned at its speed; each eye movement's mean |error| over each
+    fixation's iterations from ``skip`` on as ``<movement>_tracking_deg`` ``[N, 2]``."""
+    device, dtype = placement(learner)
+    out: dict[str, list[Tensor]] = {}
+    for start in range(0, index.numel(), batch_size):
+        stop = min(start + batch_size, index.numel())
+        env = env_for(stop - start, fixation_iterations)
+        rows = speed[start:stop].to(device=device, dtype=dtype)
+        env.set_object_speed(rows[:, 0], rows[:, 1])
+        env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
+        sums: dict[str, list[Tensor]] = {}
+        step = 0
+        for record in frozen_iterations(learner, env, greedy=greedy):
+            for movement, error in record.errors_deg.items():
+                if step == skip:
+                    sums.setdefault(movement, []).append(torch.zeros_like(error))
+                if step >= skip:
+                    sums[movement][-1] = sums[movement][-1] + error.abs()
+            step = 0 if record.fixation_end else step + 1
+        for movement, total in sums.items():
+            out.setdefault(f"{movement}_tracking_deg", []).append(torch.stack(total, 1) / (fixation_iterations - skip))
+        env.set_object_speed()
+        if bar is not None:
+            bar.update(stop - start)
+    result = {key: torch.cat(value).cpu() for key, value in out.items()}
+    result.update(texture_index=index, distance_m=distance, speed_deg=speed[:, 0].clone(),
+                  depth_speed_m=speed[:, 1].clone())
+    return result
+
+
+def run_tracking(
+    learner,
+    textures: TextureBank | Tensor,
+    *,
+    speeds_deg: Sequence[float] = TRACKING_SPEEDS_DEG,
+    depth_speed_m: float = 0.0,
+    distances_m: Sequence[float] = DEFAULT_DISTANCES_M,
+    protocol: TrialProtocol | None = None,
+    skip: int = TRACKING_SKIP,
+    batch_size: int = EVAL_BATCH_SIZE,
+    seed: int = 0,
+    policy: str = "greedy",
+    progress: bool | str = False,
+) -> dict[str, Tensor]:
+    """A moving object's test: every texture x distance x speed runs one trial, learning frozen.
+
+    In each fixation the object moves sideways at the speed (alternately leftward and rightward from
+    trial to trial) and in depth at ``depth_speed_m`` (`ActiveDepthEnv.set_object_speed`), from the
+    standard start state; the body shift is the protocol's.
+
+    Args:
+        learner, textures, distances_m, protocol, batch_size, seed, policy, progress: as for
+            :func:`run_trials`.
+        speeds_deg: sideways speeds, degrees per iteration (each >= 0).
+        depth_speed_m: the speed in depth, metres per iteration (negative: approaching).
+        skip: each fixation's first this many iterations are left out of the tracking errors.
+
+    Returns:
+        CPU tensors over N = speeds x textures x distances trials (speed-major):
+        ``<movement>_tracking_deg`` ``[N, 2]`` (each fixation's mean |error| from iteration
+        ``skip`` on), ``speed_deg`` (signed) and ``depth_speed_m`` ``[N]``, ``texture_index``
+        and ``distance_m`` ``[N]``. :func:`tracking_rows` and :func:`tracking_by_speed` read them.
+
+    Example:
+        >>> import torch
+        >>> from aectorch.framework import JointLearner, LearnerConfig
+        >>> learner = JointLearner(LearnerConfig(), generator=torch.Generator().manual_seed(0))
+        >>> out = run_tracking(learner, torch.rand(1, 64, 64), speeds_deg=[0.0, 1.0], distances_m=[1.0],
+        ...                    protocol=TrialProtocol(fixation_iterations=3), skip=1)
+        >>> out["pursuit_tracking_deg"].shape, out["speed_deg"].tolist()
+        (torch.Size([2, 2]), [0.0, 1.0])
+    """
+    distances, policy = _check_trial_arguments(distances_m, batch_size, policy)
+    protocol = resolve_protocol(protocol)
+    check_int(skip, "skip", 0)
+    if skip >= protocol.fixation_iterations:
+        raise ValueError(f"skip must be below fixation_iterations={protocol.fixation_iterations}, got {skip}")
+    speeds = [float(v) for v in speeds_deg]
+    if not speeds or any(not (v >= 0) for v in speeds):
+        raise ValueError(f"speeds_deg must be a non-empty list of speeds >= 0 (degrees per iteration), got {speeds_deg!r}")
+    bank = textures if isinstance(textures, TextureBank) else TextureBank(textures)
+    index, distance = _all_conditions(len(bank), distances)
+    n = index.numel()
+    direction = 1.0 - 2.0 * (torch.arange(n) % 2).double()  # leftward (positive), rightward, ...
+    speed = torch.cat([torch.stack((v * direction, torch.full((n,), float(depth_speed_m), dtype=torch.float64)), -1)
+                       for v in speeds])
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=speed.shape[0], desc=progress if isinstance(progress, str) else "tracking", unit="trial")
+    with _trial_session(learner, bank, distances, protocol, seed, bar) as env_for:
+        return _tracking_trials(learner, index.repeat(len(speeds)), distance.repeat(len(speeds)), speed, env_for,
+                                batch_size, protocol.fixation_iterations, skip, policy == Policy.greedy, bar)
+
+
+def tracking_rows(trials: dict[str, Tensor], names: Sequence[str]) -> list[dict]:
+    """One JSON row per trial of :func:`run_tracking`: texture, distance, the object's speeds and each
+    movement's tracking errors of both fixations (``<movement>_tracking_deg``, [leftward, rightward])."""
+    keys = [key for key in trials if key.endswith("_tracking_deg")]
+    return [{"texture": names[int(trials["texture_index"][i])], "distance_m": round(float(trials["distance_m"][i]), 6),
+             "speed_deg": float(trials["speed_deg"][i]), "depth_speed_m": float(trials["depth_speed_m"][i]),
+             **{key: trials[key][i].tolist() for key in keys}} for i in range(trials["distance_m"].numel())]
+
+
+def tracking_by_speed(trials: dict[str, Tensor]) -> list[dict]:
+    """The mean tracking errors of :func:`run_tracking`'s trials at each sideways speed (its
+    magnitude, both directions together), over both fixations of every trial: a row per speed."""
+    keys = [key for key in trials if key.endswith("_tracking_deg")]
+    speed = trials["speed_deg"].abs()
+    rows = []
+    for v in sorted(set(speed.tolist())):
+        mask = speed == v
+        rows.append({"speed_deg": v, "trials": int(mask.sum()),
+                     **{key: float(trials[key][mask].double().mean()) for key in keys}})
+    return rows

@@ -12,6 +12,7 @@ from typing import Sequence
 
 from aectorch.report import compare, tables
 from aectorch.report.adaptation import adaptation_table
+from aectorch.report.tracking import tracking_table
 from aectorch.runs import EVALUATION, Run
 
 __all__ = ["main"]
@@ -107,6 +108,10 @@ def _adaptation(args) -> list[str]:
     return adaptation_table([Run(run) for run in args.runs], args.change, args.before)
 
 
+def _tracking(args) -> list[str]:
+    return tracking_table([Run(run) for run in args.runs], args.eval, args.plot, args.target)
+
+
 def _rl(args) -> list[str]:
     return tables.rl_table(args.folder, [Run(run) for run in args.own], args.default_set)
 
@@ -169,6 +174,12 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_argument("--change", type=int, required=True, help="the iteration the first event acts from")
     sub.add_argument("--before", type=Path, default=None,
                      help="the unperturbed run's checkpoint at the change (forked runs)")
+
+    sub = command("tracking", _tracking, tracking_table)
+    sub.add_argument("runs", nargs="+", type=Path, help="run folders")
+    sub.add_argument("--eval", default="tracking.json", help="the tracking test's file in each run folder")
+    sub.add_argument("--plot", type=Path, default=None, help="also draw the error against speed into this PNG")
+    sub.add_argument("--target", type=float, default=None, help="draw a target error (deg)")
 
     sub = command("rl", _rl, tables.rl_table)
     sub.add_argument("folder", type=Path, help="the examples' result files")

@@ -51,7 +51,8 @@ def trial_protocol(cfg: ExperimentConfig) -> TrialProtocol:
     e = cfg.env
     return TrialProtocol(renderer=e.renderer, fixation_iterations=e.fixation_iterations, shift_m=e.shift_m,
                          shift_iterations=e.shift_iterations, yoked_pursuit=e.yoked_pursuit,
-                         q_iterations=e.q_iterations)
+                         q_iterations=e.q_iterations, object_speed_deg=tuple(e.object_speed_deg),
+                         object_depth_speed_m=tuple(e.object_depth_speed_m))
 
 
 def trial_options(cfg: ExperimentConfig) -> dict:

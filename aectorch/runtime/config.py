@@ -26,7 +26,8 @@ from typing import Any, Optional
 
 import torch
 
-from aectorch._checks import check_bool, check_choice, check_device, check_distances, check_int, check_real
+from aectorch._checks import (check_bool, check_choice, check_device, check_distances, check_int, check_range,
+                              check_real)
 from aectorch.choices import DType, Eye, RendererName
 from aectorch.evaluation import EVAL_BATCH_SIZE
 from aectorch.framework import PAPER_ACTIONS_DEG, LearnerConfig, default_cues
@@ -155,6 +156,14 @@ class EnvConfig:
             paper, starts every fixation at ``pursuit_start_deg``). The evaluation always starts
             from the standard state (0, 0).
         vergence_start_spread_deg: the same for the vergence at each fixation's start (>= 0).
+        object_speed_deg: a moving object: ``[low, high]``, the range of its sideways speed,
+            degrees per iteration, drawn uniformly per environment and fixation (positive: toward
+            the robot's left; ``[-1, 1]`` draws both directions); it starts each fixation straight
+            ahead at the trial's distance and pursuit has to follow it (`TrialProtocol`,
+            docs/simulation.md). ``[0, 0]`` (default): the object stands still, the paper's.
+        object_depth_speed_m: the range of the object's speed in depth, metres per iteration,
+            drawn per trial (negative: approaching; vergence follows it, and the depth's ground
+            truth is where it ends). ``[0, 0]`` (default): none.
         device: torch device of the environment and the learner (``"cpu"``, ``"cuda"``, ...).
         dtype: ``"float32"`` or ``"float64"``, of the environment and the learner.
     """
@@ -172,6 +181,8 @@ class EnvConfig:
     vergence_start_deg: float = START_VERGENCE_DEG
     pursuit_start_spread_deg: float = 0.0
     vergence_start_spread_deg: float = 0.0
+    object_speed_deg: list[float] = field(default_factory=lambda: list(DEFAULT_PROTOCOL.object_speed_deg))
+    object_depth_speed_m: list[float] = field(default_factory=lambda: list(DEFAULT_PROTOCOL.object_depth_speed_m))
     device: str = "cpu"
     dtype: DType = DType.float32
 
@@ -190,6 +201,10 @@ class EnvConfig:
             check_real(getattr(self, name), f"{owner}.{name}", unit="degrees")
         for name in ("pursuit_start_spread_deg", "vergence_start_spread_deg"):
             check_real(getattr(self, name), f"{owner}.{name}", minimum=0, unit="degrees")
+        self.object_speed_deg = list(check_range(self.object_speed_deg, f"{owner}.object_speed_deg",
+                                                 unit="degrees per iteration"))
+        self.object_depth_speed_m = list(check_range(self.object_depth_speed_m, f"{owner}.object_depth_speed_m",
+                                                     unit="metres per iteration"))
         check_device(self.device, f"{owner}.device")
         self.dtype = check_choice(self.dtype, f"{owner}.dtype", DType)
 

@@ -1,0 +1,56 @@
+"""A moving object's tracking error per speed over runs (``python -m aectorch.report tracking``)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Sequence
+
+from aectorch.runs import Run
+
+__all__ = ["tracking_table"]
+
+
+def _stats(values: list[float]) -> str:
+    mean = sum(values) / len(values)
+    if len(values) < 2:
+        return f"{mean:.3f}"
+    sd = math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1))
+    return f"{mean:.3f} +- {sd:.3f}"
+
+
+def tracking_table(runs: Sequence[Run], evaluation: str, plot: Path | None = None,
+                   target_deg: float | None = None) -> list[str]:
+    """The tracking errors of a moving object per speed: mean +- standard deviation over runs.
+
+    Reads ``evaluation`` (``python -m aectorch.evaluate ... tracking=[...]``'s JSON) in each run
+    folder: for each sideways speed (degrees per iteration) every eye movement's mean |error| after
+    each fixation's first ``skip`` iterations, over all trials of a run, then over the runs (one
+    value per run: the seeds' spread). ``--plot`` draws the error against speed
+    (`aectorch.figures.plot_tracking`), ``--target`` a dotted line at that error.
+    """
+    results = [run.evaluation(evaluation) for run in runs]
+    if not results:
+        raise ValueError("tracking needs at least one run folder")
+    missing = [str(run.path) for run, result in zip(runs, results) if "tracking" not in result]
+    if missing:
+        raise ValueError(f"{evaluation} holds no tracking test (python -m aectorch.evaluate ... tracking=[...]) in "
+                         f"{missing[0]}")
+    per_run = [result["tracking"]["per_speed"] for result in results]
+    keys = [key for key in per_run[0][0] if key.endswith("_tracking_deg")]
+    speeds = [row["speed_deg"] for row in per_run[0]]
+    if any([row["speed_deg"] for row in rows] != speeds for rows in per_run):
+        raise ValueError(f"the runs' {evaluation} were made at different speeds")
+    first = results[0]["tracking"]
+    lines = [f"{len(runs)} runs, mean |error| (deg) after each fixation's first {first['skip']} iterations, "
+             f"depth speed {first['depth_speed_m']:g} m per iteration",
+             "| speed (deg/iteration) | " + " | ".join(k[: -len("_tracking_deg")] for k in keys) + " |",
+             "|---|" + "---|" * len(keys)]
+    for i, speed in enumerate(speeds):
+        lines.append(f"| {speed:g} | " + " | ".join(_stats([rows[i][k] for rows in per_run]) for k in keys) + " |")
+    if plot is not None:
+        from aectorch.figures import plot_tracking
+
+        plot_tracking(per_run, plot, target_deg=target_deg)
+        lines.append(f"wrote {plot}")
+    return lines
