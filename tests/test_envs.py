@@ -35,6 +35,23 @@ def test_gymnasium_check_env_passes_without_a_warning(env_id, observation):
     env.close()
 
 
+@pytest.mark.parametrize("env_id", ["aectorch/Pursuit-v0", "aectorch/ActiveDepth-v0"])
+def test_a_moving_target_passes_the_checker_and_moves(env_id):
+    from gymnasium.utils.env_checker import check_env
+
+    moving = dict(SMALL, object_speed_deg=(-1.0, 1.0), object_depth_speed_m=(-0.02, -0.01))
+    env = gym.make(env_id, **moving)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(env.unwrapped)
+    env.reset(seed=0)
+    distances = [env.step(env.action_space.sample())[-1]["distance_m"] for _ in range(3)]
+    assert distances[0] > distances[1] > distances[2]  # it approaches, and the info follows it
+    env.close()
+    with pytest.raises(ValueError, match="object_speed_deg"):
+        gym.make(env_id, object_speed_deg=(1.0, 0.0))
+
+
 @pytest.mark.parametrize("env_id", list(envs.IDS))
 def test_make_vec_is_one_batched_env_across_episode_ends(env_id):
     vec = gym.make_vec(env_id, num_envs=8, vectorization_mode="vector_entry_point", **SMALL)

@@ -13,7 +13,8 @@ Options (keyword arguments of ``gymnasium.make``, `TaskConfig`): ``observation="
 pooled sparse code of an internal, online-learning `BinocularEncoder`, eq. 5) or ``"images"``
 (each scale's binocular pair), ``reward="improvement"`` (the change of that encoder's coding
 reward, the default), ``"coding"`` (the reward itself), ``"scaled"`` (the improvement over a running
-scale) or ``"error"`` (minus the absolute angle error), ``actions_deg``, ``textures``, ``distances_m``, ``device``, ...
+scale) or ``"error"`` (minus the absolute angle error), ``actions_deg``, ``textures``, ``distances_m``, ``device``,
+``object_speed_deg`` and ``object_depth_speed_m`` (a moving target: the ranges of its speeds), ...
 ``info`` carries ``distance_m``, ``pursuit_error_deg``, ``vergence_error_deg`` and the eye angles.
 
 ``gymnasium.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")`` is one batched

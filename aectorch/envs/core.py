@@ -33,7 +33,7 @@ from typing import NamedTuple, Sequence
 import torch
 from torch import Tensor
 
-from aectorch._checks import check_choice, check_int
+from aectorch._checks import check_choice, check_int, check_range
 from aectorch.choices import Choice
 from aectorch.coding import BinocularEncoder, EncoderConfig
 from aectorch.coding.patches import DEFAULT_SCALES, as_scale
@@ -97,6 +97,11 @@ class TaskConfig:
         learn_encoder: the internal encoder takes one dictionary step per step (default true).
         feature_scale: the features observed are ``feature_scale * f`` (default 10).
         renderer: ``torch`` (default) or ``pyrender``.
+        object_speed_deg: a moving target: ``(low, high)``, the range of the object's sideways
+            speed in degrees per step, drawn per fixation (``(-1, 1)``: both directions; default
+            ``(0, 0)``: it stands still; `aectorch.sim.TrialProtocol`).
+        object_depth_speed_m: the range of its speed in depth, metres per step, drawn per trial
+            (negative: approaching; default ``(0, 0)``). ``info["distance_m"]`` is where it is.
         device: the torch device of the simulation and the encoder.
     """
 
@@ -112,6 +117,8 @@ class TaskConfig:
     learn_encoder: bool = True
     feature_scale: float = 10.0
     renderer: str = DEFAULT_PROTOCOL.renderer
+    object_speed_deg: Sequence[float] = DEFAULT_PROTOCOL.object_speed_deg
+    object_depth_speed_m: Sequence[float] = DEFAULT_PROTOCOL.object_depth_speed_m
     device: str = "cpu"
 
     def __post_init__(self) -> None:
@@ -123,6 +130,9 @@ class TaskConfig:
             raise ValueError("actions_deg must be a non-empty list of pan increments (degrees)")
         self.scales = tuple(as_scale(s).name for s in self.scales)
         check_int(self.fixation_iterations, "fixation_iterations")
+        self.object_speed_deg = check_range(self.object_speed_deg, "object_speed_deg", unit="degrees per step")
+        self.object_depth_speed_m = check_range(self.object_depth_speed_m, "object_depth_speed_m",
+                                                unit="metres per step")
         if isinstance(self.encoder, dict):
             self.encoder = EncoderConfig(**self.encoder)
 
@@ -174,6 +184,8 @@ class EyeTask:
             textures = TextureBank.from_folder(textures)
         self.env = ActiveDepthEnv(num_envs, textures=textures, renderer=config.renderer,
                                   distances_m=config.distances_m, fixation_iterations=config.fixation_iterations,
+                                  object_speed_deg=config.object_speed_deg,
+                                  object_depth_speed_m=config.object_depth_speed_m,
                                   device=config.device, seed=0 if seed is None else seed)
         self.device = self.env.device
         self.scales = tuple(as_scale(s) for s in config.scales)
@@ -247,7 +259,7 @@ class EyeTask:
             final, coding = self._observe(learn=True)
         info = self.env.end_iteration()
         errors = info.errors_deg
-        details = {"distance_m": self.env.distance_m.clone() if info.distance_m is None else info.distance_m,
+        details = {"distance_m": self.env.object_distance_m.clone() if info.distance_m is None else info.distance_m,
                    "pursuit_error_deg": info.pursuit_error_deg, "vergence_error_deg": info.vergence_error_deg,
                    "left_pan_deg": info.left_pan_deg, "right_pan_deg": info.right_pan_deg}
         if truncated:  # the next episode's first observation: its improvements start from it
