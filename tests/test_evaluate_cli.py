@@ -55,6 +55,32 @@ def test_writes_the_result_json_and_figure(run, tmp_path, capsys):
     assert "vergence test" in capsys.readouterr().out
 
 
+def test_tracking_writes_its_rows_and_the_report_reads_them(run, tmp_path, capsys):
+    """``tracking=[...]``: the moving object's test (per speed and per trial); then
+    ``python -m aectorch.report tracking`` over two run folders, with its figure."""
+    from aectorch.report.__main__ import main as report
+
+    checkpoint, textures = run
+    for seed in (0, 1):
+        folder = tmp_path / f"run{seed}"
+        folder.mkdir()
+        code = main([f"checkpoint={checkpoint}", f"textures={textures}", f"out={folder / 'tracking.json'}",
+                     "depths=[1.0]", "tracking=[0,1.5]", "skip=1", f"seed={seed}", "progress=false",
+                     f"figure={folder / 'tracking.png'}"])
+        assert code == 0 and (folder / "tracking.png").exists()
+    result = json.loads((tmp_path / "run0" / "tracking.json").read_text())["tracking"]
+    assert [row["speed_deg"] for row in result["per_speed"]] == [0.0, 1.5]
+    assert [row["speed_deg"] for row in result["per_trial"]] == [0.0, 0.0, 1.5, -1.5]
+    assert {"pursuit_tracking_deg", "vergence_tracking_deg"} <= set(result["per_trial"][0])
+    capsys.readouterr()
+    assert report(["tracking", str(tmp_path / "run0"), str(tmp_path / "run1"), "--plot",
+                   str(tmp_path / "t.png"), "--target", "0.2"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("2 runs") and lines[3].startswith("| 0 | ") and " +- " in lines[4]
+    assert (tmp_path / "t.png").exists()
+    assert report(["tracking", str(run[0].parent)]) == 2  # no tracking.json there
+
+
 @pytest.mark.parametrize("args, key", [
     (["textures={t}", "out={o}"], "checkpoint"),
     (["checkpoint={c}"], "out"),
@@ -66,6 +92,8 @@ def test_writes_the_result_json_and_figure(run, tmp_path, capsys):
     (["checkpoint={c}.missing", "out={o}"], "checkpoint"),
     (["checkpoint={c}", "out={o}", "progress=maybe"], "progress"),
     (["checkpoint={c}", "out={o}", "policy=argmax"], "policy"),
+    (["checkpoint={c}", "out={o}", "tracking=[-1.0]"], "tracking"),
+    (["checkpoint={c}", "out={o}", "tracking=[1.0]", "skip=1", "depth_speed=-0.5"], "object_depth_speed_m"),
 ])
 def test_errors_name_the_key(args, key, run, tmp_path, capsys):
     checkpoint, textures = run

@@ -179,3 +179,29 @@ def test_bad_motions_are_refused_by_name(bank, kwargs, match):
         ActiveDepthEnv(1, textures=bank).set_object_speed(torch.ones(3))
     assert TrialProtocol(object_speed_deg=[-1, 1]).moving and not TrialProtocol().moving
     assert math.isfinite(TrialProtocol(object_depth_speed_m=(-0.01, 0.0)).object_depth_speed_m[0])
+
+
+def test_the_tracking_test_tells_a_tracker_from_a_slow_eye(bank, tmp_path):
+    """`run_tracking` on the classical matcher: unconstrained it follows a 1 deg/iteration object
+    within 0.2 deg, limited to 0.2 deg steps it falls behind; the rows, the table per speed, the
+    figure."""
+    from aectorch.baselines import Matcher
+    from aectorch.evaluation.trials import run_tracking, tracking_by_speed, tracking_rows
+    from aectorch.figures import plot_tracking
+
+    protocol = TrialProtocol(fixation_iterations=8, shift_m=0.0)  # the object alone moves
+    textures = TextureBank(bank.textures[:2])
+    out = {name: run_tracking(matcher, textures, speeds_deg=[0.0, 1.0], distances_m=[1.5], protocol=protocol, skip=3)
+           for name, matcher in (("free", Matcher(actions_deg=None)), ("slow", Matcher(actions_deg=[-0.2, 0.0, 0.2])))}
+    free, slow = (tracking_by_speed(out[name]) for name in ("free", "slow"))
+    assert [row["speed_deg"] for row in free] == [0.0, 1.0] and free[1]["trials"] == 2
+    assert free[1]["pursuit_tracking_deg"] < 0.2 and free[1]["vergence_tracking_deg"] < 0.2
+    assert slow[1]["pursuit_tracking_deg"] > 1.0 > slow[0]["pursuit_tracking_deg"]
+    rows = tracking_rows(out["free"], textures.names)
+    assert [row["speed_deg"] for row in rows] == [0.0, 0.0, 1.0, -1.0]  # both directions
+    assert len(rows[0]["pursuit_tracking_deg"]) == 2  # both fixations
+    assert plot_tracking([free, slow], tmp_path / "tracking.png", target_deg=0.2).exists()
+    with pytest.raises(ValueError, match="speeds_deg"):
+        run_tracking(Matcher(), textures, speeds_deg=[-1.0], protocol=protocol)
+    with pytest.raises(ValueError, match="skip"):
+        run_tracking(Matcher(), textures, speeds_deg=[1.0], protocol=protocol, skip=8)
