@@ -195,6 +195,17 @@ _OBJECT_STATE = {"object_speed": "object_speed", "object_pinned_speed": "_pinned
                  "object_trial_depth_speed": "_trial_depth_speed", "object_start_target_m": "_start_target_m"}
 
 
+def _window(camera: PinholeCamera, window: str | PixelWindow) -> PixelWindow:
+    """``ActiveDepthEnv``'s ``window``: ``"crops"`` (the central 128 x 128), ``"full"`` or a window, checked."""
+    if window == "crops":
+        window = camera.central_window(128)
+    elif window == "full":
+        window = camera.full_window
+    elif isinstance(window, str):
+        raise ValueError(f"window must be 'crops', 'full' or a PixelWindow, got {window!r}")
+    return camera.check_window(window)
+
+
 def _sideways(plane_y_m: Tensor | None) -> dict:
     """The renderers' ``plane_y_m`` argument where the object moved sideways (none otherwise: a
     renderer of the still object is called as it always was)."""
@@ -346,13 +357,7 @@ class ActiveDepthEnv:
         self.pursuit_start_deg = _range_or_value(pursuit_start_deg, "pursuit_start_deg")
         self.vergence_start_deg = _range_or_value(vergence_start_deg, "vergence_start_deg")
         self.camera = camera or PinholeCamera()
-        if window == "crops":
-            window = self.camera.central_window(128)
-        elif window == "full":
-            window = self.camera.full_window
-        elif isinstance(window, str):
-            raise ValueError(f"window must be 'crops', 'full' or a PixelWindow, got {window!r}")
-        self.window = self.camera.check_window(window)
+        self.window = _window(self.camera, window)
         self.head = (head or HOAP3Head()).to(device=self.device, dtype=dtype)
 
         if textures is None:
@@ -372,16 +377,7 @@ class ActiveDepthEnv:
                 f"{self.scene.background_x_m - eye_x:.2f} m"
             )
         self.distances_m = torch.tensor(distances, dtype=dtype, device=self.device)
-        self.object_speed_deg, self.object_depth_speed_m = protocol.object_speed_deg, protocol.object_depth_speed_m
-        check_object_motion(self.object_speed_deg, self.object_depth_speed_m, distances, fixation_iterations,
-                            self.scene.background_x_m - eye_x)
-        # The moving object's speeds [B, 2] (sideways deg, depth m per iteration; None: it stands
-        # still), pinned by set_object_speed, and its sideways offsets [B] (None: not moved).
-        self.object_speed: Tensor | None = None
-        self._pinned_speed: Tensor | None = None
-        self._trial_depth_speed: Tensor | None = None
-        self._start_target_m: Tensor | None = None
-        self.plane_y_m: Tensor | None = None
+        self._init_motion(protocol, distances)
         self.renderer_name, self._renderer_options = renderer, dict(renderer_options or {})
         self.renderer = make_renderer(
             renderer, self.scene, self.camera, device=self.device, dtype=dtype, **self._renderer_options
@@ -390,6 +386,19 @@ class ActiveDepthEnv:
         self._last_left = None  # (view version, scales, left image) of the last stereo frame
         self.seed = seed
         self.reset(seed)
+
+    def _init_motion(self, protocol: TrialProtocol, distances: list[float]) -> None:
+        """The moving object's ranges (checked) and its state: none while it stands still."""
+        self.object_speed_deg, self.object_depth_speed_m = protocol.object_speed_deg, protocol.object_depth_speed_m
+        check_object_motion(self.object_speed_deg, self.object_depth_speed_m, distances,
+                            protocol.fixation_iterations, self.scene.background_x_m - float(self.head.eye_x_m))
+        # The speeds [B, 2] (sideways deg, depth m per iteration; None: it stands still), those
+        # pinned by set_object_speed, and its sideways offsets [B] (None: not moved).
+        self.object_speed: Tensor | None = None
+        self._pinned_speed: Tensor | None = None
+        self._trial_depth_speed: Tensor | None = None
+        self._start_target_m: Tensor | None = None
+        self.plane_y_m: Tensor | None = None
 
     # -- state -------------------------------------------------------------------------------
     def reset(self, seed: int | None = None) -> None:
