@@ -553,7 +553,8 @@ def plot_evaluation(result: Mapping, path: str | os.PathLike) -> Path:
 def plot_tracking(runs: Sequence[Sequence[Mapping]], path: str | os.PathLike, *, target_deg: float | None = None,
                   title: str = "Tracking a moving object") -> Path:
     """Tracking error against the object's speed (`aectorch.evaluation.tracking_by_speed`), one
-    panel per eye movement: each run's curve (thin) and their mean (thick, with markers).
+    panel per error of each eye movement (``<movement>[_lead|_speed]_tracking_deg``, three panels a
+    row): each run's curve (thin) and their mean (thick, with markers).
 
     Args:
         runs: one list of rows per run (seed), each row ``{"speed_deg": v,
@@ -579,8 +580,12 @@ def plot_tracking(runs: Sequence[Sequence[Mapping]], path: str | os.PathLike, *,
                        for rows in checked):
         raise ValueError("each run must be a non-empty list of rows with 'speed_deg' and '<movement>_tracking_deg' "
                          "(tracking_by_speed's rows)")
-    fig = _new_figure((4.2 * len(keys), 3.6))
-    axes = np.atleast_1d(fig.subplots(1, len(keys)))
+    columns = min(3, len(keys))
+    rows_of_panels = -(-len(keys) // columns)
+    fig = _new_figure((4.2 * columns, 3.4 * rows_of_panels))
+    axes = np.atleast_1d(fig.subplots(rows_of_panels, columns)).reshape(-1)
+    for ax in axes[len(keys):]:
+        ax.set_visible(False)
     for i, (ax, key) in enumerate(zip(axes, keys)):
         curves = []
         for rows in checked:
@@ -595,9 +600,11 @@ def plot_tracking(runs: Sequence[Sequence[Mapping]], path: str | os.PathLike, *,
         if target_deg is not None:
             ax.axhline(target_deg, **EVENT_STYLE)
         ax.set_xlabel("object speed (deg per iteration)")
-        ax.set_ylabel(f"{key[: -len('_tracking_deg')]} error (deg)")
+        name = key[: -len("_tracking_deg")]
+        ax.set_ylabel(f"{name} {'(deg per iteration)' if name.endswith('_speed') else '(deg)'}")
         ax.grid(True, alpha=0.3)
-        ax.set_ylim(bottom=0)
+        if not name.endswith("_lead"):  # (a lead is signed)
+            ax.set_ylim(bottom=0)
     fig.suptitle(title, fontsize=11)
     return _save(fig, path)
 

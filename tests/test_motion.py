@@ -197,6 +197,10 @@ def test_the_tracking_test_tells_a_tracker_from_a_slow_eye(bank, tmp_path):
     assert [row["speed_deg"] for row in free] == [0.0, 1.0] and free[1]["trials"] == 2
     assert free[1]["pursuit_tracking_deg"] < 0.2 and free[1]["vergence_tracking_deg"] < 0.2
     assert slow[1]["pursuit_tracking_deg"] > 1.0 > slow[0]["pursuit_tracking_deg"]
+    # The slow eye falls behind (a negative lead) by 0.8 deg more every iteration; the free one keeps pace.
+    assert slow[1]["pursuit_lead_tracking_deg"] < -1.0 and abs(free[1]["pursuit_lead_tracking_deg"]) < 0.2
+    assert abs(slow[1]["pursuit_speed_tracking_deg"] - 0.8) < 0.05 and free[1]["pursuit_speed_tracking_deg"] < 0.2
+    assert free[0]["pursuit_lead_tracking_deg"] == 0.0  # no sideways motion, nothing to lead
     rows = tracking_rows(out["free"], textures.names)
     assert [row["speed_deg"] for row in rows] == [0.0, 0.0, 1.0, -1.0]  # both directions
     assert len(rows[0]["pursuit_tracking_deg"]) == 2  # both fixations

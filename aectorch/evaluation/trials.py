@@ -14,7 +14,7 @@ from aectorch.choices import Policy
 from aectorch.evaluation.summary import LAST_ITERATIONS, LAST_SUFFIX
 from aectorch.sim import DEFAULT_DISTANCES_M, ActiveDepthEnv, TextureBank, TrialProtocol, resolve_protocol
 
-__all__ = ["EVAL_BATCH_SIZE", "LAST_ITERATIONS", "LAST_SUFFIX", "TRACKING_SKIP", "TRACKING_SPEEDS_DEG",
+__all__ = ["EVAL_BATCH_SIZE", "LAST_ITERATIONS", "LAST_SUFFIX", "TRACKING_ERRORS", "TRACKING_SKIP", "TRACKING_SPEEDS_DEG",
            "frozen_iterations", "run_trials", "run_tracking", "tracking_by_speed", "tracking_rows"]
 
 #: Environments simulated at once by default.
@@ -25,6 +25,12 @@ TRACKING_SKIP = 5
 #: The sideways speeds (degrees per iteration) of `run_tracking` by default: up to Wilmot et al.'s
 #: (2021) fastest screens.
 TRACKING_SPEEDS_DEG = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.25)
+#: The tracking test's errors, each eye movement's key suffixes: the mean |error| (the eye against
+#: the object where it is during the iteration, after the eye's increments); the mean error ahead
+#: of the object (signed along its sideways motion: positive, the eye leads; 0 without sideways
+#: motion); the mean |change of the error| from one iteration to the next, the eye's speed
+#: against the object's (degrees per iteration).
+TRACKING_ERRORS = ("_tracking_deg", "_lead_tracking_deg", "_speed_tracking_deg")
 
 
 def _all_conditions(num_textures: int, distances: Sequence[float]) -> tuple[Tensor, Tensor]:
@@ -229,8 +235,8 @@ def run_trials(
 def _tracking_trials(learner, index: Tensor, distance: Tensor, speed: Tensor, env_for, batch_size: int,
                      fixation_iterations: int, skip: int, greedy: bool, bar) -> dict[str, Tensor]:
     """One trial per row of (texture index, distance, speed ``[N, 2]``: sideways deg and depth m
-    per iteration), the object pinned at its speed; each eye movement's mean |error| over each
-    fixation's iterations from ``skip`` on as ``<movement>_tracking_deg`` ``[N, 2]``."""
+    per iteration), the object pinned at its speed; each eye movement's errors over each
+    fixation's iterations from ``skip`` on, ``[N, 2]`` each (`TRACKING_ERRORS`)."""
     device, dtype = placement(learner)
     out: dict[str, list[Tensor]] = {}
     for start in range(0, index.numel(), batch_size):
@@ -239,17 +245,23 @@ def _tracking_trials(learner, index: Tensor, distance: Tensor, speed: Tensor, en
         rows = speed[start:stop].to(device=device, dtype=dtype)
         env.set_object_speed(rows[:, 0], rows[:, 1])
         env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
+        direction = rows[:, 0].sign()
         sums: dict[str, list[Tensor]] = {}
-        step = 0
+        step, previous = 0, {}
         for record in frozen_iterations(learner, env, greedy=greedy):
             for movement, error in record.errors_deg.items():
                 if step == skip:
-                    sums.setdefault(movement, []).append(torch.zeros_like(error))
-                if step >= skip:
-                    sums[movement][-1] = sums[movement][-1] + error.abs()
+                    sums.setdefault(movement, []).append(torch.zeros(3, *error.shape, dtype=error.dtype,
+                                                                     device=error.device))
+                if step >= skip:  # |error|, error ahead of the object, |change of the error|
+                    sums[movement][-1] += torch.stack((error.abs(), error * direction,
+                                                       (error - previous[movement]).abs()))
+                previous[movement] = error
             step = 0 if record.fixation_end else step + 1
         for movement, total in sums.items():
-            out.setdefault(f"{movement}_tracking_deg", []).append(torch.stack(total, 1) / (fixation_iterations - skip))
+            means = torch.stack(total, -1) / (fixation_iterations - skip)  # [3, b, 2]
+            for key, mean in zip(TRACKING_ERRORS, means):
+                out.setdefault(f"{movement}{key}", []).append(mean)
         env.set_object_speed()
         if bar is not None:
             bar.update(stop - start)
@@ -287,10 +299,13 @@ def run_tracking(
         skip: each fixation's first this many iterations are left out of the tracking errors.
 
     Returns:
-        CPU tensors over N = speeds x textures x distances trials (speed-major):
-        ``<movement>_tracking_deg`` ``[N, 2]`` (each fixation's mean |error| from iteration
-        ``skip`` on), ``speed_deg`` (signed) and ``depth_speed_m`` ``[N]``, ``texture_index``
-        and ``distance_m`` ``[N]``. :func:`tracking_rows` and :func:`tracking_by_speed` read them.
+        CPU tensors over N = speeds x textures x distances trials (speed-major), for each eye
+        movement ``[N, 2]`` (each fixation's, from iteration ``skip`` on): ``<movement>_tracking_deg``
+        (mean |error|), ``<movement>_lead_tracking_deg`` (mean error ahead of the object) and
+        ``<movement>_speed_tracking_deg`` (mean |change of the error|, degrees per iteration;
+        `TRACKING_ERRORS`); ``speed_deg`` (signed) and ``depth_speed_m`` ``[N]``,
+        ``texture_index`` and ``distance_m`` ``[N]``. :func:`tracking_rows` and
+        :func:`tracking_by_speed` read them.
 
     Example:
         >>> import torch
