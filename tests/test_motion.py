@@ -209,3 +209,29 @@ def test_the_tracking_test_tells_a_tracker_from_a_slow_eye(bank, tmp_path):
         run_tracking(Matcher(), textures, speeds_deg=[-1.0], protocol=protocol)
     with pytest.raises(ValueError, match="skip"):
         run_tracking(Matcher(), textures, speeds_deg=[1.0], protocol=protocol, skip=8)
+
+
+def test_the_environments_of_both_renderers_see_the_moving_object_alike(bank):
+    """What the coder reads (every default scale) of a moving object, in both renderers."""
+    from aectorch.coding.patches import DEFAULT_SCALES, as_scale
+
+    scales = [as_scale(s) for s in DEFAULT_SCALES]
+    envs = [ActiveDepthEnv(2, textures=bank, renderer=name, fixation_iterations=3, object_speed_deg=(-2.0, 2.0),
+                           object_depth_speed_m=(-0.05, 0.05), seed=5) for name in ("torch", "pyrender")]
+    try:
+        for _ in range(4):
+            pairs = []
+            for env in envs:
+                first = env.parallax_observation(scales)
+                env.hold("parallax")
+                pairs.append((first, env.stereo_observation(scales)))
+                env.hold("stereo")
+                env.end_iteration()
+            torch.testing.assert_close(envs[0].plane_y_m, envs[1].plane_y_m)
+            for ours, theirs in zip(*pairs):
+                for name in ours:
+                    assert (ours[name] - theirs[name]).abs().mean() < 0.01, name
+        assert envs[0].plane_y_m.abs().min() > 0  # it moved
+    finally:
+        for env in envs:
+            env.close()
