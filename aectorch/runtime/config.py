@@ -164,6 +164,11 @@ class EnvConfig:
         object_depth_speed_m: the range of the object's speed in depth, metres per iteration,
             drawn per trial (negative: approaching; vergence follows it, and the depth's ground
             truth is where it ends). ``[0, 0]`` (default): none.
+        aperture_m: the eyes' aperture (pupil diameter, metres) of the world's defocus: an eye
+            focused off the object sees it blurred by a disc of ``aperture_m * |1/d - focus|``
+            radians (`TrialProtocol`, docs/simulation.md; default 0.016, where 0.25 D blurs by one
+            coder pixel; 0: a pinhole). The eyes stay focused on the object unless something sets
+            their focus, so by default the images are the pinhole's.
         device: torch device of the environment and the learner (``"cpu"``, ``"cuda"``, ...).
         dtype: ``"float32"`` or ``"float64"``, of the environment and the learner.
     """
@@ -183,6 +188,7 @@ class EnvConfig:
     vergence_start_spread_deg: float = 0.0
     object_speed_deg: list[float] = field(default_factory=lambda: list(DEFAULT_PROTOCOL.object_speed_deg))
     object_depth_speed_m: list[float] = field(default_factory=lambda: list(DEFAULT_PROTOCOL.object_depth_speed_m))
+    aperture_m: float = DEFAULT_PROTOCOL.aperture_m
     device: str = "cpu"
     dtype: DType = DType.float32
 
@@ -205,6 +211,7 @@ class EnvConfig:
                                                  unit="degrees per iteration"))
         self.object_depth_speed_m = list(check_range(self.object_depth_speed_m, f"{owner}.object_depth_speed_m",
                                                      unit="metres per iteration"))
+        check_real(self.aperture_m, f"{owner}.aperture_m", minimum=0, unit="metres")
         check_device(self.device, f"{owner}.device")
         self.dtype = check_choice(self.dtype, f"{owner}.dtype", DType)
 

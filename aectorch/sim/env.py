@@ -51,7 +51,8 @@ from aectorch.ops.backend import fused_kernels_apply
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.hoap3 import HOAP3Head
 from aectorch.sim.motion import check_object_motion, object_place
-from aectorch.sim.perturbations import NEUTRAL, Optics, blur_margin, defocus, orientation_filter, scale_contrast
+from aectorch.sim.perturbations import (NEUTRAL, Optics, blur_margin, defocus, defocus_each, orientation_filter,
+                                        scale_contrast)
 from aectorch.sim.scene import PlaneScene
 from aectorch.sim.protocol import DEFAULT_PROTOCOL, START_PURSUIT_DEG, START_VERGENCE_DEG, TrialProtocol
 from aectorch.sim.textures import TextureBank, pink_noise_images
@@ -189,10 +190,11 @@ def _native_blur(images: Tensor) -> bool:
         and not (torch.is_grad_enabled() and images.requires_grad) and fused_kernels_apply(images)
 
 
-#: A moving object's state in `ActiveDepthEnv.state_dict` (its key -> the attribute), each ``[B, ...]``
-#: and present only while it is not ``None``.
+#: A moving object's state and the eyes' focus in `ActiveDepthEnv.state_dict` (its key -> the
+#: attribute), each ``[B, ...]`` and present only while it is not ``None``.
 _OBJECT_STATE = {"object_speed": "object_speed", "object_pinned_speed": "_pinned_speed",
-                 "object_trial_depth_speed": "_trial_depth_speed", "object_start_target_m": "_start_target_m"}
+                 "object_trial_depth_speed": "_trial_depth_speed", "object_start_target_m": "_start_target_m",
+                 "focus_dioptres": "focus_dioptres"}
 
 
 def _window(camera: PinholeCamera, window: str | PixelWindow) -> PixelWindow:
@@ -204,6 +206,11 @@ def _window(camera: PinholeCamera, window: str | PixelWindow) -> PixelWindow:
     elif isinstance(window, str):
         raise ValueError(f"window must be 'crops', 'full' or a PixelWindow, got {window!r}")
     return camera.check_window(window)
+
+
+def _defocus(images: Tensor, radius_px) -> Tensor:
+    """`defocus` by one disc (a number), or each environment's image by its own (a tensor ``[B]``)."""
+    return defocus_each(images, radius_px) if isinstance(radius_px, Tensor) else defocus(images, radius_px)
 
 
 def _sideways(plane_y_m: Tensor | None) -> dict:
@@ -264,6 +271,9 @@ class ActiveDepthEnv:
             moves the dominant (left) eye alone and the right eye must follow through vergence.
         q_iterations: each fixation's q (left pan and vergence) is the mean over its last this
             many iterations (default 1: the last iteration's, the paper), `TrialProtocol`.
+        aperture_m: the eyes' aperture (pupil diameter, metres) for the world's defocus: an eye
+            focused at F dioptres (:meth:`set_focus`) sees an object at d metres blurred by a disc
+            of ``aperture_m * |1 / d - F|`` radians; 0 is a pinhole (`TrialProtocol`).
         object_speed_deg, object_depth_speed_m: a moving object (`TrialProtocol`,
             `aectorch.sim.motion`): the ranges its sideways speed (degrees per iteration, drawn per
             fixation) and its depth speed (metres per iteration, drawn per trial) are drawn from;
@@ -322,6 +332,7 @@ class ActiveDepthEnv:
         q_iterations: int = DEFAULT_PROTOCOL.q_iterations,
         object_speed_deg: tuple[float, float] = DEFAULT_PROTOCOL.object_speed_deg,
         object_depth_speed_m: tuple[float, float] = DEFAULT_PROTOCOL.object_depth_speed_m,
+        aperture_m: float = DEFAULT_PROTOCOL.aperture_m,
         pursuit_start_deg=START_PURSUIT_DEG,
         vergence_start_deg=START_VERGENCE_DEG,
         window: str | PixelWindow = "crops",
@@ -336,7 +347,7 @@ class ActiveDepthEnv:
     ) -> None:
         check_int(num_envs, "num_envs")
         protocol = TrialProtocol(renderer, fixation_iterations, shift_m, shift_iterations, yoked_pursuit, q_iterations,
-                                 object_speed_deg, object_depth_speed_m)
+                                 object_speed_deg, object_depth_speed_m, aperture_m)
         renderer = str(protocol.renderer)
         distances = check_distances(distances_m, "distances_m")
         if dtype not in (torch.float32, torch.float64):
@@ -388,7 +399,10 @@ class ActiveDepthEnv:
         self.reset(seed)
 
     def _init_motion(self, protocol: TrialProtocol, distances: list[float]) -> None:
-        """The moving object's ranges (checked) and its state: none while it stands still."""
+        """The moving object's ranges (checked) and its state: none while it stands still; the eyes'
+        aperture and focus (``None``: each eye focused on the object, :meth:`set_focus`)."""
+        self.aperture_m = protocol.aperture_m
+        self.focus_dioptres: Tensor | None = None
         self.object_speed_deg, self.object_depth_speed_m = protocol.object_speed_deg, protocol.object_depth_speed_m
         check_object_motion(self.object_speed_deg, self.object_depth_speed_m, distances,
                             protocol.fixation_iterations, self.scene.background_x_m - float(self.head.eye_x_m))
@@ -524,6 +538,38 @@ class ActiveDepthEnv:
         self.plane_x_m, self.plane_y_m = distance + float(self.head.eye_x_m), y
         start = self._start_target_m
         self.target_m = torch.stack((self.plane_x_m, start[:, 1] + y, start[:, 2]), -1)
+
+    # -- focus -----------------------------------------------------------------------------------
+    def set_focus(self, dioptres=None) -> None:
+        """Focus each eye at ``dioptres`` (1 / metres; ``[B, 2]``, ``[2]`` or a number, each >= 0:
+        0 is infinity) from now on; ``None`` (the default state): each eye focused on the object,
+        wherever it is. The image of an eye out of focus is blurred by a disc of angular diameter
+        ``aperture_m * |1 / d - dioptres|`` radians (d: the object's distance), in both renderers.
+        """
+        if dioptres is None:
+            self.focus_dioptres = None
+            self._moved()
+            return
+        focus = torch.as_tensor(dioptres, dtype=self.dtype, device=self.device)
+        if focus.shape not in ((), (2,), (self.num_envs, 2)) or not bool((torch.isfinite(focus) & (focus >= 0)).all()):
+            raise ValueError(f"dioptres must be None or finite values >= 0 of shape [], [2] or [B, 2] = "
+                             f"[{self.num_envs}, 2], got {dioptres!r}")
+        self.focus_dioptres = focus.expand(self.num_envs, 2).clone()
+        self._moved()
+
+    @property
+    def defocus_dioptres(self) -> Tensor:
+        """Each eye's defocus ``[B, 2]``: its focus minus the object's vergence 1 / d (dioptres;
+        positive: focused nearer than the object; 0 while the eyes follow the object)."""
+        if self.focus_dioptres is None:
+            return torch.zeros(self.num_envs, 2, dtype=self.dtype, device=self.device)
+        return self.focus_dioptres - 1.0 / self.object_distance_m[:, None]
+
+    def _world_blur_arcmin(self) -> Tensor | None:
+        """Each eye's defocus blur disc ``[B, 2]`` (diameter, arcmin), or ``None`` where no eye is out of focus."""
+        if self.focus_dioptres is None or self.aperture_m == 0:
+            return None
+        return self.aperture_m * self.defocus_dioptres.abs() * (180.0 * 60.0 / math.pi)
 
     @property
     def object_distance_m(self) -> Tensor:
@@ -704,8 +750,9 @@ class ActiveDepthEnv:
             poses[..., :3, 3] += torch.tensor(optics.shift_m, dtype=poses.dtype, device=poses.device)
         poses = poses[:, eyes]
         indices = tuple(range(*eyes.indices(2)))
-        if not optics.images_neutral(indices):
-            return self._render_optics(poses, indices, optics, scales, window, plane_x, plane_y)
+        world = self._world_blur_arcmin()
+        if world is not None or not optics.images_neutral(indices):
+            return self._render_optics(poses, indices, optics, scales, window, plane_x, plane_y, world)
         out = {}
         # The indices were checked by set_trial: no host sync per frame.
         if scales is None or window:
@@ -738,18 +785,22 @@ class ActiveDepthEnv:
         return camera.central_window(size + 2 * margin)
 
     def _render_optics(self, poses: Tensor, eyes: tuple[int, ...], optics: Optics, scales, window: bool,
-                       plane_x: Tensor, plane_y: Tensor | None):
+                       plane_x: Tensor, plane_y: Tensor | None, world_arcmin: Tensor | None = None):
         """`_render` of eyes with perturbed images, one eye at a time: each through its own camera
-        (magnified: aniseikonia), rendered with the margin its blur disc needs (anisometropia),
-        blurred, then its contrast scaled about each image's mean (monocular deprivation)."""
+        (magnified: aniseikonia), rendered with the margin its blur disc needs (anisometropia, and
+        the world's defocus ``world_arcmin`` ``[B, 2]``, each environment's disc diameter added to
+        the eye's), blurred, then its contrast scaled about each image's mean (monocular deprivation)."""
         per_eye = []
         for j, eye in enumerate(eyes):
             camera = self.camera.magnified(optics.magnification[eye])
             arcmin_per_px = 60.0 * camera.degrees_per_pixel
             radius = optics.blur_arcmin[eye] / 2.0 / arcmin_per_px  # full-resolution pixels of this eye
+            if world_arcmin is not None:  # the world's defocus too: a disc per environment
+                radius = (optics.blur_arcmin[eye] + world_arcmin[:, eye]) / 2.0 / arcmin_per_px
+            largest = float(radius.max()) if isinstance(radius, Tensor) else radius
             pose, out = poses[:, j:j + 1], {}
             if scales is None or window:
-                margin = blur_margin(radius)
+                margin = blur_margin(largest)
                 top, left, h, w = self.window
                 grown = PixelWindow(top - margin, left - margin, h + 2 * margin, w + 2 * margin)
                 if margin and (h + 2 * margin > camera.height or w + 2 * margin > camera.width
@@ -758,10 +809,10 @@ class ActiveDepthEnv:
                                      "px beyond the rendered window, which the image does not hold")
                 image = self.renderer.render_windows(pose, plane_x, self.texture_index, [(grown, 1)],
                                                      check=False, camera=camera, **_sideways(plane_y))[0]
-                out[WINDOW] = defocus(image, radius).to(self.dtype)
+                out[WINDOW] = _defocus(image, radius).to(self.dtype)
             if scales is not None:
                 finer = [_finer(s.downsample) for s in scales]
-                margins = [blur_margin(radius / s.downsample) for s in scales]
+                margins = [blur_margin(largest / s.downsample) for s in scales]
                 windows = [(self._margin_window(camera, s.crop + 2 * s.downsample, s.downsample * m,
                                                 f"{optics.blur_arcmin[eye]:g} arcmin at the {s.name} scale"),
                             s.downsample // k) for s, k, m in zip(scales, finer, margins)]
@@ -769,7 +820,7 @@ class ActiveDepthEnv:
                                                                      windows, check=False, camera=camera,
                                                                      **_sideways(plane_y))
                 for s, image, k in zip(scales, images, finer):
-                    image = defocus(_block_mean(image, k), radius / s.downsample)
+                    image = _defocus(_block_mean(image, k), radius / s.downsample)
                     out[s.name] = pyramid_blur(image, s.levels).to(self.dtype)
             if optics.contrast[eye] != 1:
                 out = {name: scale_contrast(image, optics.contrast[eye]) for name, image in out.items()}

@@ -41,7 +41,7 @@ from aectorch._checks import check_real, is_real
 from aectorch.choices import PerturbationKind
 
 __all__ = ["EYES", "NEUTRAL", "ORIENTATIONS", "Optics", "PERTURBATIONS", "Perturbation", "blur_margin",
-           "defocus", "disc_kernel", "make_perturbation", "orientation_filter", "scale_contrast"]
+           "defocus", "defocus_each", "disc_kernel", "disc_kernels", "make_perturbation", "orientation_filter", "scale_contrast"]
 
 #: The eyes a perturbation can act on, in the order of the environment's eye index.
 EYES = ("left", "right")
@@ -411,6 +411,46 @@ def defocus(images: Tensor, radius_px: float) -> Tensor:
         return images
     flat = images.reshape(-1, 1, *images.shape[-2:])
     out = torch.nn.functional.conv2d(flat, kernel[None, None])
+    return out.reshape(*images.shape[:-2], *out.shape[-2:])
+
+
+def disc_kernels(radius_px: Tensor, *, subsamples: int = 16) -> Tensor:
+    """:func:`disc_kernel` of each radius of ``radius_px`` ``[N]`` (pixels), all padded to the largest
+    one's size: ``[N, 2M + 1, 2M + 1]`` with M the largest :func:`blur_margin` (one host sync).
+
+    Example:
+        >>> k = disc_kernels(torch.tensor([0.0, 1.5]))
+        >>> k.shape, torch.equal(k[1], disc_kernel(1.5)), float(k[0, 1, 1])
+        (torch.Size([2, 3, 3]), True, 1.0)
+    """
+    margin = blur_margin(float(radius_px.max())) if radius_px.numel() else 0
+    offsets = (torch.arange(subsamples, dtype=torch.float64) + 0.5) / subsamples - 0.5
+    centres = torch.arange(-margin, margin + 1, dtype=torch.float64)
+    points = (centres[:, None] + offsets[None, :]).reshape(-1)
+    square = (points[:, None] ** 2 + points[None, :] ** 2).to(radius_px.device)
+    inside = square <= radius_px.double()[:, None, None] ** 2  # [N, (2M+1) S, (2M+1) S]
+    side = 2 * margin + 1
+    share = inside.reshape(-1, side, subsamples, side, subsamples).double().sum(dim=(2, 4))
+    total = share.sum(dim=(1, 2), keepdim=True)
+    # A disc within the centre pixel (as disc_kernel: the identity), even one too small for any point.
+    identity = torch.zeros(side, side, dtype=torch.float64, device=radius_px.device)
+    identity[margin, margin] = 1.0
+    small = (radius_px.double() <= 0.5 + 1e-9)[:, None, None] | (total == 0)
+    kernels = torch.where(small, identity, share / total.clamp_min(1))
+    return kernels.to(radius_px.dtype if radius_px.is_floating_point() else torch.float32)
+
+
+def defocus_each(images: Tensor, radius_px: Tensor) -> Tensor:
+    """Each image of ``images`` ``[N, ..., H, W]`` blurred by its own disc, ``radius_px`` ``[N]``
+    (:func:`disc_kernels`), valid region only: ``[N, ..., H - 2M, W - 2M]`` with M the largest
+    :func:`blur_margin`; :func:`defocus` of each image alone, in one grouped convolution."""
+    kernels = disc_kernels(radius_px.to(images.device)).to(images.dtype)
+    if kernels.shape[-1] == 1:
+        return images
+    per_image = images[0].numel() // (images.shape[-2] * images.shape[-1])  # images per row of the batch
+    weight = kernels.repeat_interleave(per_image, dim=0)[:, None]  # [N * per_image, 1, K, K]
+    flat = images.reshape(1, -1, *images.shape[-2:])
+    out = torch.nn.functional.conv2d(flat, weight, groups=flat.shape[1])
     return out.reshape(*images.shape[:-2], *out.shape[-2:])
 
 

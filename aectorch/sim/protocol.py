@@ -20,7 +20,7 @@ from aectorch._checks import check_bool, check_choice, check_int, check_range, c
 from aectorch.choices import RendererName
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 
-__all__ = ["DEFAULT_PROTOCOL", "Renderer", "START_PURSUIT_DEG", "START_VERGENCE_DEG", "TrialProtocol",
+__all__ = ["DEFAULT_APERTURE_M", "DEFAULT_PROTOCOL", "Renderer", "START_PURSUIT_DEG", "START_VERGENCE_DEG", "TrialProtocol",
            "resolve_protocol"]
 
 #: The eyes at each fixation's start: the left eye straight ahead (pan 0) and the right eye
@@ -53,6 +53,13 @@ class TrialProtocol:
             drawn per trial (negative: approaching; both fixations of a trial move alike from the
             trial's distance, so both end at the same distance, the depth's ground truth).
             ``(0, 0)`` (default): no motion in depth.
+        aperture_m: the eyes' aperture (pupil diameter, metres): an eye focused at F dioptres
+            (`ActiveDepthEnv.set_focus`) sees an object at d metres blurred by a disc of angular
+            diameter ``aperture_m * |1 / d - F|`` radians; 0 is a pinhole. The default, 16 mm
+            (`DEFAULT_APERTURE_M`), is four times a human pupil: the coder's pixels (0.22 deg) are
+            some 25 times a foveal cone, and at 16 mm 0.25 D of defocus (what human accommodation
+            resolves) blurs by 4 mrad, 0.23 deg, one coder pixel. The eyes stay focused on the
+            object unless something sets their focus, so the default images are the pinhole's.
 
     Example:
         >>> protocol = TrialProtocol(fixation_iterations=10)
@@ -70,6 +77,7 @@ class TrialProtocol:
     q_iterations: int = 1
     object_speed_deg: tuple[float, float] = (0.0, 0.0)
     object_depth_speed_m: tuple[float, float] = (0.0, 0.0)
+    aperture_m: float = 0.016
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "renderer", check_choice(self.renderer, "renderer", RendererName))
@@ -78,6 +86,7 @@ class TrialProtocol:
         check_int(self.shift_iterations, "shift_iterations")
         check_bool(self.yoked_pursuit, "yoked_pursuit")
         check_int(self.q_iterations, "q_iterations")
+        check_real(self.aperture_m, "aperture_m", minimum=0, unit="metres")
         object.__setattr__(self, "object_speed_deg", check_range(self.object_speed_deg, "object_speed_deg",
                                                                  unit="degrees per iteration"))
         object.__setattr__(self, "object_depth_speed_m", check_range(self.object_depth_speed_m, "object_depth_speed_m",
@@ -97,6 +106,8 @@ class TrialProtocol:
 
 #: The default protocol.
 DEFAULT_PROTOCOL = TrialProtocol()
+#: The eyes' default aperture for the world's defocus (`TrialProtocol.aperture_m`), metres.
+DEFAULT_APERTURE_M = DEFAULT_PROTOCOL.aperture_m
 
 
 @runtime_checkable
