@@ -86,3 +86,31 @@ def test_bad_focus_and_aperture_are_refused_by_name(bank):
             env.set_focus(bad)
     with pytest.raises(ValueError, match="aperture_m"):
         ActiveDepthEnv(1, textures=bank, aperture_m=-0.001)
+
+
+# -- the reward that prefers focus (aectorch.coding.focus) -------------------------------------------
+def test_the_focus_reward_peaks_at_zero_blur_where_the_coding_reward_does_not_on_constructed_images():
+    """Pairs of 1/f noise blurred by discs of growing radius: the input's energy and the focus
+    reward fall with the blur, while the coder's relative error does not rise with it."""
+    from aectorch.coding.encoder import BinocularEncoder, EncoderConfig
+    from aectorch.coding.focus import focus_reward, input_energy
+    from aectorch.sim import pink_noise_images
+    from aectorch.sim.perturbations import blur_margin, defocus
+
+    scale = as_scale("full")
+    sharp = pink_noise_images(8, 40 + 8, 40 + 8, generator=torch.Generator().manual_seed(3))
+    encoder = BinocularEncoder(EncoderConfig(num_atoms=64), ("full",), generator=torch.Generator().manual_seed(0))
+    rewards, coding, energies = [], [], []
+    for radius in (0.0, 0.8, 1.5, 2.5, 3.5):
+        m = blur_margin(radius)
+        image = defocus(sharp, radius)[:, 4 - m:4 - m + 40, 4 - m:4 - m + 40]
+        pair = torch.stack((image, image), 1)
+        out = encoder.encode({"full": pair})
+        energy = input_energy(pair, scale)
+        energies.append(float(energy.mean()))
+        rewards.append(float(focus_reward([energy], [out.codes[0].error]).mean()))
+        coding.append(float(out.reward.mean()))
+    assert rewards == sorted(rewards, reverse=True) and energies == sorted(energies, reverse=True)
+    assert max(coding) > coding[0]  # the coding reward alone prefers some blur
+    with pytest.raises(ValueError, match="pair must be \\[B, 2, 40, 40\\]"):
+        input_energy(torch.rand(1, 2, 16, 16), scale)
