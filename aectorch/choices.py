@@ -75,6 +75,14 @@ class Reward(Choice):
     scaled = "scaled"
 
 
+class Efficiency(Choice):
+    """What a cue's reward R measures: the code's ``reconstruction`` (R = -sum e, eq. 6) or the
+    ``information`` it keeps of the input (R = sum 1/2 log(E (1 - e)), `aectorch.coding.focus`)."""
+
+    reconstruction = "reconstruction"
+    information = "information"
+
+
 class AgentName(Choice):
     """The learning algorithm of a cue's eye movement: the natural actor-critic or PPO."""
 

@@ -114,3 +114,77 @@ def test_the_focus_reward_peaks_at_zero_blur_where_the_coding_reward_does_not_on
     assert max(coding) > coding[0]  # the coding reward alone prefers some blur
     with pytest.raises(ValueError, match="pair must be \\[B, 2, 40, 40\\]"):
         input_energy(torch.rand(1, 2, 16, 16), scale)
+
+
+# -- the accommodation cue --------------------------------------------------------------------------
+def _accommodating(**kwargs):
+    textures = torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(2))
+    return ActiveDepthEnv(2, textures=textures, fixation_iterations=3, seed=0, accommodation_start_D=0.0, **kwargs)
+
+
+def test_the_accommodation_cue_is_served_only_when_asked_and_moves_both_eyes_focus():
+    plain = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64), fixation_iterations=3, seed=0)
+    assert "accommodation" not in plain.CUES and plain.end_iteration().extra_errors_deg is None
+    env = _accommodating()
+    assert list(env.CUES) == ["parallax", "stereo", "accommodation"]
+    assert torch.equal(env.focus_dioptres, torch.zeros(2, 2))  # each fixation starts at infinity
+    per_dioptre = math.degrees(env.aperture_m)  # 16 mm: 0.917 deg of blur per dioptre
+    torch.testing.assert_close(env.accommodation_error_deg(), -per_dioptre / env.distance_m)
+    env.act("accommodation", torch.tensor([per_dioptre * 0.25, 0.0]))
+    torch.testing.assert_close(env.focus_dioptres, torch.tensor([[0.25, 0.25], [0.0, 0.0]]))
+    env.hold("accommodation")
+    assert float(env.accommodation_error_deg().abs().max()) < 1e-5
+    assert float(env.defocus_dioptres.abs().max()) < 1e-5
+    info = env.end_iteration()
+    assert float(info.errors_deg["accommodation"].abs().max()) < 1e-5
+    for _ in range(2):  # the fixation ends; the next starts at infinity again
+        info = env.end_iteration()
+    assert info.fixation_end and torch.equal(env.focus_dioptres, torch.zeros(2, 2))
+    with pytest.raises(ValueError, match="accommodation_start_D needs aperture_m > 0"):
+        _accommodating(aperture_m=0.0)
+
+
+def test_the_learner_learns_accommodation_with_the_information_reward():
+    from aectorch.coding.encoder import EncoderConfig
+    from aectorch.coding.focus import focus_reward, input_energy
+    from aectorch.framework import CueConfig, JointLearner, LearnerConfig, default_cues
+
+    env = _accommodating()
+    small = EncoderConfig(num_atoms=16, lr=0.0)  # no dictionary step: the reward is of the codes seen
+    cues = {**default_cues(encoder=small),
+            "accommodation": CueConfig(encoder=small, efficiency="information", actions_deg=[-0.2, 0.0, 0.2])}
+    learner = JointLearner(LearnerConfig(cues=cues, active_cues=["stereo", "accommodation"]),
+                           generator=torch.Generator().manual_seed(0))
+    seen = {}
+    record = learner.iteration(env, watch=lambda cue, observation: seen.setdefault(cue, observation))
+    assert list(record.cues) == ["stereo", "accommodation"] and "accommodation" in record.errors_deg
+    cue = learner.accommodation
+    out = cue.encoder.encode(seen["accommodation"])
+    expected = focus_reward([input_energy(seen["accommodation"][s.name], s) for s in cue.encoder.scales],
+                            [c.error for c in out.codes])
+    torch.testing.assert_close(record.accommodation.reward, expected)
+    assert not torch.allclose(record.accommodation.reward, out.reward, atol=1.0)  # not -sum e
+    moved = (record.accommodation.increments_deg / math.degrees(env.aperture_m)).clamp_min(0.0)
+    torch.testing.assert_close(env.focus_dioptres, moved[:, None].expand(2, 2))  # its agent moves the focus
+
+
+def test_the_experiment_adds_the_cue_and_the_evaluation_reports_dioptres_and_pixels():
+    from aectorch.evaluation.evaluation import accommodation_report
+    from aectorch.runtime.config import ACCOMMODATION, ExperimentConfig, to_experiment_config
+    from omegaconf import OmegaConf
+
+    nested = {}
+    for key, value in ACCOMMODATION.items():  # as Hydra's config group merges it
+        *path, last = key.split(".")
+        node = nested
+        for part in path:
+            node = node.setdefault(part, {})
+        node[last] = value
+    cfg = to_experiment_config(OmegaConf.merge(OmegaConf.structured(ExperimentConfig), nested))
+    assert cfg.env.accommodation_start_D == 0.0 and cfg.learner.cues["accommodation"].efficiency == "information"
+    assert list(cfg.learner.cues) == ["parallax", "stereo", "accommodation"]
+    per_px = 0.2226  # the camera's degrees per pixel (rounded)
+    report = accommodation_report(torch.tensor([0.0, 0.1 * per_px, -0.4 * per_px, 2 * per_px]), 0.016)
+    assert report["within_0.25px"] == 0.5 and report["within_0.5px"] == 0.75
+    assert report["mae_px"] == pytest.approx((0.1 + 0.4 + 2) / 4, rel=1e-3)
+    assert report["mae_D"] == pytest.approx(report["mae_px"] * 0.22265 / math.degrees(0.016), rel=2e-3)

@@ -1,13 +1,16 @@
 """The simulated head as standard RL environments: Gymnasium, TorchRL and Stable-Baselines3.
 
-Importing ``aectorch.envs`` registers three Gymnasium ids (docs/rl-environments.md):
+Importing ``aectorch.envs`` registers four Gymnasium ids (docs/rl-environments.md):
 
 - ``aectorch/Vergence-v0``: one fixation of h steps; the action is the vergence increment (pursuit
   held at its optimum);
 - ``aectorch/Pursuit-v0``: the motion-parallax fixation; the action is the pursuit increment
   (vergence held at its optimum);
 - ``aectorch/ActiveDepth-v0``: a whole trial, both fixations; ``MultiDiscrete`` (pursuit,
-  vergence) increments.
+  vergence) increments;
+- ``aectorch/Accommodation-v0``: one fixation; the action changes both eyes' focus (degrees of the
+  blur disc's diameter), pursuit and vergence held; the reward is the information the code keeps,
+  which prefers focus; ``info["accommodation_error_deg"]`` is the blur disc's signed diameter.
 
 Options (keyword arguments of ``gymnasium.make``, `TaskConfig`): ``observation="features"`` (the
 pooled sparse code of an internal, online-learning `BinocularEncoder`, eq. 5) or ``"images"``
@@ -29,11 +32,12 @@ from aectorch.envs.core import EyeTask, TaskConfig
 __all__ = ["IDS", "EyeTask", "TaskConfig", "make_sb3_vec_env", "make_torchrl_env", "register"]
 
 #: The registered ids and their tasks.
-IDS = {"aectorch/Vergence-v0": "vergence", "aectorch/Pursuit-v0": "pursuit", "aectorch/ActiveDepth-v0": "active_depth"}
+IDS = {"aectorch/Vergence-v0": "vergence", "aectorch/Pursuit-v0": "pursuit", "aectorch/ActiveDepth-v0": "active_depth",
+       "aectorch/Accommodation-v0": "accommodation"}
 
 
 def register() -> None:
-    """Register the three ids with Gymnasium (done on import; calling it again does nothing)."""
+    """Register the ids with Gymnasium (done on import; calling it again does nothing)."""
     import gymnasium as gym
 
     for env_id, task in IDS.items():

@@ -14,6 +14,11 @@ The three tasks (``task``):
   at its optimum (the lineage's vergence-only model). The observation is the stereo pair.
 - ``"pursuit"``: one fixation of h steps; the action is the pursuit increment; vergence is held
   at its optimum. The observation is the motion-parallax pair.
+- ``"accommodation"``: one fixation of h steps; the action is the accommodation increment (degrees
+  of the blur disc's diameter: both eyes' focus); pursuit and vergence are held at their optimum.
+  The observation is the stereo pair; the coding reward is the information the code keeps
+  (`aectorch.coding.focus`), which prefers focus. Each fixation starts focused at
+  ``accommodation_start_D`` (default 0 D, infinity).
 - ``"active_depth"``: a whole trial, both fixations (2h steps); the action is the pair (pursuit,
   vergence increment); the observation holds both cues' pairs, observed at the start of the
   iteration (the joint learner observes the stereo pair after the pursuit step instead).
@@ -36,6 +41,7 @@ from torch import Tensor
 from aectorch._checks import check_choice, check_int, check_range
 from aectorch.choices import Choice
 from aectorch.coding import BinocularEncoder, EncoderConfig
+from aectorch.coding.focus import focus_reward, input_energy
 from aectorch.coding.patches import DEFAULT_SCALES, as_scale
 from aectorch.control import DEFAULT_ACTIONS_DEG, RewardScale, learned_reward
 from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, ActiveDepthEnv, TextureBank
@@ -44,10 +50,12 @@ __all__ = ["EyeTask", "Observation", "Reward", "Step", "Task", "TaskConfig"]
 
 
 class Task(Choice):
-    """The three environments: `aectorch/Vergence-v0`, `aectorch/Pursuit-v0`, `aectorch/ActiveDepth-v0`."""
+    """The environments: `aectorch/Vergence-v0`, `aectorch/Pursuit-v0`, `aectorch/ActiveDepth-v0`,
+    `aectorch/Accommodation-v0`."""
 
     vergence = "vergence"
     pursuit = "pursuit"
+    accommodation = "accommodation"
     active_depth = "active_depth"
 
 
@@ -74,8 +82,10 @@ class Reward(Choice):
 
 
 #: The cues each task observes (in the environment's order) and the movements it acts on.
-_CUES = {Task.vergence: ("stereo",), Task.pursuit: ("parallax",), Task.active_depth: ("parallax", "stereo")}
-_HELD = {Task.vergence: ("parallax",), Task.pursuit: ("stereo",), Task.active_depth: ()}
+_CUES = {Task.vergence: ("stereo",), Task.pursuit: ("parallax",), Task.active_depth: ("parallax", "stereo"),
+         Task.accommodation: ("accommodation",)}
+_HELD = {Task.vergence: ("parallax",), Task.pursuit: ("stereo",), Task.active_depth: (),
+         Task.accommodation: ("parallax", "stereo")}
 
 
 @dataclass
@@ -102,6 +112,8 @@ class TaskConfig:
             ``(0, 0)``: it stands still; `aectorch.sim.TrialProtocol`).
         object_depth_speed_m: the range of its speed in depth, metres per step, drawn per trial
             (negative: approaching; default ``(0, 0)``). ``info["distance_m"]`` is where it is.
+        accommodation_start_D: with ``task="accommodation"``, both eyes' focus at each fixation's
+            start, dioptres (default 0: infinity, the relaxed eye).
         device: the torch device of the simulation and the encoder.
     """
 
@@ -119,6 +131,7 @@ class TaskConfig:
     renderer: str = DEFAULT_PROTOCOL.renderer
     object_speed_deg: Sequence[float] = DEFAULT_PROTOCOL.object_speed_deg
     object_depth_speed_m: Sequence[float] = DEFAULT_PROTOCOL.object_depth_speed_m
+    accommodation_start_D: float = 0.0
     device: str = "cpu"
 
     def __post_init__(self) -> None:
@@ -186,6 +199,8 @@ class EyeTask:
                                   distances_m=config.distances_m, fixation_iterations=config.fixation_iterations,
                                   object_speed_deg=config.object_speed_deg,
                                   object_depth_speed_m=config.object_depth_speed_m,
+                                  accommodation_start_D=config.accommodation_start_D
+                                  if config.task == Task.accommodation else None,
                                   device=config.device, seed=0 if seed is None else seed)
         self.device = self.env.device
         self.scales = tuple(as_scale(s) for s in config.scales)
@@ -261,7 +276,8 @@ class EyeTask:
         errors = info.errors_deg
         details = {"distance_m": self.env.object_distance_m.clone() if info.distance_m is None else info.distance_m,
                    "pursuit_error_deg": info.pursuit_error_deg, "vergence_error_deg": info.vergence_error_deg,
-                   "left_pan_deg": info.left_pan_deg, "right_pan_deg": info.right_pan_deg}
+                   "left_pan_deg": info.left_pan_deg, "right_pan_deg": info.right_pan_deg,
+                   **{f"{m}_error_deg": e for m, e in (info.extra_errors_deg or {}).items()}}
         if truncated:  # the next episode's first observation: its improvements start from it
             self.steps = 0
             observation, first = self._observe(learn=False)
@@ -301,6 +317,9 @@ class EyeTask:
                     out = encoder.encode(pairs)
                     if learn and self.config.learn_encoder:
                         encoder.learn_(out)
+                    if cue == "accommodation":  # the information the code keeps: it prefers focus
+                        out = out._replace(reward=focus_reward([input_energy(pairs[s.name], s) for s in self.scales],
+                                                               [code.error for code in out.codes]))
                 features.append(out.features * self.config.feature_scale)
                 reward = out.reward if reward is None else reward + out.reward
         observation = images if self.config.observation == Observation.images else {"features": torch.cat(features, -1)}

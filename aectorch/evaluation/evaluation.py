@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import torch
@@ -15,9 +16,9 @@ from aectorch.evaluation.trials import (
     EVAL_BATCH_SIZE, _all_conditions, _check_trial_arguments, _paper_trials, _trial_session, frozen_iterations,
     placement,
 )
-from aectorch.sim import DEFAULT_DISTANCES_M, TextureBank, TrialProtocol, resolve_protocol
+from aectorch.sim import DEFAULT_DISTANCES_M, PinholeCamera, TextureBank, TrialProtocol, resolve_protocol
 
-__all__ = ["evaluate"]
+__all__ = ["accommodation_report", "evaluate"]
 
 
 def evaluate(
@@ -84,6 +85,11 @@ def evaluate(
     with _trial_session(learner, bank, distances, protocol, seed, bar) as env_for:
         paper = _paper_trials(learner, index, distance, env_for, batch_size, protocol.fixation_iterations, greedy, bar)
         result = _report(paper, bank.names, distances)
+        if "accommodation" in movements(paper):
+            result["accommodation_focus"] = accommodation_report(paper["accommodation_deg"], protocol.aperture_m)
+            for row in result["per_trial"]:
+                row["accommodation_errors_D"] = [e / math.degrees(protocol.aperture_m)
+                                                 for e in row["accommodation_errors_deg"]]
         if vergence_test:
             final, per_pixel = _vergence_test(learner, index, distance, env_for, batch_size, offset_deg, steps,
                                               seed, greedy, bar)
@@ -96,6 +102,19 @@ def evaluate(
             }
     result["policy"] = str(policy)
     return result
+
+
+def accommodation_report(errors_deg: Tensor, aperture_m: float) -> dict:
+    """The accommodation error at the fixation ends ``errors_deg`` (the blur disc's signed
+    diameter, degrees) in dioptres (``aperture_m``'s degrees per dioptre) and in pixels of the
+    finest scale (the camera's, 0.22 deg): the mean |error| in each, and the fractions of fixation
+    ends whose blur is within 0.25 and 0.5 px (issue 53's targets)."""
+    e = errors_deg.detach().double().reshape(-1).cpu().abs()
+    e = e[torch.isfinite(e)]
+    px = e / PinholeCamera().degrees_per_pixel
+    return {"mae_D": float(e.mean() / math.degrees(aperture_m)), "mae_px": float(px.mean()),
+            "within_0.25px": float((px <= 0.25).double().mean()), "within_0.5px": float((px <= 0.5).double().mean()),
+            "aperture_m": aperture_m, "n": int(e.numel())}
 
 
 def _report(paper: dict[str, Tensor], names: Sequence[str], distances: list[float]) -> dict:

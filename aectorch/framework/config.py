@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 from aectorch._checks import check_bool, check_choice, check_int, check_real
-from aectorch.choices import AgentName, Features, Readout, Reward, Symmetry
+from aectorch.choices import AgentName, Efficiency, Features, Readout, Reward, Symmetry
 from aectorch.coding.encoder import EncoderConfig
 from aectorch.coding.patches import DEFAULT_SCALES, SCALE_NAMES
 from aectorch.control import DEFAULT_ACTIONS_DEG, PAPER_ACTIONS_DEG, ActorCriticConfig, PPOConfig
@@ -66,6 +66,13 @@ class CueConfig:
             ``"scaled"``: the improvement over a running root mean square of the improvements.
             One function computes the three, here and in the standard environments
             (`aectorch.control.rewards.learned_reward`).
+        efficiency: what the coding reward R measures: ``"reconstruction"`` (default, the paper:
+            R = -(e^C + e^F)) or ``"information"``: the information the code keeps of its input,
+            R = sum over scales of the mean over patches of 1/2 log(E (1 - e)), E the patch's
+            contrast energy before normalisation (`aectorch.coding.focus.focus_reward`, derived
+            from Eckmann et al. 2020's I(R;C)). A blurred image is easier to reconstruct, so the
+            reconstruction reward prefers blur; the information reward prefers focus (the
+            accommodation cue's, docs/results.md). ``reward`` then forms the learned reward from it.
         motor_cost: a metabolic cost of the eye movement (>= 0, default 0): the agent learns from
             the reward minus ``motor_cost * |increment|`` (degrees) of the action that led to it,
             as the lineage's AEC models charge the muscles' activity, so that standing still pays
@@ -86,6 +93,7 @@ class CueConfig:
     features: Features = Features.pooled
     feature_scale: float = 10.0
     reward: Reward = Reward.improvement
+    efficiency: Efficiency = Efficiency.reconstruction
     motor_cost: float = 0.0
     readout: Readout = Readout.mean
 
@@ -96,6 +104,7 @@ class CueConfig:
         self.agent = check_choice(self.agent, f"{owner}.agent", AgentName)
         self.features = check_choice(self.features, f"{owner}.features", Features)
         self.reward = check_choice(self.reward, f"{owner}.reward", Reward)
+        self.efficiency = check_choice(self.efficiency, f"{owner}.efficiency", Efficiency)
         self.readout = check_choice(self.readout, f"{owner}.readout", Readout)
         if self.symmetry is not None:
             self.symmetry = check_choice(self.symmetry, f"{owner}.symmetry", Symmetry)

@@ -15,8 +15,9 @@ from typing import NamedTuple
 import torch
 from torch import Tensor, nn
 
-from aectorch.choices import Features, Readout, Reward
+from aectorch.choices import Efficiency, Features, Readout, Reward
 from aectorch.coding import BinocularEncoder
+from aectorch.coding.focus import focus_reward, input_energy
 from aectorch.control import Agent, RewardScale, Transitions, draw_uniform, learned_reward, make_agent
 from aectorch.framework.config import CueConfig
 from aectorch.framework.shard import Shard
@@ -95,6 +96,8 @@ class CueLearner(nn.Module):
         act, and take a dictionary step."""
         with stage("encode"), torch.no_grad():
             out = self.encoder.encode(observation)
+            if self.config.efficiency == Efficiency.information:
+                out = out._replace(reward=self._information(observation, out))
         with stage("rl"):
             features = self._features(out.features)
             td_error = self._learn(features, out.reward, last) if learn and self.previous is not None else None
@@ -111,6 +114,15 @@ class CueLearner(nn.Module):
             ])
         return CueRecord(out.reward, out.errors, td_error, action.entropy, action.actions,
                          action.increments_deg, counts)
+
+    def _information(self, observation: dict[str, Tensor], out) -> Tensor:
+        """R = sum_scales mean_patches 1/2 log(E (1 - e)) (`aectorch.coding.focus`), ``[B]``."""
+        missing = [s.name for s in self.encoder.scales if s.name not in observation]
+        if missing:
+            raise ValueError(f"efficiency=information needs each scale's own images (learner.render_scales=true); "
+                             f"the observation lacks {missing}")
+        energy = [input_energy(observation[s.name], s) for s in self.encoder.scales]
+        return focus_reward(energy, [code.error for code in out.codes])
 
     def _features(self, pooled: Tensor) -> Tensor:
         if self.config.features == Features.unit:

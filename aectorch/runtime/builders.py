@@ -52,7 +52,8 @@ def trial_protocol(cfg: ExperimentConfig) -> TrialProtocol:
     return TrialProtocol(renderer=e.renderer, fixation_iterations=e.fixation_iterations, shift_m=e.shift_m,
                          shift_iterations=e.shift_iterations, yoked_pursuit=e.yoked_pursuit,
                          q_iterations=e.q_iterations, object_speed_deg=tuple(e.object_speed_deg),
-                         object_depth_speed_m=tuple(e.object_depth_speed_m), aperture_m=e.aperture_m)
+                         object_depth_speed_m=tuple(e.object_depth_speed_m), aperture_m=e.aperture_m,
+                         accommodation_start_D=e.accommodation_start_D)
 
 
 def trial_options(cfg: ExperimentConfig) -> dict:

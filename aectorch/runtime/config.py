@@ -89,6 +89,17 @@ ROLL_PERTURBATION: dict[str, Any] = {
     "train.iterations": 3000,
 }
 
+#: Accommodation learned with vergence (issue 53), ``+experiment=accommodation``: the environment
+#: serves the accommodation cue (each fixation starts with both eyes focused at infinity, 0 D, as
+#: vergence starts parallel) and the learner learns it with the information reward, which prefers
+#: focus (`aectorch.coding.focus`); its actions are degrees of the blur disc's diameter (at the
+#: default 16 mm aperture 0.92 deg per dioptre).
+ACCOMMODATION: dict[str, Any] = {
+    "env.accommodation_start_D": 0.0,
+    "learner.cues.accommodation": {"efficiency": "information", "symmetry": None,
+                                   "actions_deg": [-0.5, -0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2, 0.5]},
+}
+
 #: The plasticity regimes a perturbation experiment chooses from (``plasticity=<name>``): name ->
 #: dotted key -> value. ``decay``: today's (the dictionaries' rates decay as tau / (tau + t),
 #: PPO's step is constant); ``floor``: the decaying rates fall no lower than half their start;
@@ -169,6 +180,9 @@ class EnvConfig:
             radians (`TrialProtocol`, docs/simulation.md; default 0.016, where 0.25 D blurs by one
             coder pixel; 0: a pinhole). The eyes stay focused on the object unless something sets
             their focus, so by default the images are the pinhole's.
+        accommodation_start_D: ``null`` (default): no accommodation cue. A number (dioptres, >= 0):
+            the environment serves the ``accommodation`` cue (``learner.cues.accommodation``,
+            ``+experiment=accommodation``), each fixation starting with both eyes focused there.
         device: torch device of the environment and the learner (``"cpu"``, ``"cuda"``, ...).
         dtype: ``"float32"`` or ``"float64"``, of the environment and the learner.
     """
@@ -189,6 +203,7 @@ class EnvConfig:
     object_speed_deg: list[float] = field(default_factory=lambda: list(DEFAULT_PROTOCOL.object_speed_deg))
     object_depth_speed_m: list[float] = field(default_factory=lambda: list(DEFAULT_PROTOCOL.object_depth_speed_m))
     aperture_m: float = DEFAULT_PROTOCOL.aperture_m
+    accommodation_start_D: Optional[float] = None
     device: str = "cpu"
     dtype: DType = DType.float32
 
@@ -212,6 +227,8 @@ class EnvConfig:
         self.object_depth_speed_m = list(check_range(self.object_depth_speed_m, f"{owner}.object_depth_speed_m",
                                                      unit="metres per iteration"))
         check_real(self.aperture_m, f"{owner}.aperture_m", minimum=0, unit="metres")
+        if self.accommodation_start_D is not None:
+            check_real(self.accommodation_start_D, f"{owner}.accommodation_start_D", minimum=0, unit="dioptres")
         check_device(self.device, f"{owner}.device")
         self.dtype = check_choice(self.dtype, f"{owner}.dtype", DType)
 
@@ -625,6 +642,7 @@ def register_configs() -> None:
                 node={"hydra": {"callbacks": {"run_folder_guard": {"_target_": "aectorch.runtime.launch.RunFolderGuard"}}}})
     store.store(group="experiment", name="roll_perturbation", node=_nested(ROLL_PERTURBATION),
                 package="_global_")
+    store.store(group="experiment", name="accommodation", node=_nested(ACCOMMODATION), package="_global_")
     for name, values in PLASTICITY.items():
         store.store(group="plasticity", name=name, node=_nested(values), package="_global_")
     for name, events in REARING.items():

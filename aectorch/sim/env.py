@@ -142,6 +142,12 @@ def _range_or_value(value, name: str) -> tuple[float, float]:
     return lo, hi
 
 
+#: The accommodation cue (`ActiveDepthEnv.CUES` with ``accommodation_start_D``): it sees the stereo
+#: pair after vergence and changes both eyes' focus; its error is the blur disc's signed diameter.
+ACCOMMODATION = CueSpec("accommodation", "stereo_observation", "apply_accommodation", "accommodation_to_optimum",
+                        ("left", "right"))
+
+
 #: How :meth:`ActiveDepthEnv.parallax_observation` and ``stereo_observation`` render the foveal
 #: scales they are asked for: mipmapped textures (``GL_LINEAR_MIPMAP_LINEAR``), 2 x 2 lookups per
 #: pixel at a level of detail biased by -0.5: within 0.5 % of the exact area average
@@ -274,6 +280,10 @@ class ActiveDepthEnv:
         aperture_m: the eyes' aperture (pupil diameter, metres) for the world's defocus: an eye
             focused at F dioptres (:meth:`set_focus`) sees an object at d metres blurred by a disc
             of ``aperture_m * |1 / d - F|`` radians; 0 is a pinhole (`TrialProtocol`).
+        accommodation_start_D: ``None`` (default): the eyes follow the object's focus. A number
+            (dioptres): the ``accommodation`` cue joins :attr:`CUES` (its action, in degrees of the
+            blur disc's diameter, changes both eyes' focus: :meth:`apply_accommodation`), and each
+            fixation starts with both eyes focused at this many dioptres (`TrialProtocol`).
         object_speed_deg, object_depth_speed_m: a moving object (`TrialProtocol`,
             `aectorch.sim.motion`): the ranges its sideways speed (degrees per iteration, drawn per
             fixation) and its depth speed (metres per iteration, drawn per trial) are drawn from;
@@ -333,6 +343,7 @@ class ActiveDepthEnv:
         object_speed_deg: tuple[float, float] = DEFAULT_PROTOCOL.object_speed_deg,
         object_depth_speed_m: tuple[float, float] = DEFAULT_PROTOCOL.object_depth_speed_m,
         aperture_m: float = DEFAULT_PROTOCOL.aperture_m,
+        accommodation_start_D: float | None = DEFAULT_PROTOCOL.accommodation_start_D,
         pursuit_start_deg=START_PURSUIT_DEG,
         vergence_start_deg=START_VERGENCE_DEG,
         window: str | PixelWindow = "crops",
@@ -347,7 +358,7 @@ class ActiveDepthEnv:
     ) -> None:
         check_int(num_envs, "num_envs")
         protocol = TrialProtocol(renderer, fixation_iterations, shift_m, shift_iterations, yoked_pursuit, q_iterations,
-                                 object_speed_deg, object_depth_speed_m, aperture_m)
+                                 object_speed_deg, object_depth_speed_m, aperture_m, accommodation_start_D)
         renderer = str(protocol.renderer)
         distances = check_distances(distances_m, "distances_m")
         if dtype not in (torch.float32, torch.float64):
@@ -403,6 +414,9 @@ class ActiveDepthEnv:
         aperture and focus (``None``: each eye focused on the object, :meth:`set_focus`)."""
         self.aperture_m = protocol.aperture_m
         self.focus_dioptres: Tensor | None = None
+        self.accommodation_start_D = protocol.accommodation_start_D
+        if self.accommodation_start_D is not None:  # this environment serves the accommodation cue too
+            self.CUES = {**type(self).CUES, "accommodation": ACCOMMODATION}
         self.object_speed_deg, self.object_depth_speed_m = protocol.object_speed_deg, protocol.object_depth_speed_m
         check_object_motion(self.object_speed_deg, self.object_depth_speed_m, distances,
                             protocol.fixation_iterations, self.scene.background_x_m - float(self.head.eye_x_m))
@@ -484,6 +498,9 @@ class ActiveDepthEnv:
         self._first_optics: Optics | None = None
         if moves:
             self._start_object(fixation)
+        if self.accommodation_start_D is not None:  # both eyes at the start focus, as vergence starts parallel
+            self.focus_dioptres = torch.full((self.num_envs, 2), float(self.accommodation_start_D),
+                                             dtype=self.dtype, device=self.device)
         self._moved()
 
     @property
@@ -564,6 +581,30 @@ class ActiveDepthEnv:
         if self.focus_dioptres is None:
             return torch.zeros(self.num_envs, 2, dtype=self.dtype, device=self.device)
         return self.focus_dioptres - 1.0 / self.object_distance_m[:, None]
+
+    @property
+    def degrees_per_dioptre(self) -> float:
+        """The blur disc's angular diameter per dioptre of defocus, degrees (``aperture_m`` in radians)."""
+        return math.degrees(self.aperture_m)
+
+    def accommodation_error_deg(self) -> Tensor:
+        """The accommodation cue's error ``[B]``: the left eye's defocus as its blur disc's signed
+        angular diameter, degrees (`defocus_dioptres` times :attr:`degrees_per_dioptre`; positive:
+        focused nearer than the object). Both eyes' focus moves together."""
+        return self.defocus_dioptres[:, 0] * self.degrees_per_dioptre
+
+    def apply_accommodation(self, delta_deg: Tensor) -> None:
+        """Change both eyes' focus by the increments ``[B]``, in degrees of the blur disc's diameter
+        (``delta_deg / degrees_per_dioptre`` dioptres; positive: nearer), at least 0 D (infinity)."""
+        delta = self._check_increment(delta_deg, "delta_deg") / self.degrees_per_dioptre
+        focus = self.focus_dioptres if self.focus_dioptres is not None else \
+            (1.0 / self.object_distance_m)[:, None].expand(self.num_envs, 2)
+        self.focus_dioptres = (focus + delta[:, None]).clamp_min(0.0)
+        self._moved()
+
+    def accommodation_to_optimum(self) -> Tensor:
+        """The accommodation increments ``[B]`` (degrees of blur) that focus the eyes on the object now."""
+        return -self.accommodation_error_deg()
 
     def _world_blur_arcmin(self) -> Tensor | None:
         """Each eye's defocus blur disc ``[B, 2]`` (diameter, arcmin), or ``None`` where no eye is out of focus."""
@@ -942,6 +983,7 @@ class ActiveDepthEnv:
         or trial begins."""
         optimal_left = self.optimal_left_pan_deg()
         optimal_right = self.optimal_right_pan_deg()
+        extra = None if "accommodation" not in self.CUES else {"accommodation": self.accommodation_error_deg()}
         iteration, fixation = self.iteration, self.fixation
         fixation_end = iteration == self.fixation_iterations - 1
         trial_end = fixation_end and fixation == 1
@@ -979,6 +1021,7 @@ class ActiveDepthEnv:
             trial_end=trial_end,
             q_deg=q,
             distance_m=distance,
+            extra_errors_deg=extra,
         )
 
     # -- checkpoints ---------------------------------------------------------------------------

@@ -60,6 +60,10 @@ class TrialProtocol:
             some 25 times a foveal cone, and at 16 mm 0.25 D of defocus (what human accommodation
             resolves) blurs by 4 mrad, 0.23 deg, one coder pixel. The eyes stay focused on the
             object unless something sets their focus, so the default images are the pinhole's.
+        accommodation_start_D: ``None`` (default): no accommodation cue, the eyes follow the
+            object's focus. A number (dioptres, >= 0; 0 = infinity, the relaxed eye): the
+            environment serves the ``accommodation`` cue (`ActiveDepthEnv.CUES`), and each
+            fixation starts with both eyes focused there, as vergence starts parallel.
 
     Example:
         >>> protocol = TrialProtocol(fixation_iterations=10)
@@ -78,6 +82,7 @@ class TrialProtocol:
     object_speed_deg: tuple[float, float] = (0.0, 0.0)
     object_depth_speed_m: tuple[float, float] = (0.0, 0.0)
     aperture_m: float = 0.016
+    accommodation_start_D: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "renderer", check_choice(self.renderer, "renderer", RendererName))
@@ -87,6 +92,11 @@ class TrialProtocol:
         check_bool(self.yoked_pursuit, "yoked_pursuit")
         check_int(self.q_iterations, "q_iterations")
         check_real(self.aperture_m, "aperture_m", minimum=0, unit="metres")
+        if self.accommodation_start_D is not None:
+            check_real(self.accommodation_start_D, "accommodation_start_D", minimum=0, unit="dioptres")
+            if self.aperture_m == 0:
+                raise ValueError("accommodation_start_D needs aperture_m > 0: a pinhole eye sees no defocus to "
+                                 "learn accommodation from")
         object.__setattr__(self, "object_speed_deg", check_range(self.object_speed_deg, "object_speed_deg",
                                                                  unit="degrees per iteration"))
         object.__setattr__(self, "object_depth_speed_m", check_range(self.object_depth_speed_m, "object_depth_speed_m",
