@@ -93,10 +93,11 @@ ROLL_PERTURBATION: dict[str, Any] = {
 #: serves the accommodation cue (each fixation starts with both eyes focused at infinity, 0 D, as
 #: vergence starts parallel) and the learner learns it with the information reward, which prefers
 #: focus (`aectorch.coding.focus`); its actions are degrees of the blur disc's diameter (at the
-#: default 16 mm aperture 0.92 deg per dioptre).
+#: default 16 mm aperture 0.92 deg per dioptre). It codes the two finest scales only: at the wide
+#: and coarse scales' 3.6 and 1.8 deg pixels a dioptre's blur is a fraction of a pixel.
 ACCOMMODATION: dict[str, Any] = {
     "env.accommodation_start_D": 0.0,
-    "learner.cues.accommodation": {"efficiency": "information", "symmetry": None,
+    "learner.cues.accommodation": {"efficiency": "information", "symmetry": None, "scales": ["fine", "full"],
                                    "actions_deg": [-0.5, -0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2, 0.5]},
 }
 
