@@ -144,6 +144,19 @@ def test_the_accommodation_cue_is_served_only_when_asked_and_moves_both_eyes_foc
         _accommodating(aperture_m=0.0)
 
 
+def test_each_eye_accommodates_apart_when_not_yoked():
+    env = _accommodating(yoked_accommodation=False)
+    assert list(env.CUES)[2:] == ["accommodation", "accommodation_right"]
+    per_dioptre = math.degrees(env.aperture_m)
+    env.act("accommodation", torch.full((2,), 0.5 * per_dioptre))
+    env.act("accommodation_right", torch.full((2,), 0.2 * per_dioptre))
+    torch.testing.assert_close(env.focus_dioptres, torch.tensor([[0.5, 0.2], [0.5, 0.2]]))
+    env.hold("accommodation_right")
+    errors = env.end_iteration().errors_deg
+    assert float(errors["accommodation_right"].abs().max()) < 1e-5
+    torch.testing.assert_close(errors["accommodation"], (0.5 - 1 / env.distance_m) * per_dioptre)
+
+
 def test_the_learner_learns_accommodation_with_the_information_reward():
     from aectorch.coding.encoder import EncoderConfig
     from aectorch.coding.focus import focus_reward, input_energy

@@ -184,6 +184,8 @@ class EnvConfig:
         accommodation_start_D: ``null`` (default): no accommodation cue. A number (dioptres, >= 0):
             the environment serves the ``accommodation`` cue (``learner.cues.accommodation``,
             ``+experiment=accommodation``), each fixation starting with both eyes focused there.
+        yoked_accommodation: the accommodation cue focuses both eyes alike (default); ``false``:
+            the left eye, and a second cue, ``learner.cues.accommodation_right``, the right one.
         device: torch device of the environment and the learner (``"cpu"``, ``"cuda"``, ...).
         dtype: ``"float32"`` or ``"float64"``, of the environment and the learner.
     """
@@ -205,6 +207,7 @@ class EnvConfig:
     object_depth_speed_m: list[float] = field(default_factory=lambda: list(DEFAULT_PROTOCOL.object_depth_speed_m))
     aperture_m: float = DEFAULT_PROTOCOL.aperture_m
     accommodation_start_D: Optional[float] = None
+    yoked_accommodation: bool = True
     device: str = "cpu"
     dtype: DType = DType.float32
 
@@ -230,6 +233,7 @@ class EnvConfig:
         check_real(self.aperture_m, f"{owner}.aperture_m", minimum=0, unit="metres")
         if self.accommodation_start_D is not None:
             check_real(self.accommodation_start_D, f"{owner}.accommodation_start_D", minimum=0, unit="dioptres")
+        check_bool(self.yoked_accommodation, f"{owner}.yoked_accommodation")
         check_device(self.device, f"{owner}.device")
         self.dtype = check_choice(self.dtype, f"{owner}.dtype", DType)
 

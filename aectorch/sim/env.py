@@ -146,6 +146,9 @@ def _range_or_value(value, name: str) -> tuple[float, float]:
 #: pair after vergence and changes both eyes' focus; its error is the blur disc's signed diameter.
 ACCOMMODATION = CueSpec("accommodation", "stereo_observation", "apply_accommodation", "accommodation_to_optimum",
                         ("left", "right"))
+#: The right eye's accommodation, a cue of its own where accommodation is not yoked.
+ACCOMMODATION_RIGHT = CueSpec("accommodation_right", "stereo_observation", "apply_accommodation_right",
+                              "accommodation_right_to_optimum", ("left", "right"))
 
 
 #: How :meth:`ActiveDepthEnv.parallax_observation` and ``stereo_observation`` render the foveal
@@ -284,6 +287,8 @@ class ActiveDepthEnv:
             (dioptres): the ``accommodation`` cue joins :attr:`CUES` (its action, in degrees of the
             blur disc's diameter, changes both eyes' focus: :meth:`apply_accommodation`), and each
             fixation starts with both eyes focused at this many dioptres (`TrialProtocol`).
+        yoked_accommodation: ``False``: the accommodation cue focuses the left eye and the
+            ``accommodation_right`` cue the right one (default ``True``: both alike).
         object_speed_deg, object_depth_speed_m: a moving object (`TrialProtocol`,
             `aectorch.sim.motion`): the ranges its sideways speed (degrees per iteration, drawn per
             fixation) and its depth speed (metres per iteration, drawn per trial) are drawn from;
@@ -344,6 +349,7 @@ class ActiveDepthEnv:
         object_depth_speed_m: tuple[float, float] = DEFAULT_PROTOCOL.object_depth_speed_m,
         aperture_m: float = DEFAULT_PROTOCOL.aperture_m,
         accommodation_start_D: float | None = DEFAULT_PROTOCOL.accommodation_start_D,
+        yoked_accommodation: bool = DEFAULT_PROTOCOL.yoked_accommodation,
         pursuit_start_deg=START_PURSUIT_DEG,
         vergence_start_deg=START_VERGENCE_DEG,
         window: str | PixelWindow = "crops",
@@ -358,7 +364,7 @@ class ActiveDepthEnv:
     ) -> None:
         check_int(num_envs, "num_envs")
         protocol = TrialProtocol(renderer, fixation_iterations, shift_m, shift_iterations, yoked_pursuit, q_iterations,
-                                 object_speed_deg, object_depth_speed_m, aperture_m, accommodation_start_D)
+                                 object_speed_deg, object_depth_speed_m, aperture_m, accommodation_start_D, yoked_accommodation)
         renderer = str(protocol.renderer)
         distances = check_distances(distances_m, "distances_m")
         if dtype not in (torch.float32, torch.float64):
@@ -370,8 +376,7 @@ class ActiveDepthEnv:
                              f"{total - num_envs}, got {batch_slice!r}")
         self._rows = slice(start, start + num_envs)
         self._draws = total
-        self.device = torch.device("cpu") if device is None else torch.device(device)
-        self.dtype = dtype
+        self.device, self.dtype = torch.device("cpu") if device is None else torch.device(device), dtype
         self.fixation_iterations = fixation_iterations
         self.shift_m = float(shift_m)
         self.shift_iterations = min(shift_iterations, fixation_iterations)
@@ -415,8 +420,10 @@ class ActiveDepthEnv:
         self.aperture_m = protocol.aperture_m
         self.focus_dioptres: Tensor | None = None
         self.accommodation_start_D = protocol.accommodation_start_D
-        if self.accommodation_start_D is not None:  # this environment serves the accommodation cue too
-            self.CUES = {**type(self).CUES, "accommodation": ACCOMMODATION}
+        self.yoked_accommodation = protocol.yoked_accommodation
+        if self.accommodation_start_D is not None:  # this environment serves the accommodation cue(s) too
+            self.CUES = {**type(self).CUES, "accommodation": ACCOMMODATION,
+                         **({} if self.yoked_accommodation else {"accommodation_right": ACCOMMODATION_RIGHT})}
         self.object_speed_deg, self.object_depth_speed_m = protocol.object_speed_deg, protocol.object_depth_speed_m
         check_object_motion(self.object_speed_deg, self.object_depth_speed_m, distances,
                             protocol.fixation_iterations, self.scene.background_x_m - float(self.head.eye_x_m))
@@ -587,24 +594,37 @@ class ActiveDepthEnv:
         """The blur disc's angular diameter per dioptre of defocus, degrees (``aperture_m`` in radians)."""
         return math.degrees(self.aperture_m)
 
-    def accommodation_error_deg(self) -> Tensor:
-        """The accommodation cue's error ``[B]``: the left eye's defocus as its blur disc's signed
-        angular diameter, degrees (`defocus_dioptres` times :attr:`degrees_per_dioptre`; positive:
-        focused nearer than the object). Both eyes' focus moves together."""
-        return self.defocus_dioptres[:, 0] * self.degrees_per_dioptre
+    def accommodation_error_deg(self, eye: int = 0) -> Tensor:
+        """The accommodation cue's error ``[B]``: the eye's (default the left) defocus as its blur
+        disc's signed angular diameter, degrees (`defocus_dioptres` times
+        :attr:`degrees_per_dioptre`; positive: focused nearer than the object)."""
+        return self.defocus_dioptres[:, eye] * self.degrees_per_dioptre
 
-    def apply_accommodation(self, delta_deg: Tensor) -> None:
-        """Change both eyes' focus by the increments ``[B]``, in degrees of the blur disc's diameter
-        (``delta_deg / degrees_per_dioptre`` dioptres; positive: nearer), at least 0 D (infinity)."""
+    def _focus_by(self, delta_deg: Tensor, eyes: tuple[float, float]) -> None:
         delta = self._check_increment(delta_deg, "delta_deg") / self.degrees_per_dioptre
         focus = self.focus_dioptres if self.focus_dioptres is not None else \
             (1.0 / self.object_distance_m)[:, None].expand(self.num_envs, 2)
-        self.focus_dioptres = (focus + delta[:, None]).clamp_min(0.0)
+        self.focus_dioptres = (focus + delta[:, None] * focus.new_tensor(eyes)).clamp_min(0.0)
         self._moved()
 
+    def apply_accommodation(self, delta_deg: Tensor) -> None:
+        """Change both eyes' focus (the left eye's alone without ``yoked_accommodation``) by the
+        increments ``[B]``, in degrees of the blur disc's diameter (``delta_deg /
+        degrees_per_dioptre`` dioptres; positive: nearer), at least 0 D (infinity)."""
+        self._focus_by(delta_deg, (1.0, 1.0 if self.yoked_accommodation else 0.0))
+
+    def apply_accommodation_right(self, delta_deg: Tensor) -> None:
+        """Change the right eye's focus alone (the ``accommodation_right`` cue), as :meth:`apply_accommodation`."""
+        self._focus_by(delta_deg, (0.0, 1.0))
+
     def accommodation_to_optimum(self) -> Tensor:
-        """The accommodation increments ``[B]`` (degrees of blur) that focus the eyes on the object now."""
+        """The accommodation increments ``[B]`` (degrees of blur) that focus the left eye (both
+        eyes, yoked) on the object now."""
         return -self.accommodation_error_deg()
+
+    def accommodation_right_to_optimum(self) -> Tensor:
+        """The increments ``[B]`` that focus the right eye on the object now."""
+        return -self.accommodation_error_deg(1)
 
     def _world_blur_arcmin(self) -> Tensor | None:
         """Each eye's defocus blur disc ``[B, 2]`` (diameter, arcmin), or ``None`` where no eye is out of focus."""
@@ -983,7 +1003,9 @@ class ActiveDepthEnv:
         or trial begins."""
         optimal_left = self.optimal_left_pan_deg()
         optimal_right = self.optimal_right_pan_deg()
-        extra = None if "accommodation" not in self.CUES else {"accommodation": self.accommodation_error_deg()}
+        extra = None if "accommodation" not in self.CUES else \
+            {m: self.accommodation_error_deg(e) for e, m in enumerate(("accommodation", "accommodation_right"))
+             if m in self.CUES}
         iteration, fixation = self.iteration, self.fixation
         fixation_end = iteration == self.fixation_iterations - 1
         trial_end = fixation_end and fixation == 1

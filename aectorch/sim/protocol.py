@@ -64,6 +64,9 @@ class TrialProtocol:
             object's focus. A number (dioptres, >= 0; 0 = infinity, the relaxed eye): the
             environment serves the ``accommodation`` cue (`ActiveDepthEnv.CUES`), and each
             fixation starts with both eyes focused there, as vergence starts parallel.
+        yoked_accommodation: the accommodation cue's action focuses both eyes alike (default, as
+            human accommodation does); ``False``: it focuses the left eye, and the
+            ``accommodation_right`` cue the right one.
 
     Example:
         >>> protocol = TrialProtocol(fixation_iterations=10)
@@ -83,6 +86,7 @@ class TrialProtocol:
     object_depth_speed_m: tuple[float, float] = (0.0, 0.0)
     aperture_m: float = 0.016
     accommodation_start_D: float | None = None
+    yoked_accommodation: bool = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "renderer", check_choice(self.renderer, "renderer", RendererName))
@@ -92,6 +96,7 @@ class TrialProtocol:
         check_bool(self.yoked_pursuit, "yoked_pursuit")
         check_int(self.q_iterations, "q_iterations")
         check_real(self.aperture_m, "aperture_m", minimum=0, unit="metres")
+        check_bool(self.yoked_accommodation, "yoked_accommodation")
         if self.accommodation_start_D is not None:
             check_real(self.accommodation_start_D, "accommodation_start_D", minimum=0, unit="dioptres")
             if self.aperture_m == 0:
