@@ -552,7 +552,7 @@ def plot_evaluation(result: Mapping, path: str | os.PathLike) -> Path:
 
 
 def plot_focus_curve(result: Mapping, path: str | os.PathLike) -> Path:
-    """The rewards against defocus (scripts/focus_curve.py): one panel per image set (``result``'s
+    """The rewards against defocus (python -m aectorch.report focus-curve): one panel per image set (``result``'s
     entries with ``defocus_D`` and the measures ``coding``, ``energy``, ``focus``), each measure
     shifted to 0 at zero defocus, so that where each peaks reads at a glance.
 

@@ -288,3 +288,25 @@ def test_adaptation_tabulates_the_recovery_of_each_error(tmp_path, capsys):
     assert len(out) == 5 and out[2].startswith("| rolled | vergence | 0.100 | 0.500 (5.0x, 20) | 30 | 0.400 |")
     assert main(["adaptation", str(tmp_path / "missing"), "--change", "10"]) == 2
     assert "no such folder" in capsys.readouterr().err
+
+
+def test_accommodation_gives_each_groups_mean_and_sd(tmp_path, capsys):
+    def run(name, vergence, mae_D=None):
+        folder = tmp_path / name
+        folder.mkdir()
+        result = {"vergence_mae_deg": vergence, "pursuit_mae_deg": 0.03, "depth_mae_m": 0.05}
+        if mae_D is not None:
+            result["accommodation_focus"] = {"mae_D": mae_D, "mae_px": 4 * mae_D, "within_0.25px": 0.1,
+                                             "within_0.5px": 0.2}
+        (folder / "evaluation.json").write_text(json.dumps(result))
+        return str(folder)
+
+    acc = ",".join(run(f"a{i}", v, d) for i, (v, d) in enumerate([(0.02, 0.4), (0.04, 0.6)]))
+    plain = ",".join(run(f"p{i}", v) for i, v in enumerate([0.05, 0.05]))
+    assert main(["accommodation", f"with={acc}", f"plain={plain}"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "| | with (2 seeds) | plain (2 seeds) |"
+    assert "| vergence MAE (deg) | 0.030 +- 0.014 | 0.050 +- 0.000 |" in lines
+    assert "| accommodation MAE (D) | 0.500 +- 0.141 | - |" in lines
+    assert main(["accommodation", "nogroup"]) == 2
+    assert "groups are name=run,run,..." in capsys.readouterr().err

@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from aectorch.report import compare, tables
+from aectorch.report import accommodation, compare, tables
 from aectorch.report.adaptation import adaptation_table
 from aectorch.report.tracking import tracking_table
 from aectorch.runs import EVALUATION, Run
@@ -112,6 +112,22 @@ def _tracking(args) -> list[str]:
     return tracking_table([Run(run) for run in args.runs], args.eval, args.plot, args.target)
 
 
+def _accommodation(args) -> list[str]:
+    groups = {name: [Run(r) for r in runs.split(",")] for name, runs in _pairs(args.groups, "groups are name=run,run,...")}
+    return accommodation.accommodation_table(groups, args.eval)
+
+
+def _focus_curve(args) -> list[str]:
+    return accommodation.focus_curve(args.photos, args.out, args.steps, args.batch, args.spread, args.aperture_m,
+                                     args.seed)
+
+
+def _accommodation_policy(args) -> list[str]:
+    from aectorch.runtime import load_learner
+
+    return accommodation.policy_table(load_learner(args.checkpoint)[1], args.textures)
+
+
 def _rl(args) -> list[str]:
     return tables.rl_table(args.folder, [Run(run) for run in args.own], args.default_set)
 
@@ -163,6 +179,13 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_argument("rows", nargs="+", help="label=run[:suffix]")
     sub.add_argument("--json", type=Path, help="also write the cells here")
 
+    _experiment_commands(command)
+    return parser
+
+
+def _experiment_commands(command) -> None:
+    """The commands of the experiments beyond the paper's run: the code, perturbations, tracking,
+    accommodation and the RL clients."""
     sub = command("code", _code, tables.code_table)
     sub.add_argument("groups", nargs="+", help="label=run[,run...] or a run folder")
     sub.add_argument("--cue", default=None, help="only this cue's dictionaries (e.g. stereo)")
@@ -181,12 +204,28 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_argument("--plot", type=Path, default=None, help="also draw the error against speed into this PNG")
     sub.add_argument("--target", type=float, default=None, help="draw a target error (deg)")
 
+    sub = command("accommodation", _accommodation, accommodation.accommodation_table)
+    sub.add_argument("groups", nargs="+", help="name=run,run,...")
+    sub.add_argument("--eval", default=EVALUATION, help=f"evaluation file in each run folder (default: {EVALUATION})")
+
+    sub = command("focus-curve", _focus_curve, accommodation.focus_curve)
+    sub.add_argument("--photos", required=True, help="a folder of photographs (the choosing photographs)")
+    sub.add_argument("--out", type=Path, default=Path("docs/figures/focus_curve.png"), help="the figure (PNG)")
+    sub.add_argument("--steps", type=int, default=300, help="steps the coder learns for")
+    sub.add_argument("--batch", type=int, default=16, help="environments per step")
+    sub.add_argument("--spread", type=float, default=1.0, help="dioptres of defocus the coder learns on")
+    sub.add_argument("--aperture-m", type=float, default=0.016, help="the pupil's diameter (m)")
+    sub.add_argument("--seed", type=int, default=0)
+
+    sub = command("accommodation-policy", _accommodation_policy, accommodation.policy_table)
+    sub.add_argument("checkpoint", type=Path, help="a run's checkpoint.pt trained with the accommodation cue")
+    sub.add_argument("--textures", type=int, default=8, help="the first this many test textures")
+
     sub = command("rl", _rl, tables.rl_table)
     sub.add_argument("folder", type=Path, help="the examples' result files")
     sub.add_argument("--own", type=Path, nargs="*", default=[], help="the project's own runs")
     sub.add_argument("--default-set", default="data/choose-photos",
                      help="the set of result files written before the examples evaluated several")
-    return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
