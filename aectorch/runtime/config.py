@@ -48,6 +48,7 @@ __all__ = [
     "PerturbationEventConfig",
     "PlasticityConfig",
     "REARING",
+    "REARING_PLASTICITY",
     "RecordConfig",
     "ROLL_PERTURBATION",
     "TrainConfig",
@@ -113,9 +114,20 @@ PLASTICITY: dict[str, dict[str, Any]] = {
     "raise": {"plasticity.raise_to": 1.0},
 }
 
+#: What every rearing condition (``rearing=<name>``, ``normal`` included) sets besides its events:
+#: dotted key -> value. A stereo code that can be reared: no swap symmetry (it forces the
+#: binocularity histogram to be symmetric) and a constant dictionary rate 20x the default's start
+#: (with the default decaying 0.1, the atoms end within a cosine of 0.996-0.999 of their random
+#: start and no histogram moves; docs/sensory-coding.md, "Rearing", has the measurements).
+REARING_PLASTICITY: dict[str, Any] = {
+    "learner.cues.stereo.symmetry": None,
+    "learner.cues.stereo.encoder.decay": None,
+    "learner.cues.stereo.encoder.lr": 2.0,
+}
+
 #: The rearing conditions of the AEC lineage (Klimmasch et al. 2021, Eckmann et al. 2020), each a
-#: list of perturbation events over the whole run (``rearing=<name>``; the evaluation afterwards
-#: sees with normal eyes): name -> events.
+#: list of perturbation events over the whole run (``rearing=<name>``, which also sets
+#: :data:`REARING_PLASTICITY`; the evaluation afterwards sees with normal eyes): name -> events.
 REARING: dict[str, list[dict[str, Any]]] = {
     "normal": [],
     "monocular": [{"kind": "monocular_deprivation", "start": 0, "eye": "right", "params": {"contrast": 0.0}}],
@@ -628,7 +640,7 @@ def _nested(dotted: dict[str, Any]) -> dict:
 class _TrainNode(ExperimentConfig):
     # Hydra's defaults list: the groups apply after the schema's own values.
     defaults: list[Any] = field(default_factory=lambda: ["_self_", {"preset": "default"}, {"guard": "default"},
-                                                         {"plasticity": "decay"}, {"rearing": "normal"}])
+                                                         {"plasticity": "decay"}, {"rearing": None}])
 
 
 def register_configs() -> None:
@@ -651,5 +663,8 @@ def register_configs() -> None:
     for name, values in PLASTICITY.items():
         store.store(group="plasticity", name=name, node=_nested(values), package="_global_")
     for name, events in REARING.items():
-        # "normal" adds nothing: a run's own perturbations stay.
-        store.store(group="rearing", name=name, node={"perturbations": events} if events else {}, package="_global_")
+        # "normal" adds no events: a run's own perturbations stay.
+        node = _nested(REARING_PLASTICITY)
+        if events:
+            node["perturbations"] = events
+        store.store(group="rearing", name=name, node=node, package="_global_")
