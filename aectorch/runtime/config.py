@@ -48,7 +48,7 @@ __all__ = [
     "PerturbationEventConfig",
     "PlasticityConfig",
     "REARING",
-    "REARING_PLASTICITY",
+    "REARING_SETTINGS",
     "RecordConfig",
     "ROLL_PERTURBATION",
     "TrainConfig",
@@ -118,16 +118,19 @@ PLASTICITY: dict[str, dict[str, Any]] = {
 #: dotted key -> value. A stereo code that can be reared: no swap symmetry (it forces the
 #: binocularity histogram to be symmetric) and a constant dictionary rate 20x the default's start
 #: (with the default decaying 0.1, the atoms end within a cosine of 0.996-0.999 of their random
-#: start and no histogram moves; docs/sensory-coding.md, "Rearing", has the measurements).
-REARING_PLASTICITY: dict[str, Any] = {
+#: start and no histogram moves; docs/sensory-coding.md, "Rearing", has the measurements). The
+#: evaluation reads the final state (no ``best.pt``: a window chosen under the reared eyes is not
+#: what rearing left).
+REARING_SETTINGS: dict[str, Any] = {
     "learner.cues.stereo.symmetry": None,
     "learner.cues.stereo.encoder.decay": None,
     "learner.cues.stereo.encoder.lr": 2.0,
+    "train.keep_best": False,
 }
 
 #: The rearing conditions of the AEC lineage (Klimmasch et al. 2021, Eckmann et al. 2020), each a
 #: list of perturbation events over the whole run (``rearing=<name>``, which also sets
-#: :data:`REARING_PLASTICITY`; the evaluation afterwards sees with normal eyes): name -> events.
+#: :data:`REARING_SETTINGS`; the evaluation afterwards sees with normal eyes): name -> events.
 REARING: dict[str, list[dict[str, Any]]] = {
     "normal": [],
     "monocular": [{"kind": "monocular_deprivation", "start": 0, "eye": "right", "params": {"contrast": 0.0}}],
@@ -664,7 +667,7 @@ def register_configs() -> None:
         store.store(group="plasticity", name=name, node=_nested(values), package="_global_")
     for name, events in REARING.items():
         # "normal" adds no events: a run's own perturbations stay.
-        node = _nested(REARING_PLASTICITY)
+        node = _nested(REARING_SETTINGS)
         if events:
             node["perturbations"] = events
         store.store(group="rearing", name=name, node=node, package="_global_")
