@@ -13,6 +13,7 @@ from typing import Sequence
 from aectorch.report import accommodation, compare, tables
 from aectorch.report.adaptation import adaptation_table
 from aectorch.report.tracking import tracking_table
+from aectorch.report.rearing import plot_rearing, rearing_runs, rearing_table
 from aectorch.runs import EVALUATION, Run
 
 __all__ = ["main"]
@@ -128,6 +129,14 @@ def _accommodation_policy(args) -> list[str]:
     return accommodation.policy_table(load_learner(args.checkpoint)[1], args.textures)
 
 
+def _rearing(args) -> list[str]:
+    groups = rearing_runs(args.folder)
+    lines = rearing_table(groups, args.cue)
+    if args.plot is not None:
+        lines.append(f"wrote {plot_rearing(groups, args.plot, args.cue)}")
+    return lines
+
+
 def _rl(args) -> list[str]:
     return tables.rl_table(args.folder, [Run(run) for run in args.own], args.default_set)
 
@@ -220,6 +229,11 @@ def _experiment_commands(command) -> None:
     sub = command("accommodation-policy", _accommodation_policy, accommodation.policy_table)
     sub.add_argument("checkpoint", type=Path, help="a run's checkpoint.pt trained with the accommodation cue")
     sub.add_argument("--textures", type=int, default=8, help="the first this many test textures")
+
+    sub = command("rearing", _rearing, rearing_table)
+    sub.add_argument("folder", type=Path, help="the suite's sweep folder (python train.py -m ... hydra.sweep.dir=...)")
+    sub.add_argument("--cue", default="stereo", help="the cue whose dictionaries are read out (default: stereo)")
+    sub.add_argument("--plot", type=Path, default=None, help="also draw the suite's figure into this PNG")
 
     sub = command("rl", _rl, tables.rl_table)
     sub.add_argument("folder", type=Path, help="the examples' result files")

@@ -1,0 +1,275 @@
+"""The rearing suite as one table and one figure (``python -m aectorch.report rearing <sweep folder>``).
+
+The suite is ``python train.py -m seed=0,1,2 rearing=normal,monocular,...`` (docs/sensory-coding.md,
+"Rearing"): one run folder per condition and seed. Each run's condition is read from its own
+``config.yaml``: the run's ``perturbations`` are those of one of the conditions of
+:data:`aectorch.runtime.config.REARING`. Everything else comes from its ``summary.json``, through
+`aectorch.runs.Run`: the learned code's read-outs (`aectorch.coding.readouts.code_summary`, per
+dictionary), the evaluation (normal eyes, the final state), the final training window and the
+read-out of the correction (the anisometropia conditions' event ends), and the training time.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import statistics
+from pathlib import Path
+from typing import Mapping, Sequence
+
+from aectorch.runs import Run
+from aectorch.runtime.config import REARING
+
+__all__ = ["DOMINANCE", "code_numbers", "rearing_condition", "rearing_runs", "rearing_rows", "rearing_table",
+           "plot_rearing"]
+
+#: An atom is dominated by one eye when its binocularity index is beyond this (Hubel and Wiesel's
+#: ocular-dominance groups 1-2 and 6-7 of seven bins: |index| > 3/7).
+DOMINANCE = 3 / 7
+#: The orientation bins (their centres, deg: 0 horizontal stripes, 90 vertical) the orientation
+#: columns report.
+REARED_DEG = {"vertical": 90.0, "horizontal": 0.0}
+_EVENT_FIELDS = ("kind", "start", "end", "eye", "params")
+
+
+def _events(events: Sequence[Mapping]) -> list[tuple]:
+    return [tuple(repr(event.get(key)) if key == "params" else event.get(key) for key in _EVENT_FIELDS)
+            for event in events]
+
+
+def rearing_condition(config: Mapping) -> str:
+    """The rearing condition (a name of :data:`REARING`) whose events are a run config's
+    ``perturbations``; a run without perturbations is ``normal``.
+
+    Raises:
+        ValueError: the perturbations are those of no condition (named in the message).
+
+    Example:
+        >>> rearing_condition({"perturbations": [{"kind": "strabismus", "start": 0, "eye": "right",
+        ...                                       "params": {"deg": 10.0}, "label": None}]})
+        'strabismus'
+    """
+    events = _events(config.get("perturbations") or [])
+    for name, condition in REARING.items():
+        if events == _events(condition):
+            return name
+    raise ValueError(f"perturbations {config.get('perturbations')!r} are those of no rearing condition "
+                     f"({', '.join(REARING)})")
+
+
+def rearing_runs(folder: str | os.PathLike) -> dict[str, list[Run]]:
+    """The run folders of a suite (``folder`` and the folders in it that hold a ``summary.json``), by
+    condition in :data:`REARING`'s order, each list by seed.
+
+    Raises:
+        FileNotFoundError: ``folder`` holds no finished run.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"sweep folder {str(folder)!r}: no such folder")
+    paths = [folder] if (folder / "summary.json").is_file() else sorted(
+        p for p in folder.iterdir() if (p / "summary.json").is_file())
+    if not paths:
+        raise FileNotFoundError(f"{folder} holds no finished run (no */summary.json)")
+    groups: dict[str, list[Run]] = {}
+    for run in map(Run, paths):
+        groups.setdefault(rearing_condition(run.config), []).append(run)
+    return {name: sorted(groups[name], key=lambda r: r.config.get("seed", 0)) for name in REARING if name in groups}
+
+
+def code_numbers(readout: Mapping) -> dict[str, float]:
+    """One dictionary's read-out (`code_summary`) as the table's numbers: the mean absolute
+    binocularity index, the shares of the atoms dominated by the left and by the right eye
+    (:data:`DOMINANCE`) and the shares preferring vertical and horizontal stripes (the orientation
+    bins centred on :data:`REARED_DEG`).
+
+    Example:
+        >>> import torch
+        >>> from aectorch.coding.readouts import code_summary
+        >>> atoms = torch.randn(200, 8, generator=torch.Generator().manual_seed(0))
+        >>> atoms[100:] = 0                      # the right halves: left-eye atoms only
+        >>> numbers = code_numbers(code_summary(atoms))
+        >>> numbers["mean_abs_index"], numbers["left"], numbers["right"]
+        (1.0, 1.0, 0.0)
+    """
+    binocularity, orientation = readout["binocularity"], readout["orientation"]
+    counts, edges = binocularity["counts"], binocularity["edges"]
+    total = max(1, sum(counts))
+    left = sum(c for c, high in zip(counts, edges[1:]) if high <= -DOMINANCE + 1e-6)
+    right = sum(c for c, low in zip(counts, edges[:-1]) if low >= DOMINANCE - 1e-6)
+    out = {"mean_abs_index": float(binocularity["mean_abs_index"]), "left": left / total, "right": right / total}
+    o_counts, centres = orientation["counts"], orientation["centres_deg"]
+    o_total = max(1, sum(o_counts))
+    for name, deg in REARED_DEG.items():
+        out[name] = sum(c for c, centre in zip(o_counts, centres) if abs(centre - deg) < 1e-6) / o_total
+    return out
+
+
+def _correction(summary: Mapping) -> dict | None:
+    """The vergence read-out of an event's end (a correction), or None without one."""
+    recovery = (summary.get("perturbation") or {}).get("recovery") or {}
+    ends = [entry for label, entry in recovery.items() if label.endswith(" ends")]
+    if not ends:
+        return None
+    vergence = ends[0]["vergence"]
+    return {"iteration": ends[0]["iteration"], "before": vergence["before"], "final": vergence["final"],
+            "iterations_to_recover": vergence["iterations_to_recover"]}
+
+
+def rearing_rows(groups: Mapping[str, Sequence[Run]], cue: str = "stereo") -> list[dict]:
+    """One row per run: its condition and seed, its training time, :func:`code_numbers` of each of
+    ``cue``'s dictionaries (``"code"``, and ``"initial"`` of its start), the evaluation's and the
+    final training window's vergence MAE and the correction's read-out (`_correction`)."""
+    rows = []
+    for name, runs in groups.items():
+        for run in runs:
+            summary = run.summary
+            code = {k.split("/", 1)[1]: code_numbers(v) for k, v in run.code.items()
+                    if k != "initial" and k.startswith(f"{cue}/")}
+            initial = {k.split("/", 1)[1]: code_numbers(v) for k, v in run.code.get("initial", {}).items()
+                       if k.startswith(f"{cue}/")}
+            if not code:
+                raise KeyError(f"{run.path / 'summary.json'} has no read-outs of the {cue!r} cue's dictionaries")
+            rows.append({"condition": name, "seed": run.config.get("seed"), "run": str(run.path),
+                         "train_seconds": float(summary["train_seconds"]), "code": code, "initial": initial,
+                         "code_raw": {k.split("/", 1)[1]: v for k, v in run.code.items() if k.startswith(f"{cue}/")},
+                         "vergence_eval": (summary.get("evaluation") or {}).get("vergence_mae_deg"),
+                         "vergence_window": summary["final"].get("vergence_mae_deg"),
+                         "correction": _correction(summary)})
+    return rows
+
+
+def _mean(values: Sequence) -> float:
+    values = [v for v in values if v is not None and math.isfinite(v)]
+    return statistics.fmean(values) if values else math.nan
+
+
+def _cell(values: Sequence, spec: str = ".3f", percent: bool = False) -> str:
+    values = [100 * v if percent else v for v in values if v is not None and math.isfinite(v)]
+    if not values:
+        return "-"
+    text = format(statistics.fmean(values), spec)
+    return text if len(values) == 1 else f"{text} ({format(min(values), spec)}-{format(max(values), spec)})"
+
+
+def rearing_table(groups: Mapping[str, Sequence[Run]], cue: str = "stereo") -> list[str]:
+    """The rearing suite's tables: per condition and ``cue`` dictionary (scale), the mean absolute
+    binocularity index, the shares of left- and right-dominated atoms (|index| > 3/7) and of atoms
+    preferring vertical (90 deg) and horizontal (0 deg) stripes; then per condition the vergence
+    MAE of the evaluation (normal eyes, the final state) and of the final training window, the
+    correction's read-out (the short training window when the anisometropia is corrected, and at
+    the end) and the training time. Cells are means over the seeds (smallest-largest); the random
+    start's mean index is in square brackets. The last line is the suite's total training time
+    (``summary.json``'s ``train_seconds`` summed over the runs)."""
+    rows = rearing_rows(groups, cue)
+    lines = ["| condition (runs) | dictionary | mean abs. binocularity index [start] | left-dominated % "
+             "| right-dominated % | vertical % | horizontal % |", "|---|---|---|---|---|---|---|"]
+    for name in groups:
+        mine = [r for r in rows if r["condition"] == name]
+        for scale in mine[0]["code"]:
+            code = [r["code"][scale] for r in mine]
+            start = _mean([r["initial"].get(scale, {}).get("mean_abs_index") for r in mine])
+            lines.append(f"| {name} ({len(mine)}) | {cue}/{scale} | {_cell([c['mean_abs_index'] for c in code])} "
+                         f"[{start:.3f}] | {_cell([c['left'] for c in code], '.0f', True)} | "
+                         f"{_cell([c['right'] for c in code], '.0f', True)} | "
+                         f"{_cell([c['vertical'] for c in code], '.0f', True)} | "
+                         f"{_cell([c['horizontal'] for c in code], '.0f', True)} |")
+    lines += ["", "| condition (runs) | vergence MAE, evaluation (deg) | final training window (deg) "
+              "| correction: window at it -> at the end (deg) | training (s per run) |", "|---|---|---|---|---|"]
+    for name in groups:
+        mine = [r for r in rows if r["condition"] == name]
+        fixes = [r["correction"] for r in mine if r["correction"] is not None]
+        fix = "-" if not fixes else f"{_cell([f['before'] for f in fixes])} -> {_cell([f['final'] for f in fixes])}"
+        lines.append(f"| {name} ({len(mine)}) | {_cell([r['vergence_eval'] for r in mine])} | "
+                     f"{_cell([r['vergence_window'] for r in mine])} | {fix} | "
+                     f"{_cell([r['train_seconds'] for r in mine], '.0f')} |")
+    total = sum(r["train_seconds"] for r in rows)
+    lines += ["", f"suite: {len(rows)} runs, training {total / 60:.1f} min in all ({total:.0f} s; "
+              f"summary.json's train_seconds summed)"]
+    return lines
+
+
+def plot_rearing(groups: Mapping[str, Sequence[Run]], path: str | os.PathLike, cue: str = "stereo") -> Path:
+    """The rearing suite in one figure: per ``cue`` dictionary (row) and condition (column) the
+    binocularity histogram (share of the atoms per bin, the mean over the seeds; bars: smallest
+    to largest run; grey outline: the random start), then the vergence MAE at the end (evaluation
+    with normal eyes, and the final training window) per condition, and the short training
+    window's vergence when the anisometropia is corrected and at the end."""
+    rows = rearing_rows(groups, cue)
+    names = list(groups)
+    scales = list(rows[0]["code_raw"])
+    fig = _figure(len(scales), len(names))
+    grid = fig.add_gridspec(len(scales) + 1, len(names) * 2, height_ratios=[1] * len(scales) + [1.4])
+    for i, scale in enumerate(scales):
+        for j, name in enumerate(names):
+            ax = fig.add_subplot(grid[i, 2 * j:2 * j + 2])
+            _histogram(ax, [r for r in rows if r["condition"] == name], scale)
+            if i == 0:
+                ax.set_title(name, fontsize=9)
+            if j == 0:
+                ax.set_ylabel(f"{cue}/{scale}\nshare of atoms", fontsize=8)
+    _vergence_panel(fig.add_subplot(grid[len(scales), :len(names)]), rows, names)
+    _correction_panel(fig.add_subplot(grid[len(scales), len(names):]), rows, names)
+    fig.suptitle("Rearing: the binocularity index (R - L) / (R + L) of the learned code's atoms,\n"
+                 "vergence at the end and after the correction")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    return path
+
+
+def _figure(rows: int, columns: int):
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=(2.1 * columns + 1, 1.7 * rows + 3.2), layout="constrained")
+
+
+def _histogram(ax, rows: Sequence[dict], scale: str) -> None:
+    import numpy as np
+
+    entries = [r["code_raw"][scale]["binocularity"] for r in rows]
+    edges = np.asarray(entries[0]["edges"], dtype=float)
+    shares = np.array([np.asarray(e["counts"], float) / max(1.0, float(np.sum(e["counts"]))) for e in entries])
+    mean = shares.mean(0)
+    ax.bar(edges[:-1], mean, width=np.diff(edges), align="edge", color="tab:blue", alpha=0.8,
+           yerr=np.stack([mean - shares.min(0), shares.max(0) - mean]), error_kw={"linewidth": 0.7},
+           ecolor="black")
+    ax.set_xlim(-1, 1)
+    ax.set_ylim(0, 1.05)
+    ax.tick_params(labelsize=6)
+    ax.text(0.02, 0.95, f"|i| {statistics.fmean(e['mean_abs_index'] for e in entries):.2f}", fontsize=7,
+            transform=ax.transAxes, va="top")
+
+
+def _vergence_panel(ax, rows: Sequence[dict], names: Sequence[str]) -> None:
+    for j, name in enumerate(names):
+        mine = [r for r in rows if r["condition"] == name]
+        for offset, key, color, label in ((-0.15, "vergence_eval", "tab:blue", "evaluation (normal eyes)"),
+                                          (0.15, "vergence_window", "tab:orange", "final training window")):
+            values = [r[key] for r in mine if r[key] is not None]
+            ax.bar(j + offset, _mean(values), width=0.3, color=color, alpha=0.6, label=label if j == 0 else None)
+            ax.plot([j + offset] * len(values), values, "k.", markersize=3)
+    ax.set_xticks(range(len(names)), names, rotation=30, fontsize=7, ha="right")
+    ax.set_yscale("log")
+    ax.set_ylabel("vergence MAE (deg)", fontsize=8)
+    ax.set_title("vergence at the end (dots: seeds)", fontsize=9)
+    ax.legend(fontsize=7)
+
+
+def _correction_panel(ax, rows: Sequence[dict], names: Sequence[str]) -> None:
+    fixed = [name for name in names if any(r["correction"] for r in rows if r["condition"] == name)]
+    for j, name in enumerate(fixed):
+        mine = [r["correction"] for r in rows if r["condition"] == name and r["correction"]]
+        for k, (key, color, label) in enumerate((("before", "tab:red", "at the correction"),
+                                                 ("final", "tab:green", "at the end"))):
+            values = [m[key] for m in mine if m[key] is not None]
+            ax.bar(j + (k - 0.5) * 0.3, _mean(values), width=0.3, color=color, alpha=0.6,
+                   label=label if j == 0 else None)
+            ax.plot([j + (k - 0.5) * 0.3] * len(values), values, "k.", markersize=3)
+    if not fixed:
+        ax.text(0.5, 0.5, "no correction in these runs", ha="center", transform=ax.transAxes)
+    ax.set_xticks(range(len(fixed)), fixed, fontsize=7)
+    ax.set_ylabel("vergence, short training window (deg)", fontsize=8)
+    ax.set_title("recovery after the correction (dots: seeds)", fontsize=9)
+    if fixed:
+        ax.legend(fontsize=7)

@@ -1,0 +1,81 @@
+"""python -m aectorch.report rearing: the rearing suite's table and figure, on constructed run folders."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from aectorch.coding.readouts import code_summary
+from aectorch.report.__main__ import main
+from aectorch.report.rearing import code_numbers, rearing_condition, rearing_runs
+from aectorch.runtime.config import REARING
+
+
+def _atoms(seed: int, eye: str | None) -> torch.Tensor:
+    """16 atoms of 4 x 4 halves: binocular (both halves noise) or of one eye only."""
+    atoms = torch.randn(32, 16, generator=torch.Generator().manual_seed(seed))
+    if eye == "left":
+        atoms[16:] = 0
+    elif eye == "right":
+        atoms[:16] = 0
+    return atoms
+
+
+def _run(folder: Path, condition: str, seed: int, eye: str | None, seconds: float, correction=None) -> Path:
+    folder.mkdir(parents=True)
+    OmegaConf.save(OmegaConf.create({"seed": seed, "perturbations": REARING[condition]}), folder / "config.yaml")
+    summary = {"train_seconds": seconds, "final": {"vergence_mae_deg": 0.5 + seed},
+               "evaluation": {"vergence_mae_deg": 0.1 * (seed + 1)},
+               "code": {f"{cue}/fine": code_summary(_atoms(seed, eye)) for cue in ("parallax", "stereo")},
+               "code_initial": {"stereo/fine": code_summary(_atoms(seed + 10, None))}}
+    if correction is not None:
+        vergence = {"before": correction[0], "final": correction[1], "iterations_to_recover": 40}
+        summary["perturbation"] = {"recovery": {"right eye blurred, corrected early ends": {
+            "iteration": 600, "vergence": vergence}}}
+    (folder / "summary.json").write_text(json.dumps(summary))
+    return folder
+
+
+def test_the_table_reads_each_condition_from_its_runs(tmp_path, capsys):
+    _run(tmp_path / "normal_s0", "normal", 0, None, 100.0)
+    _run(tmp_path / "normal_s1", "normal", 1, None, 110.0)
+    _run(tmp_path / "monocular_s0", "monocular", 0, "left", 120.0)
+    _run(tmp_path / "anisometropia_early_s0", "anisometropia_early", 0, None, 130.0, correction=(2.0, 0.3))
+    (tmp_path / "unfinished").mkdir()  # no summary.json: not a run of the suite
+    plot = tmp_path / "out" / "rearing.png"
+    assert main(["rearing", str(tmp_path), "--plot", str(plot)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    # Conditions in REARING's order, one row per stereo dictionary; the left-eye atoms are all
+    # left-dominated, with index exactly -1.
+    assert out[2].startswith("| normal (2) | stereo/fine | ") and "| 0 (0-0) | 0 (0-0) |" in out[2]
+    assert out[3].startswith("| monocular (1) | stereo/fine | 1.000 [") and "| 100 | 0 |" in out[3]
+    assert out[4].startswith("| anisometropia_early (1) | stereo/fine |")
+    assert out[8] == "| normal (2) | 0.150 (0.100-0.200) | 1.000 (0.500-1.500) | - | 105 (100-110) |"
+    assert out[10] == "| anisometropia_early (1) | 0.100 | 0.500 | 2.000 -> 0.300 | 130 |"
+    assert out[12] == "suite: 4 runs, training 7.7 min in all (460 s; summary.json's train_seconds summed)"
+    assert out[13] == f"wrote {plot}" and plot.stat().st_size > 10_000
+
+
+def test_a_run_of_no_condition_is_named(tmp_path, capsys):
+    folder = _run(tmp_path / "odd", "normal", 0, None, 1.0)
+    OmegaConf.save(OmegaConf.create({"perturbations": [{"kind": "roll", "start": 0, "eye": "right",
+                                                        "params": {"deg": 3.0}}]}), folder / "config.yaml")
+    assert main(["rearing", str(tmp_path)]) == 2
+    assert "are those of no rearing condition" in capsys.readouterr().err
+    assert main(["rearing", str(tmp_path / "missing")]) == 2
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(FileNotFoundError, match="holds no finished run"):
+        rearing_runs(tmp_path / "empty")
+
+
+def test_every_condition_is_recognised_and_the_shares_count_the_bins():
+    for name, events in REARING.items():
+        assert rearing_condition({"perturbations": [{**e, "label": "ignored"} for e in events]}) == name
+    numbers = code_numbers(code_summary(_atoms(0, "right")))
+    assert (numbers["mean_abs_index"], numbers["left"], numbers["right"]) == (1.0, 0.0, 1.0)
+    balanced = code_numbers(code_summary(torch.cat([_atoms(1, "left")[:16]] * 2)))
+    assert (balanced["mean_abs_index"], balanced["left"], balanced["right"]) == (0.0, 0.0, 0.0)
