@@ -365,9 +365,14 @@ def test_every_rearing_condition_runs(tmp_path, folder):
     register_configs()
     small = [*TINY, f"env.textures={folder}", "env.num_envs=2", "env.fixation_iterations=2", "train.iterations=4"]
     with initialize(version_base=None, config_path=None):
+        plain = to_experiment_config(compose(config_name="train", overrides=small))
+        assert plain.learner.cues["stereo"].symmetry == "swap" and plain.learner.cues["stereo"].encoder.decay == 500
         for name in REARING:
             cfg = to_experiment_config(compose(config_name="train", overrides=[*small, f"rearing={name}"]))
             assert len(cfg.events()) == len(REARING[name])
+            # Every condition rears a plastic stereo code without the swap symmetry (REARING_SETTINGS).
+            stereo = cfg.learner.cues["stereo"]
+            assert (stereo.symmetry, stereo.encoder.decay, stereo.encoder.lr, cfg.train.keep_best) == (None, None, 2.0, False)
             run_experiment(cfg, tmp_path / name)
             assert (tmp_path / name / "checkpoint.pt").is_file()
 
