@@ -52,7 +52,7 @@ def test_the_table_reads_each_condition_from_its_runs(tmp_path, capsys):
     # Conditions in REARING's order, one row per stereo dictionary; the left-eye atoms are all
     # left-dominated, with index exactly -1.
     assert out[2].startswith("| normal (2) | stereo/fine | ") and "| 0 (0-0) | 0 (0-0) |" in out[2]
-    assert out[3].startswith("| monocular (1) | stereo/fine | 1.000 [") and "| 100 | 0 |" in out[3]
+    assert out[3].startswith("| monocular (1) | stereo/fine | 1.000 [") and "| -0.86 | 100 | 0 |" in out[3]
     assert out[4].startswith("| anisometropia_early (1) | stereo/fine |")
     assert out[8] == "| normal (2) | 0.150 (0.100-0.200) | 1.000 (0.500-1.500) | - | 105 (100-110) |"
     assert out[10] == "| anisometropia_early (1) | 0.100 | 0.500 | 2.000 -> 0.300 | 130 |"
@@ -77,5 +77,6 @@ def test_every_condition_is_recognised_and_the_shares_count_the_bins():
         assert rearing_condition({"perturbations": [{**e, "label": "ignored"} for e in events]}) == name
     numbers = code_numbers(code_summary(_atoms(0, "right")))
     assert (numbers["mean_abs_index"], numbers["left"], numbers["right"]) == (1.0, 0.0, 1.0)
+    assert numbers["mean_index"] == pytest.approx(6 / 7)  # the last bin's centre
     balanced = code_numbers(code_summary(torch.cat([_atoms(1, "left")[:16]] * 2)))
     assert (balanced["mean_abs_index"], balanced["left"], balanced["right"]) == (0.0, 0.0, 0.0)

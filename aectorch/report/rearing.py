@@ -79,7 +79,8 @@ def rearing_runs(folder: str | os.PathLike) -> dict[str, list[Run]]:
 
 def code_numbers(readout: Mapping) -> dict[str, float]:
     """One dictionary's read-out (`code_summary`) as the table's numbers: the mean absolute
-    binocularity index, the shares of the atoms dominated by the left and by the right eye
+    binocularity index, its signed mean from the histogram's bin centres (< 0: leaning to the left
+    eye), the shares of the atoms dominated by the left and by the right eye
     (:data:`DOMINANCE`) and the shares preferring vertical and horizontal stripes (the orientation
     bins centred on :data:`REARED_DEG`).
 
@@ -97,7 +98,10 @@ def code_numbers(readout: Mapping) -> dict[str, float]:
     total = max(1, sum(counts))
     left = sum(c for c, high in zip(counts, edges[1:]) if high <= -DOMINANCE + 1e-6)
     right = sum(c for c, low in zip(counts, edges[:-1]) if low >= DOMINANCE - 1e-6)
-    out = {"mean_abs_index": float(binocularity["mean_abs_index"]), "left": left / total, "right": right / total}
+    # The signed mean, from the bins' centres (the summary keeps the histogram, not each atom's index).
+    signed = sum(c * (low + high) / 2 for c, low, high in zip(counts, edges[:-1], edges[1:])) / total
+    out = {"mean_abs_index": float(binocularity["mean_abs_index"]), "mean_index": signed, "left": left / total,
+           "right": right / total}
     o_counts, centres = orientation["counts"], orientation["centres_deg"]
     o_total = max(1, sum(o_counts))
     for name, deg in REARED_DEG.items():
@@ -154,7 +158,8 @@ def _cell(values: Sequence, spec: str = ".3f", percent: bool = False) -> str:
 
 def rearing_table(groups: Mapping[str, Sequence[Run]], cue: str = "stereo") -> list[str]:
     """The rearing suite's tables: per condition and ``cue`` dictionary (scale), the mean absolute
-    binocularity index, the shares of left- and right-dominated atoms (|index| > 3/7) and of atoms
+    binocularity index, its signed mean (from the bins), the shares of left- and right-dominated
+    atoms (|index| > 3/7) and of atoms
     preferring vertical (90 deg) and horizontal (0 deg) stripes; then per condition the vergence
     MAE of the evaluation (normal eyes, the final state) and of the final training window, the
     correction's read-out (the short training window when the anisometropia is corrected, and at
@@ -162,15 +167,16 @@ def rearing_table(groups: Mapping[str, Sequence[Run]], cue: str = "stereo") -> l
     start's mean index is in square brackets. The last line is the suite's total training time
     (``summary.json``'s ``train_seconds`` summed over the runs)."""
     rows = rearing_rows(groups, cue)
-    lines = ["| condition (runs) | dictionary | mean abs. binocularity index [start] | left-dominated % "
-             "| right-dominated % | vertical % | horizontal % |", "|---|---|---|---|---|---|---|"]
+    lines = ["| condition (runs) | dictionary | mean abs. binocularity index [start] | mean index | left-dominated % "
+             "| right-dominated % | vertical % | horizontal % |", "|---|---|---|---|---|---|---|---|"]
     for name in groups:
         mine = [r for r in rows if r["condition"] == name]
         for scale in mine[0]["code"]:
             code = [r["code"][scale] for r in mine]
             start = _mean([r["initial"].get(scale, {}).get("mean_abs_index") for r in mine])
             lines.append(f"| {name} ({len(mine)}) | {cue}/{scale} | {_cell([c['mean_abs_index'] for c in code])} "
-                         f"[{start:.3f}] | {_cell([c['left'] for c in code], '.0f', True)} | "
+                         f"[{start:.3f}] | {_cell([c['mean_index'] for c in code], '+.2f')} | "
+                         f"{_cell([c['left'] for c in code], '.0f', True)} | "
                          f"{_cell([c['right'] for c in code], '.0f', True)} | "
                          f"{_cell([c['vertical'] for c in code], '.0f', True)} | "
                          f"{_cell([c['horizontal'] for c in code], '.0f', True)} |")
