@@ -224,3 +224,31 @@ def test_offset_sweep_reads_the_cues_reward_and_greedy_increment_off_the_optimum
     x = torch.linspace(-1, 1, 101, dtype=torch.float64)
     bang = torch.where(x <= 0, 0.2, -0.2)[None].repeat(2, 1)
     assert limit_cycle(x, bang).tolist() == pytest.approx([0.1, 0.1], abs=0.01)
+
+
+def test_the_rows_hold_the_texture_statistics_of_each_trials_first_view():
+    """A flat texture has no energy at any of the coder's scales and no contrast; a noise texture
+    has both, more at the fine scales (white noise) and with four times the energy at double the
+    contrast. The statistics are of the view at the trial's start, whatever the learner does."""
+    g = torch.Generator().manual_seed(0)
+    noise = torch.rand(64, 64, generator=g)
+    noise = noise - noise.mean()
+    bank = TextureBank(torch.stack((torch.full((64, 64), 0.5), 0.5 + 0.2 * noise, 0.5 + 0.4 * noise)),
+                       names=["flat", "noise", "noise x2"])
+    learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=32))),
+                           generator=torch.Generator().manual_seed(0))
+    result = evaluate(learner, bank, distances_m=[1.0, 2.0], batch_size=6, fixation_iterations=2, vergence_test=False)
+    rows = {(r["texture"], r["distance_m"]): r for r in result["per_trial"]}
+    keys = ["view_contrast", *(f"view_energy_{s}" for s in ("wide", "coarse", "fine", "full"))]
+    for (texture, _), row in rows.items():
+        assert all(isinstance(row[k], float) for k in keys), row
+        if texture == "flat":
+            assert all(abs(row[k]) < 1e-6 for k in keys), row  # float32 rounding
+        else:
+            assert row["view_contrast"] > 0.02 and all(row[k] > 1e-6 for k in keys[1:]), row
+            assert row["view_energy_full"] > row["view_energy_wide"]
+    for d in (1.0, 2.0):
+        single, double = rows["noise", d], rows["noise x2", d]
+        # (the contrast divides by the mean intensity of the part of the texture in view)
+        assert double["view_contrast"] == pytest.approx(2 * single["view_contrast"], rel=0.05)
+        assert double["view_energy_fine"] == pytest.approx(4 * single["view_energy_fine"], rel=1e-3)

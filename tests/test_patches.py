@@ -504,3 +504,32 @@ def test_encoder_reads_images_at_each_scales_resolution():
     torch.testing.assert_close(window.features, whole.features, rtol=0, atol=0)
     torch.testing.assert_close(reduced.features, whole.features)
     torch.testing.assert_close(reduced.reward, whole.reward)
+
+
+# --------------------------------------------------------------------------- patch_energy
+
+
+@pytest.mark.parametrize("scale", [WIDE, COARSE, FINE, FULL], ids=lambda s: s.name)
+def test_patch_energy_is_zero_on_a_flat_image_and_the_patch_variance_otherwise(scale):
+    from aectorch.coding.patches import patch_energy
+
+    side = scale.side
+    flat = torch.full((3, 2, side, side), 0.37, dtype=torch.float64)
+    assert patch_energy(flat, scale).abs().max().item() < 1e-24
+    # A linear ramp along x, 1 grey level per pixel: every patch row is p consecutive values,
+    # whose variance is (p^2 - 1) / 12, whatever the patch's place.
+    p = scale.patch_size
+    ramp = torch.arange(side, dtype=torch.float64).expand(1, 2, side, side) / side
+    assert patch_energy(ramp, scale).item() == pytest.approx((p * p - 1) / 12 / side**2)
+    # Oracle: numpy over the scale's own grid, on noise; energy scales with contrast squared.
+    noise = torch.rand(2, 2, side, side, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    x = noise.numpy()
+    g, s, o = scale.grid, scale.stride, scale.offset
+    want = [np.mean([x[b, k, o + i * s:o + i * s + p, o + j * s:o + j * s + p].var()
+                     for k in range(2) for i in range(g) for j in range(g)]) for b in range(2)]
+    np.testing.assert_allclose(patch_energy(noise, scale).numpy(), want, rtol=1e-12)
+    np.testing.assert_allclose(patch_energy(0.5 + 0.1 * noise, scale).numpy(), np.array(want) * 0.01, rtol=1e-9)
+    # One image per row ([B, side, side]) is the same as K = 1.
+    assert torch.equal(patch_energy(noise[:, 0], scale), patch_energy(noise[:, :1], scale))
+    with pytest.raises(ValueError, match=f"pair at scale '{scale.name}'"):
+        patch_energy(torch.zeros(1, 2, side + 1, side + 1), scale)

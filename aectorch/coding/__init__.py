@@ -9,7 +9,8 @@ from aectorch.coding.dictionary import (
 )
 from aectorch.coding.encoder import BinocularEncoder, EncoderConfig, EncoderOutput
 from aectorch.coding.patches import (
-    COARSE, DEFAULT_SCALES, FINE, FULL, WIDE, WINDOW, FovealPatches, Scale, extract_patches, patch_permutation,
+    COARSE, DEFAULT_SCALES, FINE, FULL, WIDE, WINDOW, FovealPatches, Scale, extract_patches, patch_energy,
+    patch_permutation,
     pyramid_down, reduced_patches, scale_patches, window_patches,
 )
 from aectorch.coding.pursuit import gram_matrix, matching_pursuit, omp, use_backend
@@ -45,6 +46,7 @@ __all__ = [
     "omp",
     "orientation_histogram",
     "orientation_preference",
+    "patch_energy",
     "patch_permutation",
     "pooled_activity",
     "preferred_disparity",

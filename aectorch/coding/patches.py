@@ -34,6 +34,7 @@ __all__ = [
     "scale_patches",
     "window_patches",
     "patch_permutation",
+    "patch_energy",
     "FovealPatches",
 ]
 
@@ -447,6 +448,48 @@ def scale_patches(pair: Tensor, scale: Scale | str, *, eps: float = 1e-8) -> Ten
                          f"downsample {scale.downsample}), got {tuple(pair.shape)}")
     b = pair.shape[0]
     return _cut(pair.reshape(2 * b, 1, side, side), scale, b, eps)
+
+
+def patch_energy(pair: Tensor, scale: Scale | str) -> Tensor:
+    """The energy the coder's normalisation divides out: each image's patches at ``scale``, made
+    zero-mean, their mean square per pixel, averaged over the patch grid and the images.
+
+    The coder sees every patch half at unit norm, so a view of little texture (a flat background,
+    a blurred region) reaches it as amplified rendering noise; this is how much contrast there
+    was to see at each scale. A flat image gives 0 (up to rounding); an image ``a x`` gives
+    ``a^2`` times the energy of ``x``.
+
+    Args:
+        pair: images at the scale's resolution ``[B, K, side, side]`` (K images per row, e.g. the
+            two of a stereo pair; ``ActiveDepthEnv.stereo_observation(scales=...)``), or
+            ``[B, side, side]``.
+        scale: the scale (its patch grid: size, stride, offset).
+
+    Returns:
+        ``[B]``: the mean over the K images and the grid of ``|patch - mean(patch)|^2 / patch_size^2``
+        (intensity units squared).
+
+    Example:
+        >>> flat = torch.full((2, 2, 16, 16), 0.5)
+        >>> patch_energy(flat, "coarse")
+        tensor([0., 0.])
+        >>> stripes = torch.arange(16.).remainder(2).expand(1, 2, 16, 16)  # 0, 1, 0, 1, ...
+        >>> patch_energy(stripes, "coarse")
+        tensor([0.2500])
+    """
+    scale = as_scale(scale)
+    side = scale.side
+    if pair.dim() == 3:
+        pair = pair.unsqueeze(1)
+    if pair.dim() != 4 or tuple(pair.shape[-2:]) != (side, side):
+        raise ValueError(f"pair at scale {scale.name!r} must be [B, K, {side}, {side}] or [B, {side}, {side}] "
+                         f"(crop {scale.crop} / downsample {scale.downsample}), got {tuple(pair.shape)}")
+    o, p = scale.offset, scale.patch_size
+    crop = pair[..., o:side - o, o:side - o] if o else pair
+    tiles = crop.unfold(-2, p, scale.stride).unfold(-2, p, scale.stride)  # [B, K, g, g, p, p]
+    halves = tiles.reshape(*pair.shape[:2], -1, p * p)
+    centred = halves - halves.mean(dim=-1, keepdim=True)
+    return centred.square().mean(dim=-1).mean(dim=(1, 2))
 
 
 def _cut(reduced: Tensor, scale: Scale, b: int, eps: float) -> Tensor:

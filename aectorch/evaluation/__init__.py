@@ -21,7 +21,10 @@ whether the policy stops at the target). :func:`adaptation` reads a perturbed ru
 its metrics (`adaptation.py`). `aectorch.baselines.Matcher`, a classical
 cross-correlation matcher, runs through the same trials as the accuracy anchor.
 
-The library (`summary.py`, `trials.py`, `evaluation.py`) needs only the framework and the
+Each trial also records what its eyes saw at its start (`views.py`: the contrast and the energy at
+each of the coder's scales), so that a failed trial can be explained by its view.
+
+The library (`summary.py`, `trials.py`, `evaluation.py`, `views.py`) needs only the framework and the
 simulation; the command line, on a checkpoint written by ``train.py``, is `__main__.py`::
 
     python -m aectorch.evaluate checkpoint=outputs/run/checkpoint.pt textures=photos/ out=eval.json
@@ -34,7 +37,8 @@ from aectorch.evaluation.summary import (
     BEYOND_DEG, LAST_ITERATIONS, WITHIN_DEG, fractions, movements, per_trial_rows, summarise,
 )
 from aectorch.evaluation.trials import EVAL_BATCH_SIZE, frozen_iterations, run_trials
+from aectorch.evaluation.views import view_statistics
 
 __all__ = ["BEYOND_DEG", "EVAL_BATCH_SIZE", "LAST_ITERATIONS", "WITHIN_DEG", "adaptation", "evaluate", "fractions",
            "frozen_iterations", "limit_cycle", "movements", "offset_summary", "offset_sweep", "per_trial_rows",
-           "recovery_of", "run_trials", "summarise"]
+           "recovery_of", "run_trials", "summarise", "view_statistics"]

@@ -8,6 +8,8 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
+from aectorch.evaluation.views import VIEW_PREFIX
+
 __all__ = ["BEYOND_DEG", "LAST_ITERATIONS", "LAST_SUFFIX", "WITHIN_DEG", "fractions", "movements", "per_trial_rows",
            "summarise"]
 
@@ -57,7 +59,9 @@ def per_trial_rows(trials: dict[str, Tensor], names: Sequence[str]) -> list[dict
     movement's signed error of its final state (the end of its second, rightward fixation,
     ``<movement>_error_deg``), plus both fixation ends' errors as ``[leftward, rightward]``
     (``<movement>_errors_deg``); and the same for the mean of each fixation's last 5 iterations
-    (``<movement>_error_last5_deg``, ``<movement>_errors_last5_deg``) where the trials have it."""
+    (``<movement>_error_last5_deg``, ``<movement>_errors_last5_deg``) where the trials have it;
+    and the texture statistics of the view at the trial's start (``view_contrast``,
+    ``view_energy_<scale>``; `aectorch.evaluation.views`) where the trials have them."""
     rows = []
     moves = movements(trials)
     for i in range(trials["distance_m"].numel()):
@@ -70,6 +74,7 @@ def per_trial_rows(trials: dict[str, Tensor], names: Sequence[str]) -> list[dict
         row["depth_error_m"] = depth if math.isfinite(depth) else None
         row.update({f"{m}_errors_deg": e for m, e in ends.items()})
         row.update({f"{m}_errors{LAST_SUFFIX}": e for m, e in lasts.items()})
+        row.update({key: float(value[i]) for key, value in trials.items() if key.startswith(VIEW_PREFIX)})
         rows.append(row)
     return rows
 

@@ -12,6 +12,7 @@ from torch import Tensor
 from aectorch._checks import check_choice, check_distances, check_int
 from aectorch.choices import Policy
 from aectorch.evaluation.summary import LAST_ITERATIONS, LAST_SUFFIX
+from aectorch.evaluation.views import view_statistics
 from aectorch.sim import DEFAULT_DISTANCES_M, ActiveDepthEnv, TextureBank, TrialProtocol, resolve_protocol
 
 __all__ = ["EVAL_BATCH_SIZE", "LAST_ITERATIONS", "LAST_SUFFIX", "TRACKING_ERRORS", "TRACKING_SKIP", "TRACKING_SPEEDS_DEG",
@@ -133,6 +134,8 @@ def _paper_trials(learner, index: Tensor, distance: Tensor, env_for, batch_size:
         stop = min(start + batch_size, total)
         env = env_for(stop - start, fixation_iterations)
         env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
+        for key, value in view_statistics(env).items():  # what the eyes see at the trial's start
+            out.setdefault(key, []).append(value)
         finals: dict[str, list[Tensor]] = {}
         lasts: dict[str, list[Tensor]] = {}
         recent: dict[str, list[Tensor]] = {}
@@ -202,6 +205,8 @@ def run_trials(
         the end of each fixation), ``<movement>_last5_deg`` ``[N, 2]`` (the mean signed error of
         each fixation's last `LAST_ITERATIONS` iterations), ``q_deg``
         ``[N, 4]`` (the MLP's inputs), ``depth_error_m`` ``[N]`` (NaN before the MLP's first fit),
+        the texture statistics of the view at each trial's start ``view_contrast`` and
+        ``view_energy_<scale>`` ``[N]`` (`aectorch.evaluation.views.view_statistics`),
         ``texture_index`` and ``distance_m`` ``[N]``.
 
     Example:
