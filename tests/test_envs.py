@@ -253,3 +253,16 @@ def test_the_cleanrl_style_example_is_one_short_file_on_make_vec():
     source = (Path(__file__).resolve().parents[1] / "examples" / "cleanrl_ppo_vergence.py").read_text()
     assert len(source.splitlines()) <= 200
     assert "gym.make_vec(" in source and "stable_baselines3" not in source and "torchrl" not in source
+
+
+def test_the_standard_environments_keep_the_eyes_within_the_oculomotor_range():
+    from aectorch.envs.core import EyeTask, TaskConfig
+
+    task = EyeTask(2, TaskConfig(**{**SMALL, "fixation_iterations": 6}, vergence_range_deg=(-1.5, 30.0)), seed=0)
+    task.reset(seed=0)
+    for _ in range(5):  # -1 degree of vergence a step from parallel: the floor stops it
+        task.step(torch.tensor([0, 0]))
+    assert torch.allclose(task.env.vergence_deg, torch.full((2,), -1.5))
+    assert EyeTask(1, TaskConfig(**SMALL)).env.vergence_range_deg == (-2.0, 40.0)  # on by default
+    with pytest.raises(ValueError, match="vergence_range_deg must hold 0"):
+        gym.make("aectorch/Vergence-v0", **SMALL, vergence_range_deg=(0.5, 3.0))

@@ -57,6 +57,9 @@ def test_fields_a_version_did_not_have_take_what_that_version_did():
     assert [c.symmetry for c in symmetric.learner.cues.values()] == ["mirror", "swap"]
     last = load_learner(STORED[-2])[0]  # the last of format 1
     assert last.learner.render_scales and last.learner.cues["parallax"].encoder.decay == 500
+    for path in STORED:  # every stored file predates the oculomotor range: the pan limits alone
+        env = load_learner(path)[0].env
+        assert (env.pan_range_deg, env.vergence_range_deg) == ([-45.0, 45.0], [-90.0, 90.0])
     for path in STORED[-2:]:  # format 1 and 2: NAC with the argmax read-out, no motor cost, a random start
         cues = load_learner(path)[0].learner.cues.values()
         assert [(c.agent, c.readout, c.motor_cost, c.encoder.start, tuple(c.scales)) for c in cues] == [

@@ -929,3 +929,75 @@ def test_q_is_the_mean_of_each_fixations_last_q_iterations():
     torch.testing.assert_close(info.q_deg, expected)
     with pytest.raises(ValueError, match="q_iterations"):
         ActiveDepthEnv(1, textures=torch.rand(1, 8, 8), q_iterations=0)
+
+
+# --- the oculomotor range ------------------------------------------------------------------------
+
+
+def test_clamp_eyes_is_the_nearest_pair_within_the_range():
+    from aectorch.sim import clamp_eyes
+
+    g = torch.Generator().manual_seed(0)
+    pan = (torch.rand(4000, 2, generator=g, dtype=torch.float64) - 0.5) * 120  # up to +-60 degrees
+    pans, vergences = (-30.0, 40.0), (-2.0, 25.0)
+    out = clamp_eyes(pan, pans, vergences)
+    left, right = out.unbind(-1)
+    vergence = right - left
+    eps = 1e-12
+    assert bool(((left >= pans[0] - eps) & (left <= pans[1] + eps)).all())
+    assert bool(((right >= pans[0] - eps) & (right <= pans[1] + eps)).all())
+    assert bool(((vergence >= vergences[0] - eps) & (vergence <= vergences[1] + eps)).all())
+    # Pairs within the range are left alone; the left eye moves only to its own pan range, and the
+    # right eye to the nearest pan that meets both (a brute-force search over a fine grid of pans).
+    inside = (pan[:, 0].clamp(*pans) == pan[:, 0]) & (pan[:, 1].clamp(*pans) == pan[:, 1]) & \
+        ((pan[:, 1] - pan[:, 0]).clamp(*vergences) == pan[:, 1] - pan[:, 0])
+    assert inside.any() and torch.equal(out[inside], pan[inside])
+    assert torch.equal(left, pan[:, 0].clamp(*pans))
+    grid = torch.linspace(*pans, 70001, dtype=torch.float64)
+    for i in range(0, 4000, 97):
+        ok = grid[((grid - left[i]) >= vergences[0]) & ((grid - left[i]) <= vergences[1])]
+        nearest = ok[(ok - pan[i, 1]).abs().argmin()]
+        assert right[i].item() == pytest.approx(nearest.item(), abs=1e-3)
+    with pytest.raises(ValueError, match=r"pan_deg must have shape \[B, 2\]"):
+        clamp_eyes(torch.zeros(3), pans, vergences)
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    (dict(vergence_range_deg=(0.5, 3.0)), "vergence_range_deg must hold 0"),
+    (dict(vergence_range_deg=(0.0, 0.0)), "vergence_range_deg must be wider than 0"),
+    (dict(vergence_range_deg=(3.0, -1.0)), "vergence_range_deg must be two finite numbers with low <= high"),
+    (dict(pan_range_deg=(-50.0, 10.0)), r"pan_range_deg must lie within the HOAP-3's eye pan limits \(-45, 45\)"),
+    (dict(pan_range_deg=(float("nan"), 10.0)), "pan_range_deg must be two finite numbers"),
+    (dict(pan_range_deg=5.0), r"pan_range_deg must be a \(low, high\) pair"),
+])
+def test_the_oculomotor_range_rejects_bad_values_by_name(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        ActiveDepthEnv(1, textures=torch.rand(1, 32, 32), fixation_iterations=2, **kwargs)
+
+
+@pytest.mark.parametrize("renderer", ["torch", "pyrender"])
+def test_every_movement_ends_within_the_oculomotor_range_in_both_renderers(renderer):
+    """Vergence increments past the range stop at its bounds, the right eye's image is the one
+    of the eyes put at the bound, and yoked pursuit stops at the pan range; the default range is
+    -2 to 40 degrees of vergence and the HOAP-3's +-45 degrees of pan."""
+    textures = quantised(torch.rand(2, 64, 64, generator=torch.Generator().manual_seed(3)))
+    options = dict(textures=textures, fixation_iterations=4, renderer=renderer)
+    env = ActiveDepthEnv(3, **options)
+    assert env.pan_range_deg == (-45.0, 45.0) and env.vergence_range_deg == (-2.0, 40.0)
+    env.close()
+    env = ActiveDepthEnv(3, pan_range_deg=(-20.0, 20.0), vergence_range_deg=(-1.0, 10.0), **options)
+    env.set_trial(torch.tensor([0, 1, 0]), torch.tensor([1.0, 2.0, 3.0]))
+    env.apply_pursuit(torch.zeros(3))
+    env.apply_vergence(torch.tensor([-7.0, 15.0, 0.5]))
+    assert torch.allclose(env.vergence_deg, torch.tensor([-1.0, 10.0, 0.5]))
+    moved = env.stereo_observation()["window"]
+    bound = ActiveDepthEnv(3, **options)
+    bound.set_trial(torch.tensor([0, 1, 0]), torch.tensor([1.0, 2.0, 3.0]))
+    bound.set_pan_deg(torch.tensor([[0.0, -1.0], [0.0, 10.0], [0.0, 0.5]]))
+    assert torch.equal(moved, bound.stereo_observation()["window"])
+    env.apply_pursuit(torch.tensor([30.0, -30.0, 5.0]))  # both eyes, yoked
+    assert torch.allclose(env.left_pan_deg, torch.tensor([20.0, -20.0, 5.0]))
+    assert bool((env.right_pan_deg <= 20.0).all() and (env.right_pan_deg >= -20.0).all())
+    assert bool((env.vergence_deg >= -1.0 - 1e-6).all() and (env.vergence_deg <= 10.0 + 1e-6).all())
+    for e in (env, bound):
+        e.close()

@@ -451,6 +451,25 @@ def test_start_spread_draws_the_training_start_states(textures):
             _cfg(textures, override)
 
 
+def test_the_oculomotor_range_is_on_by_default_and_reaches_the_environments_and_the_evaluation(textures):
+    from aectorch.runtime import build_env
+    from aectorch.runtime.builders import trial_protocol
+
+    cfg = _cfg(textures)
+    assert cfg.env.pan_range_deg == [-45.0, 45.0] and cfg.env.vergence_range_deg == [-2.0, 40.0]
+    env = build_env(_cfg(textures, "env.pan_range_deg=[-30,30]", "env.vergence_range_deg=[-1,20]"))
+    assert env.pan_range_deg == (-30.0, 30.0) and env.vergence_range_deg == (-1.0, 20.0)
+    env.apply_vergence(torch.full((env.num_envs,), -5.0))
+    assert torch.allclose(env.vergence_deg, torch.full_like(env.vergence_deg, -1.0))
+    protocol = trial_protocol(_cfg(textures, "env.vergence_range_deg=[-1,20]"))
+    assert protocol.vergence_range_deg == (-1.0, 20.0) and protocol.pan_range_deg == (-45.0, 45.0)
+    for override, field in (("env.vergence_range_deg=[1,20]", "env.vergence_range_deg must hold 0"),
+                            ("env.pan_range_deg=[-60,10]", "env.pan_range_deg must lie within the HOAP-3's"),
+                            ("env.pan_range_deg=[1]", r"env.pan_range_deg must be a \(low, high\) pair")):
+        with pytest.raises(ValueError, match=field):
+            _cfg(textures, override)
+
+
 def test_fork_continues_a_run_with_changed_settings(tmp_path, textures, capsys, script):
     fork_run = script("fork_run")
     straight, source = tmp_path / "straight", tmp_path / "source"

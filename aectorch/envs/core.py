@@ -44,7 +44,7 @@ from aectorch.coding import BinocularEncoder, EncoderConfig
 from aectorch.coding.focus import focus_reward, input_energy
 from aectorch.coding.patches import DEFAULT_SCALES, as_scale
 from aectorch.control import DEFAULT_ACTIONS_DEG, RewardScale, learned_reward
-from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, ActiveDepthEnv, TextureBank
+from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, ActiveDepthEnv, TextureBank, check_oculomotor_range
 
 __all__ = ["EyeTask", "Observation", "Reward", "Step", "Task", "TaskConfig"]
 
@@ -114,6 +114,10 @@ class TaskConfig:
             (negative: approaching; default ``(0, 0)``). ``info["distance_m"]`` is where it is.
         accommodation_start_D: with ``task="accommodation"``, both eyes' focus at each fixation's
             start, dioptres (default 0: infinity, the relaxed eye).
+        pan_range_deg: ``(low, high)``, each eye's pan range in degrees (default +-45, the
+            HOAP-3's joint limits), and
+        vergence_range_deg: ``(low, high)``, the vergence's (default -2 to 40): the oculomotor
+            range every step ends within (`aectorch.sim.oculomotor`).
         device: the torch device of the simulation and the encoder.
     """
 
@@ -132,6 +136,8 @@ class TaskConfig:
     object_speed_deg: Sequence[float] = DEFAULT_PROTOCOL.object_speed_deg
     object_depth_speed_m: Sequence[float] = DEFAULT_PROTOCOL.object_depth_speed_m
     accommodation_start_D: float = 0.0
+    pan_range_deg: Sequence[float] = DEFAULT_PROTOCOL.pan_range_deg
+    vergence_range_deg: Sequence[float] = DEFAULT_PROTOCOL.vergence_range_deg
     device: str = "cpu"
 
     def __post_init__(self) -> None:
@@ -146,6 +152,8 @@ class TaskConfig:
         self.object_speed_deg = check_range(self.object_speed_deg, "object_speed_deg", unit="degrees per step")
         self.object_depth_speed_m = check_range(self.object_depth_speed_m, "object_depth_speed_m",
                                                 unit="metres per step")
+        self.pan_range_deg, self.vergence_range_deg = check_oculomotor_range(self.pan_range_deg,
+                                                                             self.vergence_range_deg)
         if isinstance(self.encoder, dict):
             self.encoder = EncoderConfig(**self.encoder)
 
@@ -201,6 +209,7 @@ class EyeTask:
                                   object_depth_speed_m=config.object_depth_speed_m,
                                   accommodation_start_D=config.accommodation_start_D
                                   if config.task == Task.accommodation else None,
+                                  pan_range_deg=config.pan_range_deg, vergence_range_deg=config.vergence_range_deg,
                                   device=config.device, seed=0 if seed is None else seed)
         self.device = self.env.device
         self.scales = tuple(as_scale(s) for s in config.scales)

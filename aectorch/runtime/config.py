@@ -35,6 +35,7 @@ from aectorch.runtime.metrics import PAPER_WINDOW, RECENT_WINDOW
 from aectorch.runtime.perturbations import Event, PerturbationEventConfig, resolve_events
 from aectorch.runtime.watchdog import WatchdogConfig
 from aectorch.sim import (
+    PAN_RANGE_DEG, VERGENCE_RANGE_DEG, check_oculomotor_range,
     DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, PROCEDURAL_TEXTURES, START_PURSUIT_DEG, START_VERGENCE_DEG,
 )
 
@@ -201,6 +202,15 @@ class EnvConfig:
             ``+experiment=accommodation``), each fixation starting with both eyes focused there.
         yoked_accommodation: the accommodation cue focuses both eyes alike (default); ``false``:
             the left eye, and a second cue, ``learner.cues.accommodation_right``, the right one.
+        pan_range_deg: ``[low, high]``, the range of each eye's pan, degrees, within the HOAP-3's
+            joint limits (the URDF's +-45, the default): the oculomotor range
+            (`aectorch.sim.oculomotor`), where every eye movement ends, in both renderers.
+        vergence_range_deg: ``[low, high]``, the range of the vergence (right pan minus left
+            pan, positive converging), degrees; it must hold 0 (parallel, where fixations start).
+            Default ``[-2, 40]``: human eyes diverge only a few degrees past parallel and converge
+            to a near point of about 8 cm; without a floor, a learner whose reward is flat on a
+            view of little texture can drift its eyes apart (issue 50). ``[-90, 90]`` leaves only
+            the pan limits (what runs did before the range existed).
         device: torch device of the environment and the learner (``"cpu"``, ``"cuda"``, ...).
         dtype: ``"float32"`` or ``"float64"``, of the environment and the learner.
     """
@@ -223,6 +233,8 @@ class EnvConfig:
     aperture_m: float = DEFAULT_PROTOCOL.aperture_m
     accommodation_start_D: Optional[float] = None
     yoked_accommodation: bool = True
+    pan_range_deg: list[float] = field(default_factory=lambda: list(PAN_RANGE_DEG))
+    vergence_range_deg: list[float] = field(default_factory=lambda: list(VERGENCE_RANGE_DEG))
     device: str = "cpu"
     dtype: DType = DType.float32
 
@@ -249,6 +261,8 @@ class EnvConfig:
         if self.accommodation_start_D is not None:
             check_real(self.accommodation_start_D, f"{owner}.accommodation_start_D", minimum=0, unit="dioptres")
         check_bool(self.yoked_accommodation, f"{owner}.yoked_accommodation")
+        pan, vergence = check_oculomotor_range(self.pan_range_deg, self.vergence_range_deg, prefix=f"{owner}.")
+        self.pan_range_deg, self.vergence_range_deg = list(pan), list(vergence)
         check_device(self.device, f"{owner}.device")
         self.dtype = check_choice(self.dtype, f"{owner}.dtype", DType)
 

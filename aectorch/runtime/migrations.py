@@ -23,7 +23,9 @@ of the last iteration), whatever today's defaults are. Later versions of format 
 environment's state its perturbations' ``optics`` and ``first_optics`` (issue 48); a file
 without them gets ``None``, which the environment reads as what it was: no perturbation but the
 roll its ``roll_deg`` holds; and to each cue's config the rates' floors ``encoder.floor`` and
-``nac.actor_floor``, ``None`` (no floor) where absent (:data:`_ADDED_3`). The config's new
+``nac.actor_floor``, ``None`` (no floor) where absent (:data:`_ADDED_3`); and to ``env`` the
+oculomotor range (issue 50), where absent the eye pan limits alone (``pan_range_deg [-45, 45]``,
+``vergence_range_deg [-90, 90]``), what such a run did. The config's new
 sections (``perturbations``, ``plasticity``, ``train.recent_window``) get their defaults, which
 change nothing for a run without events.
 """
@@ -158,8 +160,11 @@ def _from_2(payload: dict) -> dict:
 
 
 #: Fields that versions of format 3 added, with what a file without them did: the environment's
-#: optics (``None``: the roll of ``roll_deg`` and nothing else), the cues' rates without a floor.
-_ADDED_3 = {"env": {"optics": None, "first_optics": None}, "encoder": {"floor": None}, "nac": {"actor_floor": None}}
+#: optics (``None``: the roll of ``roll_deg`` and nothing else), the cues' rates without a floor,
+#: and the oculomotor range of the config's ``env`` (issue 50): the eye pan limits alone, no
+#: vergence range but theirs.
+_ADDED_3 = {"env": {"optics": None, "first_optics": None}, "encoder": {"floor": None}, "nac": {"actor_floor": None},
+            "config_env": {"pan_range_deg": [-45.0, 45.0], "vergence_range_deg": [-90.0, 90.0]}}
 
 
 def _complete_3(payload: dict) -> dict:
@@ -171,6 +176,9 @@ def _complete_3(payload: dict) -> dict:
             for key, value in _ADDED_3["env"].items():
                 state.setdefault(key, value)
     config = payload.get("config")
+    if isinstance(config, dict) and isinstance(config.get("env"), dict):
+        for key, value in _ADDED_3["config_env"].items():
+            config["env"].setdefault(key, list(value))
     cues = ((config.get("learner") or {}).get("cues") or {}) if isinstance(config, dict) else {}
     for cue in cues.values():
         for section in ("encoder", "nac"):

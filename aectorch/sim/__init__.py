@@ -9,6 +9,7 @@ from aectorch.sim.env import (
     DEFAULT_DISTANCES_M, RENDERERS, WINDOW, ActiveDepthEnv, CueSpec, IterationInfo, make_renderer,
 )
 from aectorch.sim.hoap3 import HOAP3Head
+from aectorch.sim.oculomotor import PAN_RANGE_DEG, VERGENCE_RANGE_DEG, check_oculomotor_range, clamp_eyes
 from aectorch.sim.protocol import (
     DEFAULT_PROTOCOL, START_PURSUIT_DEG, START_VERGENCE_DEG, Renderer, TrialProtocol, resolve_protocol,
 )
@@ -40,6 +41,10 @@ __all__ = [
     "resolve_protocol",
     "DEFAULT_DISTANCES_M",
     "HOAP3Head",
+    "PAN_RANGE_DEG",
+    "VERGENCE_RANGE_DEG",
+    "check_oculomotor_range",
+    "clamp_eyes",
     "IterationInfo",
     "PinholeCamera",
     "PixelWindow",

@@ -32,6 +32,11 @@ the shift, and the optimal vergence puts the right eye's axis through the point 
 axis meets the plane now. All environments run in lockstep (their fixations start together),
 each with its own texture, distance and eye state.
 
+Every movement ends within the **oculomotor range** (`aectorch.sim.oculomotor`): each eye's pan
+within ``pan_range_deg`` and the vergence within ``vergence_range_deg`` (by default +-45 degrees,
+the HOAP-3's joint limits, and 2 degrees past parallel to 40 degrees converged). It acts on the
+pans, before either renderer draws them.
+
 Angles are in degrees; pan is positive toward the robot's left (counter-clockwise seen from
 above); the vergence angle is ``right pan - left pan`` (positive = converged).
 """
@@ -51,6 +56,7 @@ from aectorch.ops.backend import fused_kernels_apply
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.hoap3 import HOAP3Head
 from aectorch.sim.motion import check_object_motion, object_place
+from aectorch.sim.oculomotor import check_oculomotor_range, clamp_eyes
 from aectorch.sim.perturbations import (NEUTRAL, Optics, blur_margin, defocus, defocus_each, orientation_filter,
                                         scale_contrast)
 from aectorch.sim.scene import PlaneScene
@@ -293,6 +299,10 @@ class ActiveDepthEnv:
             `aectorch.sim.motion`): the ranges its sideways speed (degrees per iteration, drawn per
             fixation) and its depth speed (metres per iteration, drawn per trial) are drawn from;
             ``(0, 0)`` both (default): it stands still. :meth:`set_object_speed` pins them.
+        pan_range_deg, vergence_range_deg: the oculomotor range (`aectorch.sim.oculomotor`):
+            ``(low, high)`` of each eye's pan (within the head's joint limits) and of the vergence
+            (holding 0), degrees; every movement ends within it (default `TrialProtocol`'s: pans
+            +-45, vergence -2 to 40).
         pursuit_start_deg: left-eye pan at each fixation's start: a number or a ``(low, high)``
             range drawn uniformly per environment and fixation.
         vergence_start_deg: right pan minus left pan at each fixation's start (0 = parallel),
@@ -350,6 +360,8 @@ class ActiveDepthEnv:
         aperture_m: float = DEFAULT_PROTOCOL.aperture_m,
         accommodation_start_D: float | None = DEFAULT_PROTOCOL.accommodation_start_D,
         yoked_accommodation: bool = DEFAULT_PROTOCOL.yoked_accommodation,
+        pan_range_deg: tuple[float, float] = DEFAULT_PROTOCOL.pan_range_deg,
+        vergence_range_deg: tuple[float, float] = DEFAULT_PROTOCOL.vergence_range_deg,
         pursuit_start_deg=START_PURSUIT_DEG,
         vergence_start_deg=START_VERGENCE_DEG,
         window: str | PixelWindow = "crops",
@@ -364,7 +376,8 @@ class ActiveDepthEnv:
     ) -> None:
         check_int(num_envs, "num_envs")
         protocol = TrialProtocol(renderer, fixation_iterations, shift_m, shift_iterations, yoked_pursuit, q_iterations,
-                                 object_speed_deg, object_depth_speed_m, aperture_m, accommodation_start_D, yoked_accommodation)
+                                 object_speed_deg, object_depth_speed_m, aperture_m, accommodation_start_D, yoked_accommodation,
+                                 pan_range_deg, vergence_range_deg)
         renderer = str(protocol.renderer)
         distances = check_distances(distances_m, "distances_m")
         if dtype not in (torch.float32, torch.float64):
@@ -385,7 +398,9 @@ class ActiveDepthEnv:
         self.vergence_start_deg = _range_or_value(vergence_start_deg, "vergence_start_deg")
         self.camera = camera or PinholeCamera()
         self.window = _window(self.camera, window)
+        self.window = self._window(window)
         self.head = (head or HOAP3Head()).to(device=self.device, dtype=dtype)
+        self.pan_range_deg, self.vergence_range_deg = self._oculomotor_range(protocol)
 
         if textures is None:
             textures = TextureBank.default("train")
@@ -434,6 +449,21 @@ class ActiveDepthEnv:
         self._trial_depth_speed: Tensor | None = None
         self._start_target_m: Tensor | None = None
         self.plane_y_m: Tensor | None = None
+    def _window(self, window: str | PixelWindow) -> PixelWindow:
+        if window == "crops":
+            window = self.camera.central_window(128)
+        elif window == "full":
+            window = self.camera.full_window
+        elif isinstance(window, str):
+            raise ValueError(f"window must be 'crops', 'full' or a PixelWindow, got {window!r}")
+        return self.camera.check_window(window)
+
+    def _oculomotor_range(self, protocol: TrialProtocol) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The protocol's oculomotor range, checked against this head's eye pan limits."""
+        pans = self.head.limits_deg
+        return check_oculomotor_range(protocol.pan_range_deg, protocol.vergence_range_deg,
+                                      pan_limits_deg=(max(pans["left_eye_pan"][0], pans["right_eye_pan"][0]),
+                                                      min(pans["left_eye_pan"][1], pans["right_eye_pan"][1])))
 
     # -- state -------------------------------------------------------------------------------
     def reset(self, seed: int | None = None) -> None:
@@ -498,6 +528,7 @@ class ActiveDepthEnv:
         if moves or self.moving:  # the object back at its start (the trial's distance, straight ahead)
             self.plane_x_m = self.distance_m + float(self.head.eye_x_m)
             self.object_speed = self.plane_y_m = None
+        self.pan_deg = self.clamp_pan_deg(torch.stack((left, left + self._uniform(self.vergence_start_deg)), dim=-1))
         self.target_m = self._fixation_target(self.eye_pan_deg[:, 0], self.plane_x_m)
         self._start_pans = self.pan_deg
         self._first_image: dict = {}
@@ -659,8 +690,15 @@ class ActiveDepthEnv:
         along = torch.tan(torch.deg2rad(left_pan_deg)) * (plane_x_m - start[:, 0])
         return torch.stack((plane_x_m, start[:, 1] + along, start[:, 2]), dim=-1)
 
+    def clamp_pan_deg(self, pan_deg: Tensor) -> Tensor:
+        """Pans ``[B, 2]`` (left, right; degrees) brought within the head's joint limits and the
+        oculomotor range (``pan_range_deg``, ``vergence_range_deg``; `aectorch.sim.oculomotor`):
+        where every movement of the eyes ends."""
+        return clamp_eyes(self.head.clamp_pan_deg(pan_deg), self.pan_range_deg, self.vergence_range_deg)
+
     def set_pan_deg(self, pan_deg) -> None:
-        """Put the eyes at the given pans ``[B, 2]`` (left, right; degrees), within their limits.
+        """Put the eyes at the given pans ``[B, 2]`` (left, right; degrees), within their range
+        (:meth:`clamp_pan_deg`).
 
         For evaluation grids (for example a set of initial vergence errors) and tests; the
         fixation target does not change.
@@ -668,7 +706,7 @@ class ActiveDepthEnv:
         pan = torch.as_tensor(pan_deg, dtype=self.dtype, device=self.device)
         if pan.shape != (self.num_envs, 2):
             raise ValueError(f"pan_deg must have shape [B, 2] = [{self.num_envs}, 2], got {tuple(pan.shape)}")
-        self.pan_deg = self.head.clamp_pan_deg(pan)
+        self.pan_deg = self.clamp_pan_deg(pan)
         self._moved()
 
     def set_roll(self, roll_deg) -> None:
@@ -983,20 +1021,22 @@ class ActiveDepthEnv:
         return delta.to(self.dtype)
 
     def apply_pursuit(self, delta_deg: Tensor) -> None:
-        """Add the pursuit increments ``[B]`` (degrees) to the left eye's pan (within its limits).
+        """Add the pursuit increments ``[B]`` (degrees) to the left eye's pan (within the oculomotor
+        range, :meth:`clamp_pan_deg`).
 
         With ``yoked_pursuit`` the right eye turns by the same increment.
         """
         delta = self._check_increment(delta_deg, "delta_deg")
         step = torch.stack((delta, delta if self.yoked_pursuit else torch.zeros_like(delta)), dim=-1)
-        self.pan_deg = self.head.clamp_pan_deg(self.pan_deg + step)
+        self.pan_deg = self.clamp_pan_deg(self.pan_deg + step)
         self._moved()
 
     def apply_vergence(self, delta_deg: Tensor) -> None:
-        """Add the vergence increments ``[B]`` (degrees) to the right eye's pan (within its limits)."""
+        """Add the vergence increments ``[B]`` (degrees) to the right eye's pan (within the
+        oculomotor range, :meth:`clamp_pan_deg`: the vergence stays within ``vergence_range_deg``)."""
         delta = self._check_increment(delta_deg, "delta_deg")
         step = torch.stack((torch.zeros_like(delta), delta), dim=-1)
-        self.pan_deg = self.head.clamp_pan_deg(self.pan_deg + step)
+        self.pan_deg = self.clamp_pan_deg(self.pan_deg + step)
 
     def end_iteration(self) -> IterationInfo:
         """End the iteration: the ground truth after its movements, and the next iteration, fixation
@@ -1163,6 +1203,7 @@ class ActiveDepthEnv:
             f"ActiveDepthEnv(num_envs={self.num_envs}, renderer={self.renderer_name!r}, "
             f"textures={len(self.textures)}, h={self.fixation_iterations}, shift_m={self.shift_m}, "
             f"shift_iterations={self.shift_iterations}, yoked_pursuit={self.yoked_pursuit}, "
-            f"q_iterations={self.q_iterations}, "
+            f"q_iterations={self.q_iterations}, pan_range_deg={self.pan_range_deg}, "
+            f"vergence_range_deg={self.vergence_range_deg}, "
             f"window={tuple(self.window)}, device={self.device}, dtype={self.dtype})"
         )

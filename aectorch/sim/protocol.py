@@ -11,6 +11,7 @@ defaults from it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from typing import Protocol, Sequence, runtime_checkable
 
@@ -19,6 +20,7 @@ from torch import Tensor
 from aectorch._checks import check_bool, check_choice, check_int, check_range, check_real
 from aectorch.choices import RendererName
 from aectorch.sim.camera import PinholeCamera, PixelWindow
+from aectorch.sim.oculomotor import PAN_RANGE_DEG, VERGENCE_RANGE_DEG, check_oculomotor_range
 
 __all__ = ["DEFAULT_APERTURE_M", "DEFAULT_PROTOCOL", "Renderer", "START_PURSUIT_DEG", "START_VERGENCE_DEG", "TrialProtocol",
            "resolve_protocol"]
@@ -67,6 +69,11 @@ class TrialProtocol:
         yoked_accommodation: the accommodation cue's action focuses both eyes alike (default, as
             human accommodation does); ``False``: it focuses the left eye, and the
             ``accommodation_right`` cue the right one.
+        pan_range_deg: ``(low, high)``, each eye's pan range in degrees, within the HOAP-3's
+            joint limits (default +-45, the URDF's; `aectorch.sim.oculomotor`).
+        vergence_range_deg: ``(low, high)``, the vergence's range in degrees (right pan minus
+            left pan, positive converging); it holds 0. Default (-2, 40): 2 degrees past
+            parallel to a near point of 8 cm.
 
     Example:
         >>> protocol = TrialProtocol(fixation_iterations=10)
@@ -87,6 +94,8 @@ class TrialProtocol:
     aperture_m: float = 0.016
     accommodation_start_D: float | None = None
     yoked_accommodation: bool = True
+    pan_range_deg: tuple[float, float] = PAN_RANGE_DEG
+    vergence_range_deg: tuple[float, float] = VERGENCE_RANGE_DEG
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "renderer", check_choice(self.renderer, "renderer", RendererName))
@@ -111,6 +120,11 @@ class TrialProtocol:
     def moving(self) -> bool:
         """Whether the object moves (either speed range is not ``(0, 0)``)."""
         return self.object_speed_deg != (0.0, 0.0) or self.object_depth_speed_m != (0.0, 0.0)
+        # (the joint limits are the environment's head's: `ActiveDepthEnv` checks them)
+        pan, vergence = check_oculomotor_range(self.pan_range_deg, self.vergence_range_deg,
+                                               pan_limits_deg=(-math.inf, math.inf))
+        object.__setattr__(self, "pan_range_deg", pan)
+        object.__setattr__(self, "vergence_range_deg", vergence)
 
     def env_kwargs(self) -> dict:
         """The keyword arguments of `ActiveDepthEnv` this protocol sets."""
