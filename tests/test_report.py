@@ -211,7 +211,7 @@ def test_the_command_line_lists_its_commands():
     done = subprocess.run([sys.executable, "-m", "aectorch.report", "--help"], cwd=ROOT, capture_output=True, text=True,
                           timeout=120)
     assert done.returncode == 0
-    for command in ("table", "compare", "curves", "band", "trials", "ablation", "rl"):
+    for command in ("table", "compare", "curves", "band", "trials", "ablation", "rl", "tails"):
         assert command in done.stdout
 
 
@@ -310,3 +310,33 @@ def test_accommodation_gives_each_groups_mean_and_sd(tmp_path, capsys):
     assert "| accommodation MAE (D) | 0.500 +- 0.141 | - |" in lines
     assert main(["accommodation", "nogroup"]) == 2
     assert "groups are name=run,run,..." in capsys.readouterr().err
+
+
+def test_tails_counts_the_far_ends_compares_near_and_far_and_lists_the_worst_with_their_views(tmp_path, capsys):
+    def folder(name: str, trials) -> Path:
+        run = tmp_path / name
+        run.mkdir()
+        rows = _rows(trials)
+        for i, row in enumerate(rows):  # the flat view is the failing one
+            row.update(view_contrast=0.001 if row["texture"] == "flat" else 0.3, view_energy_full=1e-6 * (i + 1))
+        (run / "final_choose.json").write_text(json.dumps({"per_trial": rows}))
+        return run
+
+    a = folder("a", [("flat", 1.0, [0.1, 0.0], [-12.0, 1.5]),  # ends beyond 2 and beyond 1 deg
+                     ("texture", 2.0, [0.1, 0.1], [0.1, 0.1])])
+    b = folder("b", [("texture", 1.2, [0.3, 0.0], [0.0, 0.0]), ("texture", 3.0, [0.0, 0.0], [0.0, 0.2])])
+    assert main(["tails", f"g={a},{b}", "--eval", "final_choose.json", "--worst", "2",
+                 "--json", str(tmp_path / "t.json")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    # 8 fixation ends; within 0.22 deg: a 2 of 4, b 3 of 4; MAEs are the means of the runs' (vergence:
+    # a 13.7 / 4, b 0.2 / 4; near: a 6.75, b 0; far: 0.1 each)
+    assert lines[2] == ("| g | 8 | 62.5% | 2 (25.0%) | 1 (12.5%) | 0.075 / 1.737 | 0.100 / 3.375 | 0.050 / 0.100 "
+                        "| 33.75x |")
+    result = json.loads((tmp_path / "t.json").read_text())["g"]
+    assert [w["errors_deg"]["vergence"] for w in result["worst"]] == [-12.0, 1.5]
+    assert result["worst"][0]["texture"] == "flat" and result["worst"][0]["view_contrast"] == 0.001
+    assert result["views"]["beyond_1"] == {"trials": 1, "view_contrast": 0.001, "view_energy_full": 1e-6}
+    assert result["views"]["all"]["trials"] == 4 and result["views"]["all"]["view_contrast"] == pytest.approx(0.3)
+    assert any(line.startswith("| g, with an end beyond 1 deg | 1 | 0.001 | 1e-06 |") for line in lines)
+    assert main(["tails", "no-runs"]) == 2
+    assert "name=run,run" in capsys.readouterr().err
