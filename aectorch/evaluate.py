@@ -23,7 +23,7 @@ from aectorch.figures import plot_evaluation, plot_tracking
 from aectorch.runtime.builders import trial_protocol
 from aectorch.runtime.checkpoint import load_checkpoint, load_learner
 from aectorch.runtime.command import run
-from aectorch.sim import DEFAULT_DISTANCES_M, TextureBank, resolve_protocol
+from aectorch.sim import DEFAULT_DISTANCES_M, PAN_RANGE_DEG, TextureBank, check_oculomotor_range, resolve_protocol
 
 __all__ = ["EvaluateConfig", "main"]
 
@@ -55,6 +55,9 @@ class EvaluateConfig:
         depth_speed: with tracking, the object's speed in depth, metres per iteration (negative:
             approaching).
         skip: with tracking, each fixation's first this many iterations are left out of the errors.
+        vergence_range_deg: [low, high], the oculomotor vergence range of the trials (default:
+            the run's, env.vergence_range_deg): e.g. a run trained without the range evaluated
+            within it.
     """
 
     checkpoint: str = MISSING
@@ -71,6 +74,7 @@ class EvaluateConfig:
     tracking: Optional[list[float]] = None
     depth_speed: float = 0.0
     skip: int = TRACKING_SKIP
+    vergence_range_deg: Optional[list[float]] = None
 
     def __post_init__(self) -> None:
         if not self.depths:
@@ -86,6 +90,8 @@ class EvaluateConfig:
                 raise ValueError("tracking must be a list of speeds >= 0 such as [0,0.5,1], got []")
             for speed in self.tracking:
                 check_real(speed, "tracking", minimum=0.0, unit="degrees per iteration")
+        if self.vergence_range_deg is not None:
+            self.vergence_range_deg = list(check_oculomotor_range(PAN_RANGE_DEG, self.vergence_range_deg)[1])
         if self.textures is not None and not os.path.isdir(self.textures):
             raise ValueError(f"textures: no such folder {self.textures!r}")
         if not os.path.isfile(self.checkpoint):
@@ -112,12 +118,14 @@ def _evaluate(args: EvaluateConfig) -> int:
         except (ValueError, OSError) as err:
             raise ValueError(f"textures: {err}") from err
         textures = args.textures
-    protocol = resolve_protocol(trial_protocol(cfg), renderer=args.renderer)
+    vergence_range = None if args.vergence_range_deg is None else tuple(args.vergence_range_deg)
+    protocol = resolve_protocol(trial_protocol(cfg), renderer=args.renderer, vergence_range_deg=vergence_range)
     if args.tracking is not None:
         return _tracking(args, learner, bank, textures, protocol, iteration)
     result = evaluate(learner, bank, distances_m=list(args.depths), protocol=protocol, batch_size=args.batch_size,
                       seed=args.seed, progress=args.progress, policy=args.policy)
     result.update(checkpoint=args.checkpoint, textures=textures, renderer=str(protocol.renderer),
+                  pan_range_deg=list(protocol.pan_range_deg), vergence_range_deg=list(protocol.vergence_range_deg),
                   iteration=iteration)
     with open(args.out, "w") as f:
         json.dump(result, f, indent=2)

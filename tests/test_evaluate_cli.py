@@ -51,8 +51,17 @@ def test_writes_the_result_json_and_figure(run, tmp_path, capsys):
     assert result["iteration"] == 8 and result["checkpoint"] == str(checkpoint)
     assert result["textures"] == str(textures) and result["renderer"] == "torch"
     assert result["policy"] == "greedy"
+    assert result["pan_range_deg"] == [-45.0, 45.0] and result["vergence_range_deg"] == [-2.0, 40.0]  # the run's
     assert np.isfinite(result["depth_mae_m"]) and figure.is_file()
     assert "vergence test" in capsys.readouterr().out
+    # Another vergence range replaces the run's for the trials: a tiny one holds the vergence near parallel.
+    narrow = tmp_path / "narrow.json"
+    assert main([f"checkpoint={checkpoint}", f"textures={textures}", f"out={narrow}", "depths=[1.0]", "batch_size=3",
+                 "progress=false", "vergence_range_deg=[-0.01,0.01]"]) == 0
+    result = json.loads(narrow.read_text())
+    assert result["vergence_range_deg"] == [-0.01, 0.01]
+    # the optimum at 1 m is 3.43 deg of vergence: every end is at least 3.4 deg off
+    assert min(abs(e) for r in result["per_trial"] for e in r["vergence_errors_deg"]) > 3.4
 
 
 def test_tracking_writes_its_rows_and_the_report_reads_them(run, tmp_path, capsys):
@@ -94,6 +103,7 @@ def test_tracking_writes_its_rows_and_the_report_reads_them(run, tmp_path, capsy
     (["checkpoint={c}", "out={o}", "policy=argmax"], "policy"),
     (["checkpoint={c}", "out={o}", "tracking=[-1.0]"], "tracking"),
     (["checkpoint={c}", "out={o}", "tracking=[1.0]", "skip=1", "depth_speed=-0.5"], "object_depth_speed_m"),
+    (["checkpoint={c}", "out={o}", "vergence_range_deg=[1,2]"], "vergence_range_deg"),
 ])
 def test_errors_name_the_key(args, key, run, tmp_path, capsys):
     checkpoint, textures = run
