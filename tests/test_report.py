@@ -334,6 +334,9 @@ def test_tails_counts_the_far_ends_compares_near_and_far_and_lists_the_worst_wit
                         "| 33.75x |")
     result = json.loads((tmp_path / "t.json").read_text())["g"]
     assert [w["errors_deg"]["vergence"] for w in result["worst"]] == [-12.0, 1.5]
+    # without the ends beyond 1 deg: run a's vergence is its two 0.1 deg ends
+    assert [r["inside_vergence_mae_deg"] for r in result["runs"]] == pytest.approx([0.1, 0.05])
+    assert "| g 0 | 3.425 | 0.100 | 2 |" in lines
     assert result["worst"][0]["texture"] == "flat" and result["worst"][0]["view_contrast"] == 0.001
     assert result["views"]["beyond_1"] == {"trials": 1, "view_contrast": 0.001, "view_energy_full": 1e-6}
     assert result["views"]["all"]["trials"] == 4 and result["views"]["all"]["view_contrast"] == pytest.approx(0.3)

@@ -48,9 +48,11 @@ def _run_numbers(rows: list[dict]) -> dict:
     out = {"ends": len(ends),
            "within": statistics.fmean(all(abs(v) <= WITHIN_DEG for v in e["errors"].values()) for e in ends)}
     out.update({f"beyond_{t:g}": sum(e["worst"] > t for e in ends) for t in THRESHOLDS_DEG})
+    inside = [e for e in ends if e["worst"] <= THRESHOLDS_DEG[0]]
     for m in movements:
         out[f"{m}_mae_deg"] = _mae(ends, m)
         out[f"near_{m}_mae_deg"], out[f"far_{m}_mae_deg"] = _mae(near, m), _mae(far, m)
+        out[f"inside_{m}_mae_deg"] = _mae(inside, m)  # the ends with every eye within the first threshold
     return out
 
 
@@ -71,7 +73,8 @@ def tails(groups: Mapping[str, Sequence[Run]], evaluation: str, worst: int = 10)
     For each group: per run and summed or averaged over its runs, the fixation ends (two per trial),
     the fraction with every eye within ``WITHIN_DEG``, the counts of ends with either eye beyond
     each of :data:`THRESHOLDS_DEG`, each movement's MAE overall, near (before
-    :data:`FAR_FROM_M`) and far; and the ``worst`` fixation ends of all its runs (largest error of
+    :data:`FAR_FROM_M`), far and over the ends with every eye within the first threshold
+    (``inside_<movement>_mae_deg``: the precision without the tails); and the ``worst`` fixation ends of all its runs (largest error of
     either eye first) with their trial's texture, distance, errors and ``view_*`` statistics.
     """
     out = {}
@@ -118,6 +121,12 @@ def tails_lines(result: dict) -> list[str]:
                 label = "all" if which == "all" else f"with an end beyond {THRESHOLDS_DEG[0]:g} deg"
                 lines.append(f"| {name}, {label} | {v['trials']} | " + " | ".join(
                     f"{v.get(k, math.nan):.2g}" for k in views) + " |")
+    lines += ["", f"| run | vergence MAE (deg) | of the ends with both eyes within {THRESHOLDS_DEG[0]:g} deg | "
+              f"ends beyond {THRESHOLDS_DEG[0]:g} deg |", "|---|---|---|---|"]
+    for name, group in result.items():
+        for i, r in enumerate(group["runs"]):
+            lines.append(f"| {name} {i} | {_f(r.get('vergence_mae_deg'))} | {_f(r.get('inside_vergence_mae_deg'))} | "
+                         f"{r[f'beyond_{THRESHOLDS_DEG[0]:g}']} |")
     for name, group in result.items():
         if not group["worst"]:
             continue
