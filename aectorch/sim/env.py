@@ -398,7 +398,6 @@ class ActiveDepthEnv:
         self.vergence_start_deg = _range_or_value(vergence_start_deg, "vergence_start_deg")
         self.camera = camera or PinholeCamera()
         self.window = _window(self.camera, window)
-        self.window = self._window(window)
         self.head = (head or HOAP3Head()).to(device=self.device, dtype=dtype)
         self.pan_range_deg, self.vergence_range_deg = self._oculomotor_range(protocol)
 
@@ -410,14 +409,7 @@ class ActiveDepthEnv:
             background = pink_noise_images(1, 256, 256, generator=generator)[0]
         self.scene = PlaneScene(self.textures.textures, background)
         self._world, self.optics, self._optics_tensors = self.scene, NEUTRAL, {}  # perturbations: set_optics
-        eye_x = float(self.head.eye_x_m)
-        farthest = eye_x + max(distances)
-        if farthest >= self.scene.background_x_m:
-            raise ValueError(
-                f"distances_m reach {max(distances)} m, behind the background plane at "
-                f"x = {self.scene.background_x_m} m; use distances below "
-                f"{self.scene.background_x_m - eye_x:.2f} m"
-            )
+        self._check_background(distances)
         self.distances_m = torch.tensor(distances, dtype=dtype, device=self.device)
         self._init_motion(protocol, distances)
         self.renderer_name, self._renderer_options = renderer, dict(renderer_options or {})
@@ -449,14 +441,14 @@ class ActiveDepthEnv:
         self._trial_depth_speed: Tensor | None = None
         self._start_target_m: Tensor | None = None
         self.plane_y_m: Tensor | None = None
-    def _window(self, window: str | PixelWindow) -> PixelWindow:
-        if window == "crops":
-            window = self.camera.central_window(128)
-        elif window == "full":
-            window = self.camera.full_window
-        elif isinstance(window, str):
-            raise ValueError(f"window must be 'crops', 'full' or a PixelWindow, got {window!r}")
-        return self.camera.check_window(window)
+    def _check_background(self, distances: list[float]) -> None:
+        eye_x = float(self.head.eye_x_m)
+        if eye_x + max(distances) >= self.scene.background_x_m:
+            raise ValueError(
+                f"distances_m reach {max(distances)} m, behind the background plane at "
+                f"x = {self.scene.background_x_m} m; use distances below "
+                f"{self.scene.background_x_m - eye_x:.2f} m"
+            )
 
     def _oculomotor_range(self, protocol: TrialProtocol) -> tuple[tuple[float, float], tuple[float, float]]:
         """The protocol's oculomotor range, checked against this head's eye pan limits."""
