@@ -512,15 +512,12 @@ class ActiveDepthEnv:
         self.iteration = 0
         self.body_shift_m = self._body_shift(0)
         left = self._uniform(self.pursuit_start_deg)
-        self.pan_deg = self.head.clamp_pan_deg(
-            torch.stack((left, left + self._uniform(self.vergence_start_deg)), dim=-1)
-        )
+        self.pan_deg = self.clamp_pan_deg(torch.stack((left, left + self._uniform(self.vergence_start_deg)), dim=-1))
         moves = self._pinned_speed is not None or self.object_speed_deg != (0.0, 0.0) \
             or self.object_depth_speed_m != (0.0, 0.0)
         if moves or self.moving:  # the object back at its start (the trial's distance, straight ahead)
             self.plane_x_m = self.distance_m + float(self.head.eye_x_m)
             self.object_speed = self.plane_y_m = None
-        self.pan_deg = self.clamp_pan_deg(torch.stack((left, left + self._uniform(self.vergence_start_deg)), dim=-1))
         self.target_m = self._fixation_target(self.eye_pan_deg[:, 0], self.plane_x_m)
         self._start_pans = self.pan_deg
         self._first_image: dict = {}
