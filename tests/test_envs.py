@@ -154,7 +154,7 @@ def test_bad_options_are_named():
     with pytest.raises(ValueError, match="observation must be one of"):
         gym.make("aectorch/Vergence-v0", observation="pixels")
     with pytest.raises(ValueError, match="env id must be one of"):
-        envs.make_torchrl_env("aectorch/Accommodation-v0")
+        envs.make_torchrl_env("aectorch/Saccade-v0")
     env = gym.make("aectorch/ActiveDepth-v0", **SMALL)
     env.reset(seed=0)
     with pytest.raises(ValueError, match=r"actions must be indices in \[0, 11\)"):

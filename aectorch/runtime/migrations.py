@@ -160,10 +160,12 @@ def _from_2(payload: dict) -> dict:
 
 
 #: Fields that versions of format 3 added, with what a file without them did: the environment's
-#: optics (``None``: the roll of ``roll_deg`` and nothing else), the cues' rates without a floor,
+#: optics (``None``: the roll of ``roll_deg`` and nothing else), the cues' reconstruction efficiency
+#: (issue 53), their rates without a floor,
 #: and the oculomotor range of the config's ``env`` (issue 50): the eye pan limits alone, no
 #: vergence range but theirs.
-_ADDED_3 = {"env": {"optics": None, "first_optics": None}, "encoder": {"floor": None}, "nac": {"actor_floor": None},
+_ADDED_3 = {"env": {"optics": None, "first_optics": None}, "cue": {"efficiency": "reconstruction"},
+            "encoder": {"floor": None}, "nac": {"actor_floor": None},
             "config_env": {"pan_range_deg": [-45.0, 45.0], "vergence_range_deg": [-90.0, 90.0]}}
 
 
@@ -181,6 +183,9 @@ def _complete_3(payload: dict) -> dict:
             config["env"].setdefault(key, list(value))
     cues = ((config.get("learner") or {}).get("cues") or {}) if isinstance(config, dict) else {}
     for cue in cues.values():
+        if isinstance(cue, dict):
+            for key, value in _ADDED_3["cue"].items():
+                cue.setdefault(key, value)
         for section in ("encoder", "nac"):
             if isinstance(cue, dict) and isinstance(cue.get(section), dict):
                 for key, value in _ADDED_3[section].items():
