@@ -41,7 +41,8 @@ from omegaconf.errors import OmegaConfBaseException
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from aectorch.runtime import format_summary, prepare_run, run_experiment
-from aectorch.runtime.config import register_configs, to_experiment_config
+from aectorch.runtime.config import to_experiment_config
+from aectorch.runtime.store import register_configs
 from aectorch.runtime.checkpoint import load_checkpoint
 from aectorch.runtime.outputs import WriteFailed
 from aectorch.runtime.watchdog import WatchdogError

@@ -183,7 +183,8 @@ def test_the_learner_learns_accommodation_with_the_information_reward():
 
 def test_the_experiment_adds_the_cue_and_the_evaluation_reports_dioptres_and_pixels():
     from aectorch.evaluation.evaluation import accommodation_report
-    from aectorch.runtime.config import ACCOMMODATION, ExperimentConfig, to_experiment_config
+    from aectorch.runtime.config import ExperimentConfig, to_experiment_config
+    from aectorch.runtime.presets import ACCOMMODATION
     from omegaconf import OmegaConf
 
     nested = {}

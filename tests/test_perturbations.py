@@ -18,7 +18,8 @@ from aectorch.coding.patches import as_scale
 from aectorch.control import ActorCriticConfig, NaturalActorCritic
 from aectorch.evaluation import adaptation, recovery_of
 from aectorch.runtime import load_checkpoint, run_experiment
-from aectorch.runtime.config import REARING, to_experiment_config
+from aectorch.runtime.config import to_experiment_config
+from aectorch.runtime.presets import REARING
 from aectorch.runtime.perturbations import Schedule, resolve_events
 from aectorch.sim import ActiveDepthEnv, pink_noise_images
 from aectorch.sim.perturbations import (
@@ -360,7 +361,7 @@ def test_every_rearing_condition_runs(tmp_path, folder):
     """``rearing=<name>``: each condition's events run through a tiny training (smoke)."""
     from hydra import compose, initialize
 
-    from aectorch.runtime.config import register_configs
+    from aectorch.runtime.store import register_configs
 
     register_configs()
     small = [*TINY, f"env.textures={folder}", "env.num_envs=2", "env.fixation_iterations=2", "train.iterations=4"]

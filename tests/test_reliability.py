@@ -324,7 +324,7 @@ def test_recording_without_lerobot_says_where_it_lives(tmp_path, textures):
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="checks the message on a machine without CUDA")
 def test_cuda_device_without_cuda_is_rejected_before_any_work(textures):
-    from aectorch.runtime.config import validate_resources
+    from aectorch.runtime.resources import validate_resources
 
     with pytest.raises(ValueError, match="env.device='cuda', but this torch .* sees no CUDA device"):
         validate_resources(_cfg(textures, "env.device=cuda"))

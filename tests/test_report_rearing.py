@@ -12,7 +12,7 @@ from omegaconf import OmegaConf
 from aectorch.coding.readouts import code_summary
 from aectorch.report.__main__ import main
 from aectorch.report.rearing import code_numbers, rearing_condition, rearing_runs
-from aectorch.runtime.config import REARING
+from aectorch.runtime.presets import REARING
 
 
 def _atoms(seed: int, eye: str | None) -> torch.Tensor:

@@ -14,9 +14,9 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from aectorch.runtime.config import (
-    ROLL_PERTURBATION, ExperimentConfig, PAPER_PRESET, to_experiment_config, validate_resources,
-)
+from aectorch.runtime.config import ExperimentConfig, to_experiment_config
+from aectorch.runtime.presets import PAPER_PRESET, ROLL_PERTURBATION
+from aectorch.runtime.resources import validate_resources
 from aectorch.runtime import CHECKPOINT_FORMAT, load_checkpoint, load_learner, run_experiment, save_checkpoint
 from aectorch.runs import Run
 from aectorch.sim import ActiveDepthEnv
@@ -254,7 +254,7 @@ def test_checkpoint_errors_name_the_path(tmp_path):
 def test_config_errors_name_the_field(override, field, textures):
     from hydra import compose, initialize
 
-    from aectorch.runtime.config import register_configs
+    from aectorch.runtime.store import register_configs
 
     register_configs()
     with initialize(version_base=None, config_path=None):
@@ -290,7 +290,8 @@ def _value(cfg, dotted: str):
 def test_preset_paper_and_perturbation_fractions():
     from hydra import compose, initialize
 
-    from aectorch.runtime.config import PerturbationConfig, register_configs
+    from aectorch.runtime.config import PerturbationConfig
+    from aectorch.runtime.store import register_configs
 
     register_configs()
     with initialize(version_base=None, config_path=None):

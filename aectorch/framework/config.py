@@ -2,7 +2,7 @@
 
 This is where the learner's defaults live, once: each cue's coder (`EncoderConfig`), its agent
 (`ActorCriticConfig` or `PPOConfig`), its actions, scales and symmetry, and the depth MLP's
-settings. ``preset=paper`` (`aectorch.runtime.config.PAPER_PRESET`) lists what the paper states
+settings. ``preset=paper`` (`aectorch.runtime.presets.PAPER_PRESET`) lists what the paper states
 differently.
 """
 
@@ -158,7 +158,7 @@ class LearnerConfig:
 
     Defaults are the paper's values where it gives them and they can reach the targets; where
     they differ (action set, reward, actor-critic settings, symmetries) docs/paper-mapping.md says
-    why, and ``preset=paper`` (:data:`aectorch.runtime.config.PAPER_PRESET`) restores the
+    why, and ``preset=paper`` (:data:`aectorch.runtime.presets.PAPER_PRESET`) restores the
     paper's values.
 
     Attributes:

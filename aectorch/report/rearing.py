@@ -3,7 +3,7 @@
 The suite is ``python train.py -m seed=0,1,2 rearing=normal,monocular,...`` (docs/sensory-coding.md,
 "Rearing"): one run folder per condition and seed. Each run's condition is read from its own
 ``config.yaml``: the run's ``perturbations`` are those of one of the conditions of
-:data:`aectorch.runtime.config.REARING`. Everything else comes from its ``summary.json``, through
+:data:`aectorch.runtime.presets.REARING`. Everything else comes from its ``summary.json``, through
 `aectorch.runs.Run`: the learned code's read-outs (`aectorch.coding.readouts.code_summary`, per
 dictionary), the evaluation (normal eyes, the final state), the final training window and the
 read-out of the correction (the anisometropia conditions' event ends), and the training time.
@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 from aectorch.runs import Run
-from aectorch.runtime.config import REARING
+from aectorch.runtime.presets import REARING
 
 __all__ = ["DOMINANCE", "code_numbers", "rearing_condition", "rearing_runs", "rearing_rows", "rearing_table",
            "plot_rearing"]

@@ -3,7 +3,8 @@
 :func:`run_experiment` is what ``train.py`` calls with a validated config and a run folder. The
 package holds, one idea per module:
 
-- `config.py`: the structured configs (`ExperimentConfig`, presets, `validate_resources`);
+- `config.py`: the structured configs (`ExperimentConfig`); `presets.py` the named settings;
+  `store.py` Hydra's store; `resources.py` `validate_resources`;
 - `builders.py`: textures, environments, learner and threads from a config;
 - `checkpoint.py`: the checkpoint format and the rules of a resume (`prepare_run`);
 - `loop.py`: the training loop (`TrainingRun`) and its extras as `Callback` s: the perturbation, the
@@ -54,7 +55,8 @@ from aectorch.runtime.checkpoint import (
     checkpoint_envs, load_checkpoint, load_learner, prepare_run, resolve_resume, restore, resume_config,
     save_checkpoint,
 )
-from aectorch.runtime.config import ExperimentConfig, to_container, to_experiment_config, validate_resources
+from aectorch.runtime.config import ExperimentConfig, to_container, to_experiment_config
+from aectorch.runtime.resources import validate_resources
 from aectorch.runtime.finish import calibrate_depth, calibration_conditions, finish
 from aectorch.runtime.loop import Callback, TrainingRun, default_callbacks
 from aectorch.runtime.outputs import RunFolder, format_summary

@@ -26,7 +26,8 @@ import torch
 
 from aectorch.framework import JointLearner
 from aectorch.runtime.builders import build_learner
-from aectorch.runtime.config import ExperimentConfig, to_container, to_experiment_config, validate_resources
+from aectorch.runtime.config import ExperimentConfig, to_container, to_experiment_config
+from aectorch.runtime.resources import validate_resources
 from aectorch.runtime.migrations import CHECKPOINT_FORMAT, migrate
 from aectorch.runtime.outputs import atomic_write
 

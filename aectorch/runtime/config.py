@@ -4,25 +4,14 @@ One dataclass per component; each docstring explains every field and each ``__po
 rejects impossible values with a message that names the field (``env.num_envs must be ...``).
 Hydra composes the command line onto :class:`ExperimentConfig` (type checks), and
 :func:`to_experiment_config` then builds the dataclasses, which runs the value checks.
-
-:func:`register_configs` stores the schema in Hydra's ConfigStore as ``train`` with two groups:
-
-- ``preset``: ``default`` (no change, selected by default) and ``paper`` (:data:`PAPER_PRESET`,
-  the paper's values), chosen with ``preset=paper``;
-- ``experiment``: ``roll_perturbation`` (the paper's Fig. 4 experiment: one eye rolled at half
-  of the training, the other at three quarters, :data:`ROLL_PERTURBATION`), added with
-  ``+experiment=roll_perturbation``;
-- ``plasticity``: ``decay`` (the default, no change), ``floor`` and ``raise``
-  (:data:`PLASTICITY`): how plastic the learners stay, a perturbation experiment's choice;
-- ``rearing``: the AEC lineage's rearing conditions (:data:`REARING`), each a list of
-  perturbation events: ``python train.py -m rearing=normal,monocular,...``.
+Beside it: the named settings (`aectorch.runtime.presets`), the checks of what the dataclasses
+cannot see (`aectorch.runtime.resources`) and Hydra's store (`aectorch.runtime.store`).
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import Optional
 
 import torch
 
@@ -30,119 +19,28 @@ from aectorch._checks import (check_bool, check_choice, check_device, check_dist
                               check_real)
 from aectorch.choices import DType, Eye, RendererName
 from aectorch.evaluation import EVAL_BATCH_SIZE
-from aectorch.framework import PAPER_ACTIONS_DEG, LearnerConfig, default_cues
+from aectorch.framework import LearnerConfig
 from aectorch.runtime.metrics import PAPER_WINDOW, RECENT_WINDOW
 from aectorch.runtime.perturbations import Event, PerturbationEventConfig, resolve_events
 from aectorch.runtime.watchdog import WatchdogConfig
 from aectorch.sim import (
     PAN_RANGE_DEG, VERGENCE_RANGE_DEG, check_oculomotor_range,
-    DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, PROCEDURAL_TEXTURES, START_PURSUIT_DEG, START_VERGENCE_DEG,
+    DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, START_PURSUIT_DEG, START_VERGENCE_DEG,
 )
 
 __all__ = [
     "EnvConfig",
     "EvalConfig",
     "ExperimentConfig",
-    "PAPER_PRESET",
-    "PLASTICITY",
     "PerturbationConfig",
     "PerturbationEventConfig",
     "PlasticityConfig",
-    "REARING",
-    "REARING_SETTINGS",
     "RecordConfig",
-    "ROLL_PERTURBATION",
     "TrainConfig",
     "WatchdogConfig",
-    "register_configs",
     "to_container",
     "to_experiment_config",
-    "validate_resources",
 ]
-
-#: The paper's values (Wong et al. 2017) where they differ from the defaults, applied by
-#: ``preset=paper``: dotted key -> value. What the paper states and the defaults change: its
-#: natural actor-critic with its greedy (argmax) policy, its seven actions, its two scales and no
-#: symmetries of the cues (its matching pursuit with 288
-#: atoms and 10 coefficients, and its protocol's 30 iterations and 0.1 m, are the defaults). What
-#: it leaves unstated keeps the defaults (docs/paper-mapping.md): the step sizes and the critic,
-#: the z-scored features, the body movement spread over 20 iterations with yoked pursuit, the
-#: centred pyramid, the decaying rates, B = 32 robots. One value it leaves unstated is chosen
-#: to make its configuration learn vergence: the stereo dictionaries start binocular (each atom
-#: tuned to zero disparity; with a random start and no symmetry, vergence settled 0.66 deg off).
-#: Its own length: within 20 minutes on two CPU cores.
-PAPER_PRESET: dict[str, Any] = {
-    **{f"learner.cues.{cue}.{key}": value for cue in default_cues()
-       for key, value in (("actions_deg", list(PAPER_ACTIONS_DEG)), ("symmetry", None),
-                          ("scales", ["coarse", "fine"]), ("agent", "nac"), ("readout", "argmax"))},
-    "learner.cues.stereo.encoder.start": "binocular",
-    "train.iterations": 6000,
-}
-
-#: The paper's perturbation experiment (section 4, Fig. 4), ``+experiment=roll_perturbation``:
-#: the right eye rolled 7 deg at iteration 1200 (0.4 of a 3000-iteration run), the left eye too
-#: at 2400 (0.8), both until the end: the one-eye stretch is long enough for the recovery
-#: (docs/results.md, "Adaptation to a roll", says why this angle and this length).
-ROLL_PERTURBATION: dict[str, Any] = {
-    "perturbations": [
-        {"kind": "roll", "start": 0.4, "eye": "right", "params": {"deg": 7.0}, "label": "right eye rolled"},
-        {"kind": "roll", "start": 0.8, "eye": "left", "params": {"deg": 7.0}, "label": "both eyes rolled"},
-    ],
-    "train.iterations": 3000,
-}
-
-#: Accommodation learned with vergence (issue 53), ``+experiment=accommodation``: the environment
-#: serves the accommodation cue (each fixation starts with both eyes focused at infinity, 0 D, as
-#: vergence starts parallel) and the learner learns it with the information reward, which prefers
-#: focus (`aectorch.coding.focus`); its actions are degrees of the blur disc's diameter (at the
-#: default 16 mm aperture 0.92 deg per dioptre). It codes the two finest scales only: at the wide
-#: and coarse scales' 3.6 and 1.8 deg pixels a dioptre's blur is a fraction of a pixel.
-ACCOMMODATION: dict[str, Any] = {
-    "env.accommodation_start_D": 0.0,
-    "learner.cues.accommodation": {"efficiency": "information", "symmetry": None, "scales": ["fine", "full"],
-                                   "actions_deg": [-0.5, -0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2, 0.5]},
-}
-
-#: The plasticity regimes a perturbation experiment chooses from (``plasticity=<name>``): name ->
-#: dotted key -> value. ``decay``: today's (the dictionaries' rates decay as tau / (tau + t),
-#: PPO's step is constant); ``floor``: the decaying rates fall no lower than half their start;
-#: ``raise``: every event's start and end raises them back to their start, from where they decay
-#: again.
-PLASTICITY: dict[str, dict[str, Any]] = {
-    "decay": {},
-    "floor": {**{f"learner.cues.{cue}.encoder.floor": 0.5 for cue in default_cues()},
-              **{f"learner.cues.{cue}.nac.actor_floor": 0.5 for cue in default_cues()}},
-    "raise": {"plasticity.raise_to": 1.0},
-}
-
-#: What every rearing condition (``rearing=<name>``, ``normal`` included) sets besides its events:
-#: dotted key -> value. A stereo code that can be reared: no swap symmetry (it forces the
-#: binocularity histogram to be symmetric) and a constant dictionary rate 20x the default's start
-#: (with the default decaying 0.1, the atoms end within a cosine of 0.996-0.999 of their random
-#: start and no histogram moves; docs/sensory-coding.md, "Rearing", has the measurements). The
-#: evaluation reads the final state (no ``best.pt``: a window chosen under the reared eyes is not
-#: what rearing left).
-REARING_SETTINGS: dict[str, Any] = {
-    "learner.cues.stereo.symmetry": None,
-    "learner.cues.stereo.encoder.decay": None,
-    "learner.cues.stereo.encoder.lr": 2.0,
-    "train.keep_best": False,
-}
-
-#: The rearing conditions of the AEC lineage (Klimmasch et al. 2021, Eckmann et al. 2020), each a
-#: list of perturbation events over the whole run (``rearing=<name>``, which also sets
-#: :data:`REARING_SETTINGS`; the evaluation afterwards sees with normal eyes): name -> events.
-REARING: dict[str, list[dict[str, Any]]] = {
-    "normal": [],
-    "monocular": [{"kind": "monocular_deprivation", "start": 0, "eye": "right", "params": {"contrast": 0.0}}],
-    "strabismus": [{"kind": "strabismus", "start": 0, "eye": "right", "params": {"deg": 10.0}}],
-    "anisometropia_early": [{"kind": "anisometropia", "start": 0, "end": 0.25, "eye": "right",
-                             "params": {"arcmin": 120.0}, "label": "right eye blurred, corrected early"}],
-    "anisometropia_late": [{"kind": "anisometropia", "start": 0, "end": 0.75, "eye": "right",
-                            "params": {"arcmin": 120.0}, "label": "right eye blurred, corrected late"}],
-    "vertical": [{"kind": "orientation_rearing", "start": 0, "params": {"orientation": "vertical"}}],
-    "horizontal": [{"kind": "orientation_rearing", "start": 0, "params": {"orientation": "horizontal"}}],
-}
 
 _DTYPES = {DType.float32: torch.float32, DType.float64: torch.float64}
 
@@ -579,109 +477,3 @@ def to_container(cfg: ExperimentConfig) -> dict:
     from omegaconf import OmegaConf
 
     return OmegaConf.to_container(OmegaConf.structured(cfg), resolve=True, enum_to_str=True)
-
-
-def _images(folder: str) -> list[str]:
-    from aectorch.sim.textures import IMAGE_EXTENSIONS
-
-    extensions = {e.lower() if e.startswith(".") else f".{e.lower()}" for e in IMAGE_EXTENSIONS}
-    return sorted(
-        entry.path for entry in os.scandir(folder)
-        if entry.is_file() and not entry.name.startswith(".") and os.path.splitext(entry.name)[1].lower() in extensions
-    )
-
-
-def _check_images(name: str, folder: str) -> None:
-    """Every image of the folder opens (its header and data structure, without decoding it all)."""
-    from PIL import Image
-
-    files = _images(folder)
-    if not files:
-        raise ValueError(f"{name}: the folder {folder!r} holds no images")
-    for file in files:
-        try:
-            with Image.open(file) as image:
-                image.verify()
-        except Exception as err:  # PIL raises many types for broken files
-            raise ValueError(f"{name}: cannot read the image {file!r} ({type(err).__name__}: {err}); "
-                             "remove or replace it") from err
-
-
-def validate_resources(cfg: ExperimentConfig) -> None:
-    """Check what the dataclasses cannot: folders exist and hold readable images, the renderer
-    imports, the resume folder has a checkpoint. Raises ``ValueError`` naming the field (and the
-    file)."""
-    for name, folder in (("env.textures", cfg.env.textures), ("eval.textures", cfg.eval.textures)):
-        if folder is None or folder in PROCEDURAL_TEXTURES:
-            continue
-        if not os.path.isdir(folder):
-            raise ValueError(f"{name}: no such folder {folder!r}")
-        _check_images(name, folder)
-    device = torch.device(cfg.env.device)
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError(f"env.device={cfg.env.device!r}, but this torch ({torch.__version__}) sees no CUDA "
-                         "device; use env.device=cpu")
-    if cfg.env.renderer == "pyrender":
-        try:
-            from aectorch.sim.render_pyrender import import_pyrender
-
-            import_pyrender()  # PYOPENGL_PLATFORM first (the user's, else osmesa), then pyrender
-        except Exception as err:  # ImportError, or OpenGL failing to find a platform
-            raise ValueError(f"env.renderer='pyrender' cannot be used: {type(err).__name__}: {err}") from err
-    if cfg.record.lerobot is not None:
-        if os.path.exists(cfg.record.lerobot):
-            raise ValueError(f"record.lerobot: {cfg.record.lerobot!r} exists already; give a new folder")
-        try:
-            import lerobot  # noqa: F401
-        except ImportError as err:
-            raise ValueError("record.lerobot needs LeRobot, which is not installed here: run train.py with "
-                             ".venv-lerobot/bin/python (bash scripts/setup_lerobot.sh makes it)") from err
-    if cfg.train.resume is not None:
-        checkpoint = os.path.join(cfg.train.resume, "checkpoint.pt")
-        if not os.path.isfile(checkpoint):
-            raise ValueError(f"train.resume: no checkpoint at {checkpoint!r}")
-
-
-def _nested(dotted: dict[str, Any]) -> dict:
-    out: dict = {}
-    for key, value in dotted.items():
-        *parents, leaf = key.split(".")
-        node = out
-        for parent in parents:
-            node = node.setdefault(parent, {})
-        node[leaf] = value
-    return out
-
-
-@dataclass
-class _TrainNode(ExperimentConfig):
-    # Hydra's defaults list: the groups apply after the schema's own values.
-    defaults: list[Any] = field(default_factory=lambda: ["_self_", {"preset": "default"}, {"guard": "default"},
-                                                         {"plasticity": "decay"}, {"rearing": None}])
-
-
-def register_configs() -> None:
-    """Register the configs with Hydra's ConfigStore: ``train`` and the groups ``preset``
-    (``default``, ``paper``), ``experiment`` (``roll_perturbation``), ``plasticity``
-    (:data:`PLASTICITY`), ``rearing`` (:data:`REARING`) and ``guard`` (``default``: Hydra's
-    callback `aectorch.runtime.launch.RunFolderGuard`, which refuses a new run over an existing
-    one before Hydra writes into its folder)."""
-    from hydra.core.config_store import ConfigStore
-
-    store = ConfigStore.instance()
-    store.store(name="train", node=_TrainNode)
-    store.store(group="preset", name="default", node={}, package="_global_")
-    store.store(group="preset", name="paper", node=_nested(PAPER_PRESET), package="_global_")
-    store.store(group="guard", name="default", package="_global_",
-                node={"hydra": {"callbacks": {"run_folder_guard": {"_target_": "aectorch.runtime.launch.RunFolderGuard"}}}})
-    store.store(group="experiment", name="roll_perturbation", node=_nested(ROLL_PERTURBATION),
-                package="_global_")
-    store.store(group="experiment", name="accommodation", node=_nested(ACCOMMODATION), package="_global_")
-    for name, values in PLASTICITY.items():
-        store.store(group="plasticity", name=name, node=_nested(values), package="_global_")
-    for name, events in REARING.items():
-        # "normal" adds no events: a run's own perturbations stay.
-        node = _nested(REARING_SETTINGS)
-        if events:
-            node["perturbations"] = events
-        store.store(group="rearing", name=name, node=node, package="_global_")

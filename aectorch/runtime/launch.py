@@ -3,7 +3,7 @@
 Hydra writes ``.hydra/`` and ``train.log`` into the run folder before the job's function runs, so
 the refusal to start a new run over a finished one (`aectorch.runtime.checkpoint.check_new_run`)
 is made here, in a Hydra callback (``hydra.callbacks.run_folder_guard``, registered by
-`aectorch.runtime.config.register_configs`), at the start of a run or sweep: a refused rerun
+`aectorch.runtime.store.register_configs`), at the start of a run or sweep: a refused rerun
 leaves the folder byte-identical.
 """
 
