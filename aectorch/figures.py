@@ -36,7 +36,7 @@ import torch
 from torch import Tensor
 
 from aectorch._checks import is_int
-from aectorch.coding.readouts import principal_components  # re-exported: its public path before it moved to the read-outs
+from aectorch.coding.readouts import check_atoms, principal_components  # re-exported: its public path before it moved to the read-outs
 
 __all__ = [
     "principal_components",
@@ -220,21 +220,6 @@ def _error_panels(ax_eye, ax_depth, x: np.ndarray, records: Sequence[Mapping]) -
         ax.grid(True, which="major", alpha=0.3)
 
 
-def _as_matrix(value: Any, name: str) -> Tensor:
-    if not isinstance(value, Tensor):
-        try:
-            value = torch.as_tensor(np.asarray(value))
-        except Exception as exc:  # noqa: BLE001 - re-raised as the documented ValueError
-            raise ValueError(f"{name} must be a [P, N] tensor, got {type(value).__name__}") from exc
-    if value.ndim != 2:
-        raise ValueError(f"{name} must be a 2-D [P, N] tensor (atoms as columns), got shape {tuple(value.shape)}")
-    if not value.is_floating_point():
-        raise ValueError(f"{name} must be a floating-point tensor, got dtype {value.dtype}")
-    if not bool(torch.isfinite(value).all()):
-        raise ValueError(f"{name} contains non-finite values (NaN or inf)")
-    return value
-
-
 # ----------------------------------------------------------------------------------------------
 # Fig. 2: dictionaries
 
@@ -277,7 +262,7 @@ def plot_dictionaries(initial: Mapping[str, Tensor], trained: Mapping[str, Tenso
     pcs = {}
     for key in initial:
         for name, mapping in (("initial", initial), ("trained", trained)):
-            atoms = _as_matrix(mapping[key], f"{name}[{key!r}]")
+            atoms = check_atoms(mapping[key], f"{name}[{key!r}]")
             if atoms.shape[0] < 2 or atoms.shape[1] < 2:
                 raise ValueError(f"{name}[{key!r}] must be [P, N] with P >= 2 and N >= 2, got {tuple(atoms.shape)}")
             scores, ratio = principal_components(atoms.double().cpu(), k=2)

@@ -41,6 +41,7 @@ __all__ = [
     "DisparityPreference",
     "OrientationPreference",
     "atom_halves",
+    "check_atoms",
     "binocularity_index",
     "binocularity_histogram",
     "disparity_tuning",
@@ -411,18 +412,20 @@ def orientation_histogram(orientation_deg: Tensor, bins: int = ORIENTATION_BINS)
     return _counts(which, bins), centres
 
 
-def _check_dictionary(value) -> Tensor:
+def check_atoms(value, name: str = "atoms") -> Tensor:
+    """``value`` as a finite floating-point ``[P, N]`` tensor of atoms (columns), or a
+    ``ValueError`` that names ``name`` and what it got."""
     if not isinstance(value, Tensor):
         try:
             value = torch.as_tensor(value)
         except Exception as exc:  # noqa: BLE001 - re-raised as the documented ValueError
-            raise ValueError(f"atoms must be a [P, N] tensor, got {type(value).__name__}") from exc
+            raise ValueError(f"{name} must be a [P, N] tensor, got {type(value).__name__}") from exc
     if value.ndim != 2:
-        raise ValueError(f"atoms must be a 2-D [P, N] tensor (atoms as columns), got shape {tuple(value.shape)}")
+        raise ValueError(f"{name} must be a 2-D [P, N] tensor (atoms as columns), got shape {tuple(value.shape)}")
     if not value.is_floating_point():
-        raise ValueError(f"atoms must be a floating-point tensor, got dtype {value.dtype}")
+        raise ValueError(f"{name} must be a floating-point tensor, got dtype {value.dtype}")
     if not bool(torch.isfinite(value).all()):
-        raise ValueError("atoms contains non-finite values (NaN or inf)")
+        raise ValueError(f"{name} contains non-finite values (NaN or inf)")
     return value
 
 
@@ -452,7 +455,7 @@ def principal_components(atoms: Tensor, k: int = 2) -> tuple[Tensor, Tensor]:
         >>> ratio
         tensor([1.])
     """
-    atoms = _check_dictionary(atoms)
+    atoms = check_atoms(atoms)
     p, n = atoms.shape
     if not (is_int(k) and 1 <= k <= min(n, p)):
         raise ValueError(f"k must be an int in [1, min(N, P)] = [1, {min(n, p)}] for atoms of shape {(p, n)}, got {k!r}")
