@@ -46,6 +46,7 @@ __all__ = [
     "plot_evaluation",
     "plot_tracking",
     "plot_focus_curve",
+    "save_figure",
     "plot_code",
     "plot_code_comparison",
 ]
@@ -68,22 +69,30 @@ def _new_figure(figsize: tuple[float, float]):
     return Figure(figsize=figsize, dpi=DPI)
 
 
-def _save(fig, path: str | os.PathLike) -> Path:
+def save_figure(fig, path: str | os.PathLike, dpi: float = DPI) -> Path:
+    """Write ``fig`` to ``path`` (its folder made), whole or not at all: a failed write (a full
+    disk) leaves the previous figure, not half of one. Raises ``ValueError`` when ``path`` has no
+    image suffix."""
     out = Path(path)
     if out.suffix == "":
         raise ValueError(f"path must name a file with an image suffix such as '.png', got {str(path)!r}")
     out.parent.mkdir(parents=True, exist_ok=True)
-    # tight_layout leaves the suptitle out of account: keep the top 0.45 inch free for it.
-    top = 1.0 if fig._suptitle is None else 1.0 - 0.45 / fig.get_figheight()
-    fig.tight_layout(rect=(0.0, 0.0, 1.0, top))
-    # Whole or not at all: a failed write (a full disk) leaves the previous figure, not half of one.
     tmp = out.with_name(f".{out.stem}.{os.getpid()}.tmp{out.suffix}")
     try:
-        fig.savefig(tmp, dpi=DPI)
+        fig.savefig(tmp, dpi=dpi)
         os.replace(tmp, out)
     finally:
         tmp.unlink(missing_ok=True)
     return out
+
+
+def _save(fig, path: str | os.PathLike) -> Path:
+    if Path(path).suffix == "":
+        raise ValueError(f"path must name a file with an image suffix such as '.png', got {str(path)!r}")
+    # tight_layout leaves the suptitle out of account: keep the top 0.45 inch free for it.
+    top = 1.0 if fig._suptitle is None else 1.0 - 0.45 / fig.get_figheight()
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, top))
+    return save_figure(fig, path)
 
 
 def _as_float(value: Any) -> float:

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 from aectorch.evaluation.summary import BEYOND_DEG, WITHIN_DEG
+from aectorch.figures import save_figure
 from aectorch.runs import Run, per_trial_rows, read_json
 
 __all__ = ["DEFAULT_KEYS", "compare_groups", "compare_trials", "curves_table", "group_table", "plot_curves",
@@ -102,10 +103,7 @@ def plot_groups(groups: Mapping[str, Sequence[Run]], path: str | os.PathLike) ->
         ax.grid(alpha=0.3, which="both")
     axes[0].set_ylabel("MAE (deg)")
     axes[0].legend()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    return path
+    return save_figure(fig, path, dpi=110)
 
 
 def curves_table(runs: Mapping[str, Run], keys: Sequence[str], first: int, last: int, every: int) -> list[str]:
@@ -153,10 +151,7 @@ def plot_curves(runs: Mapping[str, Run], keys: Sequence[str], first: int, last: 
                                 ha="right", fontsize=7, color="grey")
     axes[0, 0].legend()
     axes[-1, 0].set_xlabel("learner iteration")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    return path
+    return save_figure(fig, path, dpi=110)
 
 
 def _trial_rows(path: str | os.PathLike) -> dict[tuple[str, float], dict]:

@@ -17,6 +17,7 @@ import statistics
 from pathlib import Path
 from typing import Mapping, Sequence
 
+from aectorch.figures import save_figure
 from aectorch.runs import Run
 from aectorch.runtime.presets import REARING
 
@@ -218,10 +219,7 @@ def plot_rearing(groups: Mapping[str, Sequence[Run]], path: str | os.PathLike, c
     _correction_panel(fig.add_subplot(grid[len(scales), len(names):]), rows, names)
     fig.suptitle("Rearing: the binocularity index (R - L) / (R + L) of the learned code's atoms,\n"
                  "vergence at the end and after the correction")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    return path
+    return save_figure(fig, path, dpi=100)
 
 
 def _figure(rows: int, columns: int):
