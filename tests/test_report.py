@@ -211,7 +211,8 @@ def test_the_command_line_lists_its_commands():
     done = subprocess.run([sys.executable, "-m", "aectorch.report", "--help"], cwd=ROOT, capture_output=True, text=True,
                           timeout=120)
     assert done.returncode == 0
-    for command in ("table", "compare", "curves", "band", "trials", "ablation", "rl", "tails"):
+    for command in ("table", "compare", "curves", "band", "trials", "ablation", "rl", "tails", "matcher", "offsets",
+                    "depth-readout", "depth-tolerance"):
         assert command in done.stdout
 
 

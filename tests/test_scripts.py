@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
-from pathlib import Path
 
 import pytest
 
@@ -32,79 +30,3 @@ def test_soak_report_splits_memory_by_process_and_finds_growth(tmp_path, script)
     # Without provenance the boundary is invisible here (the iterations increase): one process.
     (tmp_path / "provenance.json").unlink()
     assert len(soak.report(tmp_path)["memory_by_process"]) == 1
-
-
-def _tiny_dotlist(tmp_path: Path) -> list[str]:
-    """A run of a few seconds on three random textures (train and eval)."""
-    import numpy as np
-    import torch
-    from PIL import Image
-
-    torch.set_num_threads(1)
-    folder = tmp_path / "textures"
-    folder.mkdir()
-    rng = np.random.default_rng(0)
-    for i in range(3):
-        Image.fromarray((rng.random((64, 64)) * 255).astype(np.uint8)).save(folder / f"t{i}.png")
-    return ["env.num_envs=5", "env.fixation_iterations=2", "env.distances_m=[1.0,1.5,2.0,2.5,3.0]",
-            "learner.cues.parallax.encoder.num_atoms=16", "learner.cues.stereo.encoder.num_atoms=16", "learner.depth_every_trials=10", "eval.distances_m=[1.0]",
-            "eval.batch_size=8", "train.iterations=12", "train.log_every=2", "train.progress=false",
-            "train.figures=false", "train.tensorboard=false", "train.metrics_window=10",
-            f"env.textures={folder}", f"eval.textures={folder}"]
-
-
-def test_depth_calibration_script_gives_what_train_py_evaluates(tmp_path, capsys, script):
-    """scripts/depth_calibration.py --design spread reproduces train.depth_calibration_trials."""
-    from omegaconf import OmegaConf
-
-    from aectorch.runtime.config import to_experiment_config
-    from aectorch.runtime import run_experiment
-
-    dotlist = _tiny_dotlist(tmp_path)
-    calibrated = run_experiment(to_experiment_config(OmegaConf.from_dotlist(dotlist + ["train.depth_calibration_trials=15"])),
-                                tmp_path / "run")
-    capsys.readouterr()
-    calibration = script("depth_calibration")
-    out = tmp_path / "out.json"
-    assert calibration.main([str(tmp_path / "run" / "best.pt"), "--trials", "15", "--json", str(out)]) == 0
-    result = json.loads(out.read_text())
-    assert result == json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    plain = run_experiment(to_experiment_config(OmegaConf.from_dotlist(dotlist)), tmp_path / "plain")
-    # best.pt of so short a run has no fitted MLP yet (NaN); the calibration fits one.
-    assert result["before"]["textures"] == pytest.approx(plain["evaluation"]["depth_mae_m"], nan_ok=True)
-    assert result["after"]["textures"] == pytest.approx(calibrated["evaluation"]["depth_mae_m"])
-    assert math.isfinite(result["after"]["textures"])
-    with pytest.raises(SystemExit):
-        calibration.main([str(tmp_path / "run" / "best.pt"), "--trials", "5"])
-
-
-def test_depth_readout_compares_read_outs_of_the_same_trials(tmp_path, capsys, script):
-    """scripts/depth_readout.py: its calibrated read-out is train.py's; the cache gives the same."""
-    from omegaconf import OmegaConf
-
-    from aectorch.runtime.config import to_experiment_config
-    from aectorch.runtime import run_experiment
-
-    dotlist = _tiny_dotlist(tmp_path) + ["train.iterations=20"]
-    calibrated = run_experiment(to_experiment_config(OmegaConf.from_dotlist(dotlist + ["train.depth_calibration_trials=15"])),
-                                tmp_path / "run")
-    capsys.readouterr()
-    readout = script("depth_readout")
-    args = [str(tmp_path / "run" / "best.pt"), "--calibration", "12", "15", "--cache", str(tmp_path / "t.pt")]
-    assert readout.main([*args, "--json", str(tmp_path / "a.json")]) == 0
-    out = capsys.readouterr().out
-    assert "| distance_m | MLP | calibrated 12 | calibrated 12 + training | calibrated 15 |" in out
-    result = json.loads((tmp_path / "a.json").read_text())
-    maes = result["textures"]["depth_mae_m"]
-    assert maes["calibrated 15"] == pytest.approx(calibrated["evaluation"]["depth_mae_m"])
-    assert maes["calibrated 12"] != maes["calibrated 15"]
-    assert all(math.isfinite(maes[k]) for k in ("vergence", "pursuit", "all four", "calibrated 15 + training"))
-    assert 0 < maes["Gaussian floor"] < math.inf
-    assert result["textures"]["trials"] == 3 and [r["distance_m"] for r in result["textures"]["per_distance"]] == [1.0]
-    tolerance = result["tolerance_deg_for_0.05_m"][0]  # 1.0 m: vergence 0.05 m is about 0.17 deg
-    assert 0.1 < tolerance["q2"] < 0.25 and tolerance["all four alike"] > tolerance["q1"]
-    # The cache: the same trials, so the same numbers, without running them again.
-    assert readout.main([*args, "--json", str(tmp_path / "b.json")]) == 0
-    assert (tmp_path / "b.json").read_text() == (tmp_path / "a.json").read_text()
-    with pytest.raises(SystemExit):
-        readout.main([str(tmp_path / "run" / "best.pt"), "--calibration", "5"])

@@ -18,7 +18,9 @@ a fixation that ends in a limit cycle of one small action is a coin toss at its 
 :func:`offset_sweep` is a diagnostic: a cue's coding reward and greedy increment against the
 offset of its eye movement from the optimum (where the code stops telling offsets apart, and
 whether the policy stops at the target). :func:`adaptation` reads a perturbed run's recovery off
-its metrics (`adaptation.py`). `aectorch.baselines.Matcher`, a classical
+its metrics (`adaptation.py`). :func:`depth_readouts` compares read-outs of the same trials'
+eye movements with the head's exact geometry, :func:`depth_tolerance` the eye error a depth error
+needs (`depth_readout.py`). `aectorch.baselines.Matcher`, a classical
 cross-correlation matcher, runs through the same trials as the accuracy anchor.
 
 Each trial also records what its eyes saw at its start (`views.py`: the contrast and the energy at
@@ -31,6 +33,7 @@ simulation; the command line, on a checkpoint written by ``train.py``, is `__mai
 """
 
 from aectorch.evaluation.adaptation import adaptation, recovery_of
+from aectorch.evaluation.depth_readout import depth_readouts, depth_tolerance
 from aectorch.evaluation.evaluation import evaluate
 from aectorch.evaluation.offsets import limit_cycle, offset_summary, offset_sweep
 from aectorch.evaluation.summary import (
@@ -39,6 +42,6 @@ from aectorch.evaluation.summary import (
 from aectorch.evaluation.trials import EVAL_BATCH_SIZE, frozen_iterations, run_trials
 from aectorch.evaluation.views import view_statistics
 
-__all__ = ["BEYOND_DEG", "EVAL_BATCH_SIZE", "LAST_ITERATIONS", "WITHIN_DEG", "adaptation", "evaluate", "fractions",
-           "frozen_iterations", "limit_cycle", "movements", "offset_summary", "offset_sweep", "per_trial_rows",
+__all__ = ["BEYOND_DEG", "EVAL_BATCH_SIZE", "LAST_ITERATIONS", "WITHIN_DEG", "adaptation", "depth_readouts",
+           "depth_tolerance", "evaluate", "fractions", "frozen_iterations", "limit_cycle", "movements", "offset_summary", "offset_sweep", "per_trial_rows",
            "recovery_of", "run_trials", "summarise", "view_statistics"]

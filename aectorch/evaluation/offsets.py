@@ -140,7 +140,8 @@ def offset_summary(sweep: dict[str, Tensor], *, probe_deg: float = 0.1, pixel_de
     """The sweep's numbers: where the reward peaks (mean |offset| of each trial's peak, and the
     fraction within ``pixel_deg``), how much lower it is ``probe_deg`` off the optimum (mean of
     both sides' drop, per trial, averaged), the greedy map's mean zero crossing, the share of
-    trials whose greedy increment at the optimum is 0, and the limit cycle's mean |offset|."""
+    trials whose greedy increment at the optimum is 0, and the limit cycle's mean |offset| of the
+    greedy map and (``mean_readout_limit_cycle_abs_deg``) of the mean read-out's map."""
     x, reward, increment = sweep["offsets_deg"], sweep["reward"], sweep["increment_deg"]
     peak = x[reward.argmax(1)]
     zero = int((x.abs()).argmin())
@@ -160,5 +161,6 @@ def offset_summary(sweep: dict[str, Tensor], *, probe_deg: float = 0.1, pixel_de
         "expected_map_zero_crossing_deg": crossing,
         "greedy_zero_at_optimum": float((increment[:, zero] == 0).double().mean()),
         "limit_cycle_abs_deg": float(limit_cycle(x, increment).mean()),
+        "mean_readout_limit_cycle_abs_deg": float(limit_cycle(x, sweep["expected_increment_deg"]).mean()),
         "trials": int(reward.shape[0]),
     }

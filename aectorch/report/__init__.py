@@ -1,6 +1,7 @@
 """Tables and plots of finished runs: ``python -m aectorch.report <command> ...``.
 
-Every command reads run folders through `aectorch.runs` and prints markdown (``--help`` on each):
+Every command reads run folders through `aectorch.runs` and prints markdown (``--help`` on each);
+the last four compute on checkpoints, images or the head's geometry:
 
 - ``table RUN... [--eval FILE]``: one row per run (training time, the final training window, an
   evaluation's MAEs, medians, the fractions on target and failed, the near trials), mean +- sd;
@@ -14,7 +15,13 @@ Every command reads run folders through `aectorch.runs` and prints markdown (``-
   ``final_choose`` evaluations in one row;
 - ``tracking RUN... [--eval FILE] [--plot PNG] [--target DEG]``: a moving object's tracking error
   per speed (``python -m aectorch.evaluate ... tracking=[...]``), mean +- sd over runs;
-- ``rl FOLDER [--own RUN...]``: the RL clients on ``aectorch/Vergence-v0`` beside the learner.
+- ``rl FOLDER [--own RUN...]``: the RL clients on ``aectorch/Vergence-v0`` beside the learner;
+- ``matcher [--textures DIR] [--depths M...] [--free] [--json OUT]``: the classical matcher
+  through the same trials (it computes);
+- ``offsets LABEL=CHECKPOINT|LABEL=JSON... [--textures DIR] [--json OUT] [--plot PNG]``: the offset
+  diagnostic, computed on checkpoints or read from measurements it wrote;
+- ``depth-readout CHECKPOINT [--photos DIR] [--calibration N...]``: read-outs of depth from the
+  same eye movements; ``depth-tolerance``: the eye precision a depth error needs (geometry only).
 
 The thresholds (on target within ``WITHIN_DEG``, failed beyond ``BEYOND_DEG``) are the
 evaluation's, `aectorch.evaluation.summary`.

@@ -10,12 +10,13 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from aectorch.report import accommodation, compare, tables
+from aectorch.report import accommodation, compare, depth, matcher, offsets, tables
 from aectorch.report.adaptation import adaptation_table
 from aectorch.report.tracking import tracking_table
 from aectorch.report.rearing import plot_rearing, rearing_runs, rearing_table
 from aectorch.report.tails import tails, tails_lines
 from aectorch.runs import EVALUATION, Run
+from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL
 
 __all__ = ["main"]
 
@@ -145,6 +146,53 @@ def _rearing(args) -> list[str]:
     return lines
 
 
+def _threads(count: int) -> None:
+    """The computing commands' torch threads (default 1: their batches are small, and a second
+    thread on a busy machine costs more than it gives)."""
+    import torch
+
+    if count < 1:
+        raise ValueError(f"--threads must be >= 1, got {count}")
+    torch.set_num_threads(count)
+
+
+def _matcher(args) -> list[str]:
+    _threads(args.threads)
+    results = matcher.matcher_table(args.textures, args.depths, free=args.free, renderer=args.renderer,
+                                    progress=args.progress)
+    _write_json(args.json, results)
+    return matcher.matcher_rows(results)
+
+
+def _offsets(args) -> list[str]:
+    items = _pairs(args.learners, "learners are label=checkpoint.pt or label=measurement.json")
+    computed = [path for _, path in items if not path.endswith(".json")]
+    if (args.json or args.plot) and (len(items) != 1 or not computed):
+        raise ValueError("--json and --plot take one learner, label=checkpoint.pt")
+    _threads(args.threads)
+    measurements = {}
+    for label, path in items:
+        if path.endswith(".json"):
+            measurements[label] = offsets.read_measurement(path)
+        else:
+            measurements[label] = offsets.offset_measurement(path, args.textures, args.depths, step_deg=args.step,
+                                                             progress=args.progress, plot=args.plot)
+            _write_json(args.json, measurements[label])
+    return offsets.offsets_table(measurements)
+
+
+def _depth_readout(args) -> list[str]:
+    _threads(args.threads)
+    result = depth.depth_readout(args.checkpoint, args.photos, args.calibration, args.cache)
+    _write_json(args.json, result)
+    return depth.readout_lines(result)
+
+
+def _depth_tolerance(args) -> list[str]:
+    return depth.tolerance_lines(depth.tolerance_table(args.distances, depth_m=args.depth_m, shift_m=args.shift_m),
+                                 args.depth_m)
+
+
 def _rl(args) -> list[str]:
     return tables.rl_table(args.folder, [Run(run) for run in args.own], args.default_set)
 
@@ -203,7 +251,45 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_argument("--json", type=Path, help="also write the cells here")
 
     _experiment_commands(command)
+    _diagnostic_commands(command)
     return parser
+
+
+def _diagnostic_commands(command) -> None:
+    """The commands that compute on checkpoints or the head's geometry: the classical matcher, the
+    offset diagnostic and the depth read-outs."""
+    sub = command("matcher", _matcher, matcher.matcher_table)
+    sub.add_argument("--textures", default=None, help="a folder of images (default: the 40 test textures)")
+    sub.add_argument("--depths", type=float, nargs="+", default=list(DEFAULT_DISTANCES_M), help="distances (m)")
+    sub.add_argument("--free", action="store_true", help="also the unconstrained matcher")
+    sub.add_argument("--renderer", default="torch", choices=("torch", "pyrender"))
+    sub.add_argument("--json", type=Path, help="also write the evaluations here")
+    sub.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    sub.add_argument("--progress", action="store_true", help="show a progress bar")
+
+    sub = command("offsets", _offsets, offsets.offsets_table)
+    sub.add_argument("learners", nargs="+", help="label=checkpoint.pt or label=measurement.json")
+    sub.add_argument("--textures", default=None, help="a folder of images (default: the 40 test textures)")
+    sub.add_argument("--depths", type=float, nargs="+", default=[1.0, 1.5, 2.0, 2.5, 3.0], help="distances (m)")
+    sub.add_argument("--step", type=float, default=0.02, help="the offsets' step (deg; default 0.02; rounded to divide 1 deg)")
+    sub.add_argument("--json", type=Path, help="write the one learner's measurement here")
+    sub.add_argument("--plot", type=Path, help="draw the one learner's sweeps into this PNG")
+    sub.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    sub.add_argument("--progress", action="store_true", help="show a progress bar")
+
+    sub = command("depth-readout", _depth_readout, depth.depth_readout)
+    sub.add_argument("checkpoint", type=Path, help="a run's checkpoint (best.pt or checkpoint.pt)")
+    sub.add_argument("--photos", default=None, help="also run on this folder of images")
+    sub.add_argument("--calibration", type=int, nargs="*", default=[], help="calibration trial counts (each >= 10)")
+    sub.add_argument("--cache", type=Path, default=None, help="keep the trials in this file (and reuse it)")
+    sub.add_argument("--json", type=Path, help="also write the result here")
+    sub.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+
+    sub = command("depth-tolerance", _depth_tolerance, depth.tolerance_table)
+    sub.add_argument("--distances", type=float, nargs="+", default=[1.0, 1.5, 2.0, 2.5, 3.0], help="metres")
+    sub.add_argument("--depth-m", type=float, default=0.05, help="the depth error (m; default 0.05)")
+    sub.add_argument("--shift-m", type=float, default=DEFAULT_PROTOCOL.shift_m,
+                     help=f"the body's shift (m; default {DEFAULT_PROTOCOL.shift_m:g})")
 
 
 def _experiment_commands(command) -> None:

@@ -1,0 +1,91 @@
+"""The offset diagnostic of trained learners side by side (``python -m aectorch.report offsets``)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Mapping, Sequence
+
+from aectorch.evaluation import offset_summary, offset_sweep
+from aectorch.runs import read_json
+from aectorch.sim import TextureBank
+
+__all__ = ["OFFSET_ROWS", "offset_measurement", "offsets_table", "read_measurement"]
+
+#: The rows of `offsets_table`: `aectorch.evaluation.offset_summary`'s keys and what they say.
+OFFSET_ROWS = {
+    "reward_peak_abs_deg": "the reward's peak: mean distance from the optimum (deg)",
+    "reward_peak_within_px": "reward peaks within 1 px",
+    "reward_drop_at_0.1_deg": "the reward's mean drop 0.1 deg off the optimum",
+    "expected_map_zero_crossing_deg": "zero crossing of the policy's mean increment (deg)",
+    "greedy_zero_at_optimum": "greedy (argmax) increment 0 at the optimum",
+    "limit_cycle_abs_deg": "where the argmax map settles (mean abs offset of its limit cycle, deg)",
+    "mean_readout_limit_cycle_abs_deg": "where the mean read-out settles (deg)",
+}
+_FRACTIONS = ("reward_peak_within_px", "greedy_zero_at_optimum")
+
+
+def offset_measurement(checkpoint: str | Path, textures: str | Path | None,
+                       distances_m: Sequence[float] = (1.0, 1.5, 2.0, 2.5, 3.0), *, step_deg: float = 0.02,
+                       progress: bool = False, plot: Path | None = None) -> dict:
+    """A checkpoint's offset diagnostic: `aectorch.evaluation.offset_sweep` of each cue it learns
+    on ``textures`` (a folder of images; None: the 40 test textures) at ``distances_m``, the eye
+    -1 to +1 deg off the optimum in steps of ``step_deg``, summarised by `offset_summary`; ``plot`` draws the sweeps (`aectorch.figures.plot_offsets`).
+    Returns ``{"checkpoint", "textures", "cues": {cue: summary}}``, the JSON ``--json`` writes."""
+    from aectorch.runtime import load_learner
+
+    _, learner = load_learner(checkpoint)
+    bank = TextureBank.default("test") if textures is None else TextureBank.from_folder(textures)
+    if not 0 < step_deg <= 1:
+        raise ValueError(f"--step must be in (0, 1] degrees, got {step_deg}")
+    count = round(1 / step_deg)
+    offsets_deg = [round(-1.0 + i / count, 6) for i in range(2 * count + 1)]
+    sweeps = {cue: offset_sweep(learner, bank, cue=cue, offsets_deg=offsets_deg, distances_m=distances_m,
+                                progress=progress) for cue in learner.cues}
+    if plot is not None:
+        from aectorch.figures import plot_offsets
+
+        plot_offsets(sweeps, plot)
+    return {"checkpoint": str(checkpoint), "textures": str(textures) if textures is not None else "test textures",
+            "cues": {cue: offset_summary(sweep) for cue, sweep in sweeps.items()}}
+
+
+def _cell(value: float, key: str) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    return f"{value:.1%}" if key in _FRACTIONS else f"{value:.3f}" if key != "reward_drop_at_0.1_deg" else f"{value:.4f}"
+
+
+def offsets_table(measurements: Mapping[str, dict]) -> list[str]:
+    """Where trained learners lose their precision: the offset diagnostic, a column per learner.
+
+    Each learner is ``label=PATH``: a checkpoint, whose diagnostic is computed
+    (`offset_measurement`: each cue's coding reward and greedy increment with its eye -1 to +1 deg
+    off the optimum in 0.02 deg steps, the body at the end of its shift, the other movement at its
+    optimum), or a JSON that ``--json`` wrote, read as stored. A row per number of
+    `aectorch.evaluation.offset_summary`; a cell holds the cues' values, ``parallax / stereo``.
+    """
+    if not measurements:
+        raise ValueError("offsets needs at least one label=checkpoint or label=measurement.json")
+    cues = list(next(iter(measurements.values()))["cues"])
+    for label, measurement in measurements.items():
+        if list(measurement["cues"]) != cues:
+            raise ValueError(f"the learners must learn the same cues, {label!r} has {list(measurement['cues'])}, "
+                             f"the first {cues}")
+    lines = [f"| cues: {' / '.join(cues)} | " + " | ".join(measurements) + " |", "|---|" + "---|" * len(measurements)]
+    for key, text in OFFSET_ROWS.items():
+        cells = [" / ".join(_cell(m["cues"][cue].get(key), key) for cue in cues) for m in measurements.values()]
+        lines.append(f"| {text} | " + " | ".join(cells) + " |")
+    trials = {m["cues"][cues[0]]["trials"] for m in measurements.values()}
+    sources = sorted({m["textures"] for m in measurements.values()})
+    lines.append(f"({', '.join(map(str, sorted(trials)))} conditions of {', '.join(sources)})")
+    return lines
+
+
+def read_measurement(path: str | Path) -> dict:
+    """An offset measurement that ``--json`` wrote."""
+    data = read_json(path)
+    if "cues" not in data:
+        raise ValueError(f"{path} is not an offset measurement (no 'cues'; python -m aectorch.report offsets --json)")
+    data.setdefault("textures", "?")
+    return data
