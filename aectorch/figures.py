@@ -832,10 +832,13 @@ def plot_code_comparison(groups: Mapping[str, Sequence[Mapping[str, Mapping]]], 
                 raise ValueError(f"groups[{label!r}] has {shares.shape[1]} {readout} bins for {name!r}, the first "
                                  f"run {len(centres)}: read-outs with different bins cannot share a panel")
             mean = shares.mean(0)
+            # The bars' reach down to the smallest run and up to the largest; equal runs can put
+            # the float mean a rounding error outside them, which matplotlib refuses.
+            spread = np.clip(np.stack([mean - shares.min(0), shares.max(0) - mean]), 0.0, None)
             index = np.mean([_as_float(run[name]["binocularity"].get("mean_abs_index")) for run in runs])
             runs_text = f"{len(runs)} run" + ("" if len(runs) == 1 else "s")
             ax.bar(centres + (g - (len(groups) - 1) / 2) * width * step, mean, width=width * step,
-                   yerr=np.stack([mean - shares.min(0), shares.max(0) - mean]), capsize=2, color=_color(g),
+                   yerr=spread, capsize=2, color=_color(g),
                    label=f"{label} ({runs_text}; mean |index| {index:.2f})", error_kw={"linewidth": 0.8})
         ax.set_title(name, fontsize=10)
         ax.set_xlabel(axis_label, fontsize=8)

@@ -201,6 +201,11 @@ def test_run_code_and_the_comparison_of_groups_of_runs(tmp_path):
     read_png(plot_code_comparison(groups, tmp_path / "binocularity.png"))
     read_png(plot_code_comparison(groups, tmp_path / "disparity.png", readout="disparity",
                                   dictionaries=["stereo/fine"]))
+    # Runs with equal histograms (shares of 0.1: their float mean lies a rounding error above them)
+    same = _code(0)
+    for summary in same.values():
+        summary["binocularity"]["counts"] = [1, 1, 1, 1, 1, 1, 4]
+    read_png(plot_code_comparison({"equal": [same, same, same]}, tmp_path / "equal.png"))
     with pytest.raises(ValueError, match="readout must be one of"):
         plot_code_comparison(groups, tmp_path / "x.png", readout="colour")
     with pytest.raises(ValueError, match=r"has no read-outs of \['stereo/full'\]"):
