@@ -134,11 +134,13 @@ class WatchdogMode(Choice):
 class PerturbationKind(Choice):
     """The perturbations of `aectorch.sim.perturbations` (`PERTURBATIONS`): of one eye's mounting
     (``roll``, ``strabismus``, ``camera_shift``), of one eye's image (``anisometropia``,
-    ``monocular_deprivation``, ``aniseikonia``) or of the world's textures (``orientation_rearing``)."""
+    ``monocular_deprivation``, ``aniseikonia``), of one eye's focus (``refractive_error``) or of the
+    world's textures (``orientation_rearing``)."""
 
     roll = "roll"
     strabismus = "strabismus"
     anisometropia = "anisometropia"
+    refractive_error = "refractive_error"
     monocular_deprivation = "monocular_deprivation"
     aniseikonia = "aniseikonia"
     orientation_rearing = "orientation_rearing"

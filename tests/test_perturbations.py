@@ -122,6 +122,32 @@ def test_anisometropia_blurs_one_eye_by_its_disc(textures, renderer):
 
 
 @pytest.mark.parametrize("renderer", RENDERERS)
+def test_refractive_error_is_the_world_s_defocus_of_one_eye(textures, renderer):
+    env = ActiveDepthEnv(2, textures=textures, renderer=renderer, distances_m=[1.0, 2.5], seed=1)
+    base = env.stereo_observation(SCALES, window=True)
+    obs = _perturbed(env, "refractive_error", {"dioptres": 2.0})
+    _unchanged_left(base, obs, renderer)
+    torch.testing.assert_close(env.defocus_dioptres, torch.tensor([[0.0, 2.0], [0.0, 2.0]]))
+    # The oracle: the eye focused 2 D nearer than each environment's object (the world's defocus).
+    twin = ActiveDepthEnv(2, textures=textures, renderer=renderer, distances_m=[1.0, 2.5], seed=1)
+    near = 1.0 / twin.object_distance_m
+    twin.set_focus(torch.stack((near, near + 2.0), dim=-1))
+    expected = twin.stereo_observation(SCALES, window=True)
+    for name in obs:
+        assert (obs[name] - expected[name]).abs().max() <= TOLERANCE[renderer], name
+    assert (obs["fine"][:, 1] - base["fine"][:, 1]).abs().max() > 0.02  # blurred where the coder sees it
+    # With accommodation the error adds to the eye's focus, after its stop at 0 D (infinity).
+    env.set_focus(0.0)
+    torch.testing.assert_close(env.defocus_dioptres, torch.stack((-near, 2.0 - near), dim=-1))
+    env.set_optics(make_perturbation("refractive_error", {"dioptres": -1.0}).apply(NEUTRAL, 0))
+    torch.testing.assert_close(env.defocus_dioptres, torch.stack((-1.0 - near, -near), dim=-1))
+    pinhole = ActiveDepthEnv(2, textures=textures, renderer=renderer, distances_m=[1.0], seed=1, aperture_m=0.0)
+    with pytest.raises(ValueError, match=r"refraction_D=\(0.0, 2.0\).*aperture_m=0"):
+        _perturbed(pinhole, "refractive_error", {"dioptres": 2.0})
+    env.close(), twin.close(), pinhole.close()
+
+
+@pytest.mark.parametrize("renderer", RENDERERS)
 def test_monocular_deprivation_scales_one_eye_s_contrast(textures, renderer):
     env = _env(textures, renderer)
     base = env.stereo_observation(SCALES, window=True)
@@ -217,25 +243,29 @@ def test_the_image_functions():
 
 # -- composition, the schedule, errors ---------------------------------------------------------
 def test_kinds_are_registered_by_name_and_compose():
-    assert sorted(PERTURBATIONS) == sorted(["roll", "strabismus", "anisometropia", "monocular_deprivation",
-                                            "aniseikonia", "orientation_rearing", "camera_shift"])
+    assert sorted(PERTURBATIONS) == sorted(["roll", "strabismus", "anisometropia", "refractive_error",
+                                            "monocular_deprivation", "aniseikonia", "orientation_rearing",
+                                            "camera_shift"])
     events = resolve_events([
         {"kind": "roll", "start": 10, "eye": "right", "params": {"deg": 3}},
         {"kind": "roll", "start": 20, "end": 40, "eye": "both", "params": {"deg": 2}},
         {"kind": "monocular_deprivation", "start": 0.5, "eye": "left", "params": {"contrast": 0.5}},
         {"kind": "monocular_deprivation", "start": 60, "eye": "left", "params": {"contrast": 0.5}},
         {"kind": "orientation_rearing", "start": 0, "params": {"orientation": 30, "bandwidth_deg": 20}},
+        {"kind": "refractive_error", "start": 70, "end": 90, "eye": "both", "params": {"dioptres": 1.5}},
+        {"kind": "refractive_error", "start": 80, "eye": "right", "params": {"dioptres": -0.5}},
     ], 100)
     schedule = Schedule(events)
     assert schedule.optics_at(9).roll_deg == (0.0, 0.0) and schedule.optics_at(10).roll_deg == (0.0, 3.0)
     assert schedule.optics_at(25).roll_deg == (2.0, 5.0) and schedule.optics_at(40).roll_deg == (0.0, 3.0)
     assert schedule.optics_at(55).contrast == (0.5, 1.0) and schedule.optics_at(60).contrast == (0.25, 1.0)
     assert schedule.optics_at(0).orientation_bands == ((30.0, 20.0),)
-    assert schedule.changes == [0, 10, 20, 40, 50, 60]
-    assert schedule.stretches(100)[-1] == (60, 100)
+    assert schedule.optics_at(85).refraction_D == (1.5, 1.0) and schedule.optics_at(95).refraction_D == (0.0, -0.5)
+    assert schedule.changes == [0, 10, 20, 40, 50, 60, 70, 80, 90]
+    assert schedule.stretches(100)[-1] == (90, 100) and events[6].label == "right eye: refractive error -0.5 D"
     assert events[1].label == "both eyes: roll 2 deg" and events[4].eyes == (None,)
-    state = Optics.from_dict(json.loads(json.dumps(schedule.optics_at(61).to_dict())))
-    assert state == schedule.optics_at(61)
+    state = Optics.from_dict(json.loads(json.dumps(schedule.optics_at(85).to_dict())))
+    assert state == schedule.optics_at(85)
 
 
 @pytest.mark.parametrize("entry, message", [
@@ -254,10 +284,20 @@ def test_kinds_are_registered_by_name_and_compose():
      r"perturbations\[0\]\.params\.percent must be"),
     ({"kind": "orientation_rearing", "start": 2, "params": {"orientation": "diagonal"}},
      r"perturbations\[0\]\.params\.orientation must be one of"),
+    ({"kind": "refractive_error", "start": 2, "eye": "right", "params": {"dioptres": float("nan")}},
+     r"perturbations\[0\]\.params\.dioptres must be"),
+    ({"kind": "refractive_error", "start": 2, "eye": "right"}, r"perturbations\[0\]\.params\.dioptres is missing"),
 ])
 def test_bad_events_get_an_error_naming_the_key(entry, message):
     with pytest.raises(ValueError, match=message):
         to_experiment_config({"train": {"iterations": 12}, "perturbations": [entry]})
+
+
+def test_a_refractive_error_needs_an_aperture():
+    event = {"kind": "refractive_error", "start": 2, "eye": "right", "params": {"dioptres": 2.0}}
+    with pytest.raises(ValueError, match=r"perturbations\[1\] is a refractive_error.*env.aperture_m=0"):
+        to_experiment_config({"env": {"aperture_m": 0.0}, "train": {"iterations": 12},
+                              "perturbations": [{**event, "kind": "roll", "params": {"deg": 1}}, event]})
 
 
 # -- the environment's state --------------------------------------------------------------------
@@ -355,6 +395,22 @@ def test_events_are_logged_and_survive_a_resume_bit_identically(tmp_path, folder
                                         "orientation rearing vertical +-15 deg",
                                         "left eye: anisometropia 90 arcmin ends"}
     assert summary["plasticity"]["raise_to"] == 0.5
+    # The code at the correction, read in the iteration the resumed run trained through again.
+    assert list(summary["code"]) == ["left eye: anisometropia 90 arcmin ends"]
+    assert summary["code"] == json.loads((half / "summary.json").read_text())["perturbation"]["code"]
+    assert summary["code"]["left eye: anisometropia 90 arcmin ends"]["iteration"] == 11
+
+
+def test_the_code_at_a_correction_is_the_code_of_a_run_that_stops_there(tmp_path, folder):
+    """A run corrected at iteration 3 records the code it had then: that of the same run stopped
+    at 3 (its final code), and not the code at its own end."""
+    event = {"kind": "refractive_error", "start": 0, "end": 3, "eye": "right", "params": {"dioptres": 2.0}}
+    run_experiment(_cfg(folder, "train.iterations=6", events=[event]), tmp_path / "corrected")
+    run_experiment(_cfg(folder, "train.iterations=3", events=[event]), tmp_path / "stopped")
+    corrected, stopped = (json.loads((tmp_path / name / "summary.json").read_text()) for name in ("corrected", "stopped"))
+    at_end = corrected["perturbation"]["code"]["right eye: refractive error +2 D ends"]
+    assert at_end["iteration"] == 3 and at_end["code"] == stopped["code"] != corrected["code"]
+    assert "code" not in stopped["perturbation"]  # its event ends with the run: no correction trained
 
 
 def test_every_rearing_condition_runs(tmp_path, folder):

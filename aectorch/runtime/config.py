@@ -425,6 +425,11 @@ class ExperimentConfig:
         self.perturbations = [e if isinstance(e, PerturbationEventConfig) else PerturbationEventConfig(**e)
                               for e in self.perturbations]
         self.events()  # checked against the run's length: the errors name the entry's key
+        if self.env.aperture_m == 0:
+            refractive = [i for i, e in enumerate(self.perturbations) if str(e.kind) == "refractive_error"]
+            if refractive:
+                raise ValueError(f"perturbations[{refractive[0]}] is a refractive_error, which blurs only through an "
+                                 "aperture, and env.aperture_m=0 makes the eyes pinholes; give env.aperture_m > 0")
 
     def events(self) -> list[Event]:
         """Every perturbation event of the run, checked, in their order: ``perturbation``'s rolls,

@@ -4,6 +4,7 @@ calibration, the evaluation and ``summary.json``."""
 from __future__ import annotations
 
 import copy
+import json
 import logging
 import signal
 from pathlib import Path
@@ -18,7 +19,7 @@ from aectorch.runtime.builders import build_textures, dictionaries, trial_option
 from aectorch.runtime.checkpoint import load_checkpoint, restore, save_checkpoint
 from aectorch.runtime.config import ExperimentConfig
 from aectorch.runtime.loop import _interrupt_on_sigterm
-from aectorch.runtime.outputs import RunFolder, json_value
+from aectorch.runtime.outputs import CODE_AT_ENDS, RunFolder, json_value
 from aectorch.runs import read_metrics
 from aectorch.sim import TextureBank
 
@@ -86,12 +87,25 @@ def _finish(run) -> dict:
                            "floor": {cue: c.encoder.floor for cue, c in cfg.learner.cues.items()}},
             "recovery": readout,
         }
+        at_ends = _code_at_ends(folder, run.schedule)
+        if at_ends:  # the code as each perturbation left it, read when it ended (a correction)
+            summary["perturbation"]["code"] = at_ends
     if run.best["iteration"] is not None:
         summary["best"] = {k: json_value(v) for k, v in run.best.items()}
     if cfg.eval.enabled:
         summary.update(_evaluate(cfg, folder, run.learner, run.env.textures, figures))
     folder.write_json("summary.json", summary)
     return summary
+
+
+def _code_at_ends(folder: RunFolder, schedule) -> dict:
+    """The code's read-outs at the events' ends (`aectorch.runtime.outputs.CODE_AT_ENDS`) of this
+    run's schedule: ``{"<label> ends": {"iteration", "code"}}``; empty without an end."""
+    path = folder / CODE_AT_ENDS
+    if not path.is_file():
+        return {}
+    ends = {event.end for event in schedule.events if event.end is not None}
+    return {label: entry for label, entry in json.loads(path.read_text()).items() if entry["iteration"] in ends}
 
 
 def _changes(schedule, total: int) -> list[tuple[int, int, str]]:

@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import gc
+import json
 import logging
 import signal
 import threading
@@ -35,13 +36,14 @@ from typing import Callable, Sequence
 
 import torch
 
+from aectorch.coding.readouts import code_summary
 from aectorch.framework import IterationRecord, Shard
 from aectorch.framework.batch_state import gather_rows, take_rows
 from aectorch.runtime.builders import build_env, build_learner, compile_hot_path, dictionaries, set_threads
 from aectorch.runtime.checkpoint import CHECKPOINT_FORMAT, restore, save_checkpoint
 from aectorch.runtime.config import ExperimentConfig, to_container
 from aectorch.runtime.metrics import TrainingMetrics
-from aectorch.runtime.outputs import RunFolder, WriteFailed
+from aectorch.runtime.outputs import CODE_AT_ENDS, RunFolder, WriteFailed
 from aectorch.runtime.perturbations import Schedule
 from aectorch.runtime.provenance import provenance
 from aectorch.runtime.watchdog import Watchdog, WatchdogError
@@ -138,12 +140,17 @@ class Perturbations(Callback):
     """The perturbation events (``run.schedule``, `aectorch.runtime.perturbations.Schedule`): before
     every iteration the environment gets the optics of the events acting then (only when they
     changed: a resumed environment has its own already), and at an event's start or end, with
-    ``plasticity.raise_to``, the learner's decayed rates are raised again."""
+    ``plasticity.raise_to``, the learner's decayed rates are raised again. At an event's end (a
+    correction) the code as the perturbation left it is read out (`code_summary` of each
+    dictionary) into the run folder's `aectorch.runtime.outputs.CODE_AT_ENDS`, keyed ``"<label>
+    ends"``, which ``summary.json`` reports (``perturbation.code``) beside the code at the end."""
 
     def before_iteration(self, run, iteration):
         schedule = run.schedule
         if not schedule:
             return
+        if schedule.ending(iteration) and run.folder.main:
+            _record_code_at_end(run, iteration)
         optics = schedule.optics_at(iteration)
         if optics != run.env.optics:
             run.env.set_optics(optics)
@@ -155,6 +162,17 @@ class Perturbations(Callback):
         if raise_to is not None and iteration in schedule.changes:
             rates = run.learner.raise_plasticity(raise_to)
             log.info("iteration %d: plasticity raised to %s of the starting rates: %s", iteration, raise_to, rates)
+
+
+def _record_code_at_end(run, iteration: int) -> None:
+    """The code's read-outs before ``iteration``, where events end, added to `CODE_AT_ENDS`
+    (a resumed run rewrites the entry of an end it trains through again)."""
+    path = run.folder / CODE_AT_ENDS
+    entries = json.loads(path.read_text()) if path.is_file() else {}
+    label = " + ".join(f"{event.label} ends" for event in run.schedule.ending(iteration))
+    entries[label] = {"iteration": iteration,
+                      "code": {name: code_summary(atoms) for name, atoms in dictionaries(run.learner).items()}}
+    run.folder.write_json(CODE_AT_ENDS, entries)
 
 
 class Recording(Callback):

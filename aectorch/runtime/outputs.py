@@ -9,16 +9,20 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["LOCK_NAME", "RUN_FILES", "RunFolder", "RunFolderBusy", "WriteFailed", "atomic_write", "format_summary", "json_value",
+__all__ = ["CODE_AT_ENDS", "LOCK_NAME", "RUN_FILES", "RunFolder", "RunFolderBusy", "WriteFailed", "atomic_write", "format_summary", "json_value",
            "write_json"]
 
 #: The file in a run folder whose lock (``flock``) the training process holds.
 LOCK_NAME = ".lock"
 
+#: The code's read-outs at the perturbation events' ends (`aectorch.runtime.loop.Perturbations`),
+#: which ``summary.json`` reports.
+CODE_AT_ENDS = "code_at_event_ends.json"
+
 #: What a run writes into its folder; ``train.overwrite=true`` deletes these (and nothing else:
 #: Hydra's ``.hydra/`` and ``train.log`` are Hydra's, rewritten and appended by each start).
 RUN_FILES = ("checkpoint.pt", "best.pt", "calibrated.pt", "metrics.jsonl", "provenance.json", "config.yaml",
-             "summary.json", "evaluation.json", "tb", "figures")
+             "summary.json", "evaluation.json", "tb", "figures", CODE_AT_ENDS)
 
 
 class RunFolderBusy(ValueError):

@@ -36,8 +36,8 @@ class PerturbationEventConfig:
 
     Attributes:
         kind: the perturbation (`aectorch.sim.perturbations.PERTURBATIONS`): ``roll``,
-            ``strabismus``, ``anisometropia``, ``monocular_deprivation``, ``aniseikonia``,
-            ``orientation_rearing``, ``camera_shift``.
+            ``strabismus``, ``anisometropia``, ``refractive_error``, ``monocular_deprivation``,
+            ``aniseikonia``, ``orientation_rearing``, ``camera_shift``.
         start: when it starts: an integer is a learner iteration (0-based: it acts from that
             iteration on), a number with a decimal point in [0, 1] a fraction of
             ``train.iterations`` (rounded down). Before the run's end.
@@ -47,7 +47,8 @@ class PerturbationEventConfig:
             for ``orientation_rearing``, which acts on the world.
         params: the kind's parameters (`aectorch.sim.perturbations`: ``roll: {deg}``,
             ``strabismus: {deg}`` (positive inward), ``anisometropia: {arcmin}`` (blur-disc
-            diameter), ``monocular_deprivation: {contrast}``, ``aniseikonia: {percent}``,
+            diameter), ``refractive_error: {dioptres}`` (the eye's focus offset, positive myopic;
+            needs ``env.aperture_m > 0``), ``monocular_deprivation: {contrast}``, ``aniseikonia: {percent}``,
             ``orientation_rearing: {orientation, bandwidth_deg}``, ``camera_shift: {x_m, y_m,
             z_m}``).
         label: the event's name in logs, the summary and the figures (default: eye and kind).
@@ -122,7 +123,8 @@ def resolve_events(entries, iterations: int, owner: str = "perturbations") -> li
         kind = _field(entry, "kind")
         if not kind:
             raise ValueError(f"{where}.kind is missing: give one of the perturbation kinds (roll, strabismus, "
-                             "anisometropia, monocular_deprivation, aniseikonia, orientation_rearing, camera_shift)")
+                             "anisometropia, refractive_error, monocular_deprivation, aniseikonia, orientation_rearing, "
+                             "camera_shift)")
         try:
             perturbation = make_perturbation(kind, dict(_field(entry, "params") or {}))
         except ValueError as err:

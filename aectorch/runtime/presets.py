@@ -101,6 +101,14 @@ REARING: dict[str, list[dict[str, Any]]] = {
                              "params": {"arcmin": 120.0}, "label": "right eye blurred, corrected early"}],
     "anisometropia_late": [{"kind": "anisometropia", "start": 0, "end": 0.75, "eye": "right",
                             "params": {"arcmin": 120.0}, "label": "right eye blurred, corrected late"}],
+    # Refractive anisometropia (issue 53): the right eye 2 D myopic, blurred through the world's
+    # defocus (a 110 arcmin disc at the 16 mm aperture), never corrected or corrected early / late.
+    "refractive": [{"kind": "refractive_error", "start": 0, "eye": "right", "params": {"dioptres": 2.0},
+                    "label": "right eye 2 D myopic"}],
+    "refractive_early": [{"kind": "refractive_error", "start": 0, "end": 0.25, "eye": "right",
+                          "params": {"dioptres": 2.0}, "label": "right eye 2 D myopic, corrected early"}],
+    "refractive_late": [{"kind": "refractive_error", "start": 0, "end": 0.75, "eye": "right",
+                         "params": {"dioptres": 2.0}, "label": "right eye 2 D myopic, corrected late"}],
     "vertical": [{"kind": "orientation_rearing", "start": 0, "params": {"orientation": "vertical"}}],
     "horizontal": [{"kind": "orientation_rearing", "start": 0, "params": {"orientation": "horizontal"}}],
 }

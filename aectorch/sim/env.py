@@ -604,10 +604,19 @@ class ActiveDepthEnv:
     @property
     def defocus_dioptres(self) -> Tensor:
         """Each eye's defocus ``[B, 2]``: its focus minus the object's vergence 1 / d (dioptres;
-        positive: focused nearer than the object; 0 while the eyes follow the object)."""
+        positive: focused nearer than the object; 0 while the eyes follow the object), its
+        refractive error (`Optics.refraction_D`, after accommodation's stop at 0 D) included."""
+        return self._defocus(self.optics)
+
+    def _defocus(self, optics: Optics) -> Tensor:
+        """:attr:`defocus_dioptres` with the refractive errors of ``optics``."""
+        refracted = optics.refraction_D != NEUTRAL.refraction_D
+        refraction = torch.tensor(optics.refraction_D, dtype=self.dtype, device=self.device) if refracted else None
         if self.focus_dioptres is None:
-            return torch.zeros(self.num_envs, 2, dtype=self.dtype, device=self.device)
-        return self.focus_dioptres - 1.0 / self.object_distance_m[:, None]
+            zero = torch.zeros(self.num_envs, 2, dtype=self.dtype, device=self.device)
+            return zero + refraction if refracted else zero
+        defocus = self.focus_dioptres - 1.0 / self.object_distance_m[:, None]
+        return defocus + refraction if refracted else defocus
 
     @property
     def degrees_per_dioptre(self) -> float:
@@ -646,11 +655,12 @@ class ActiveDepthEnv:
         """The increments ``[B]`` that focus the right eye on the object now."""
         return -self.accommodation_error_deg(1)
 
-    def _world_blur_arcmin(self) -> Tensor | None:
-        """Each eye's defocus blur disc ``[B, 2]`` (diameter, arcmin), or ``None`` where no eye is out of focus."""
-        if self.focus_dioptres is None or self.aperture_m == 0:
+    def _world_blur_arcmin(self, optics: Optics) -> Tensor | None:
+        """Each eye's defocus blur disc ``[B, 2]`` (diameter, arcmin) with the refractive errors of
+        ``optics``, or ``None`` where no eye is out of focus."""
+        if self.aperture_m == 0 or (self.focus_dioptres is None and optics.refraction_D == NEUTRAL.refraction_D):
             return None
-        return self.aperture_m * self.defocus_dioptres.abs() * (180.0 * 60.0 / math.pi)
+        return self.aperture_m * self._defocus(optics).abs() * (180.0 * 60.0 / math.pi)
 
     @property
     def object_distance_m(self) -> Tensor:
@@ -719,6 +729,9 @@ class ActiveDepthEnv:
         """
         if not isinstance(optics, Optics):
             raise TypeError(f"optics must be an aectorch.sim.perturbations.Optics, got {type(optics).__name__}")
+        if optics.refraction_D != NEUTRAL.refraction_D and self.aperture_m == 0:
+            raise ValueError(f"optics.refraction_D={optics.refraction_D}: a refractive error blurs only through an "
+                             "aperture, and this environment's eyes are pinholes (aperture_m=0); give aperture_m > 0")
         world_changed = optics.orientation_bands != self.optics.orientation_bands
         self.optics = optics
         self._optics_tensors = {}
@@ -838,7 +851,7 @@ class ActiveDepthEnv:
             poses[..., :3, 3] += torch.tensor(optics.shift_m, dtype=poses.dtype, device=poses.device)
         poses = poses[:, eyes]
         indices = tuple(range(*eyes.indices(2)))
-        world = self._world_blur_arcmin()
+        world = self._world_blur_arcmin(optics)
         if world is not None or not optics.images_neutral(indices):
             return self._render_optics(poses, indices, optics, scales, window, plane_x, plane_y, world)
         out = {}

@@ -13,6 +13,7 @@ kind                        acts on parameters
 ``roll``                    an eye  ``deg``: rotation about the optical axis (the paper's)
 ``strabismus``              an eye  ``deg``: a fixed pan offset, positive inward (esotropia)
 ``anisometropia``           an eye  ``arcmin``: diameter of the defocus blur disc
+``refractive_error``        an eye  ``dioptres``: the eye's focus offset (the world's defocus)
 ``monocular_deprivation``   an eye  ``contrast``: the image's contrast scaled to c (0 = grey)
 ``aniseikonia``             an eye  ``percent``: the image magnified by m %
 ``camera_shift``            an eye  ``x_m``, ``y_m``, ``z_m``: the camera translated (Lonini 2013)
@@ -20,10 +21,12 @@ kind                        acts on parameters
 ==========================  ======  ============================================================
 
 Perturbations compose: each applies to the :class:`Optics` the ones before it made (rolls, pan
-offsets, blur diameters and shifts add; contrasts and magnifications multiply; orientation bands
-all filter). The geometric kinds act on the camera poses (roll, pan offset, translation) or the
-camera's focal length (magnification), the image kinds on the rendered images (blur, contrast)
-and the world kind on the textures, so the torch and the pyrender renderer see the same thing.
+offsets, blur diameters, refractive errors and shifts add; contrasts and magnifications multiply;
+orientation bands all filter). The geometric kinds act on the camera poses (roll, pan offset,
+translation) or the camera's focal length (magnification), the image kinds on the rendered images
+(blur, contrast), the refractive error on the eye's focus (the world's defocus, whose blur disc
+follows the object's distance and the eye's accommodation) and the world kind on the textures, so
+the torch and the pyrender renderer see the same thing.
 The functions that do the image work are public: :func:`disc_kernel`, :func:`defocus`,
 :func:`scale_contrast`, :func:`orientation_filter`.
 """
@@ -67,6 +70,9 @@ class Optics:
         shift_m: each camera's translation ``(x, y, z)`` in metres in the robot's frame (x forward,
             y left, z up).
         blur_arcmin: diameter of each eye's defocus blur disc, minutes of arc (0 = sharp).
+        refraction_D: each eye's refractive error, dioptres: its focus offset from where its
+            accommodation puts it (positive: focused nearer, myopic; negative: beyond, hyperopic),
+            which `aectorch.sim.ActiveDepthEnv` renders as the world's defocus (0 = none).
         contrast: each eye's image contrast about its mean (1 = as rendered, 0 = uniform grey).
         magnification: each eye's image magnification about its centre (1 = none).
         orientation_bands: ``(orientation_deg, bandwidth_deg)`` bands the world's textures are
@@ -78,13 +84,15 @@ class Optics:
     pan_offset_deg: Pair = (0.0, 0.0)
     shift_m: tuple[Vector, Vector] = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     blur_arcmin: Pair = (0.0, 0.0)
+    refraction_D: Pair = (0.0, 0.0)
     contrast: Pair = (1.0, 1.0)
     magnification: Pair = (1.0, 1.0)
     orientation_bands: tuple[Pair, ...] = ()
 
     def __post_init__(self) -> None:
         pairs = {name: tuple(float(v) for v in getattr(self, name))
-                 for name in ("roll_deg", "pan_offset_deg", "blur_arcmin", "contrast", "magnification")}
+                 for name in ("roll_deg", "pan_offset_deg", "blur_arcmin", "refraction_D", "contrast",
+                              "magnification")}
         for name, value in pairs.items():
             if len(value) != 2 or not all(math.isfinite(v) for v in value):
                 raise ValueError(f"Optics.{name} must be a (left, right) pair of finite numbers, got {value!r}")
@@ -225,6 +233,33 @@ class Anisometropia:
 
 
 @dataclass(frozen=True)
+class RefractiveError:
+    """Refractive anisometropia: the eye's focus offset by ``dioptres`` from where its
+    accommodation puts it (positive: focused nearer than the object, myopic; negative: beyond it,
+    hyperopic). The environment renders it as the world's defocus, a disc of ``aperture_m *
+    |dioptres|`` radians while the eyes' accommodation follows the object (at the default 16 mm,
+    2 D: 110 arcmin), so it needs an aperture (``aperture_m > 0``); with the accommodation cue the
+    disc follows the learned focus and the object's distance. A later event's end corrects it.
+
+    Accommodation is yoked and stops at 0 D (infinity); the error is added after the stop (it is
+    the eye's optics, not its accommodation): an eye 2 D myopic cannot be focused beyond 0.5 m
+    by any accommodation, while a hyperopic one can, at the sharp eye's expense."""
+
+    dioptres: float
+    kind: ClassVar[str] = "refractive_error"
+    acts_on: ClassVar[str] = "eye"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "dioptres", _real(self.dioptres, "dioptres", unit="dioptres"))
+
+    def apply(self, optics: Optics, eye: int | None) -> Optics:
+        return replace(optics, refraction_D=_set_eye(optics.refraction_D, eye, optics.refraction_D[eye] + self.dioptres))
+
+    def describe(self) -> str:
+        return f"refractive error {self.dioptres:+g} D"
+
+
+@dataclass(frozen=True)
 class MonocularDeprivation:
     """One eye's contrast scaled to ``contrast`` about the image's mean (0, the default: uniform
     grey, a closed or occluded eye; the mean luminance stays)."""
@@ -329,6 +364,7 @@ PERTURBATIONS: dict[PerturbationKind, type] = {
     PerturbationKind.roll: Roll,
     PerturbationKind.strabismus: Strabismus,
     PerturbationKind.anisometropia: Anisometropia,
+    PerturbationKind.refractive_error: RefractiveError,
     PerturbationKind.monocular_deprivation: MonocularDeprivation,
     PerturbationKind.aniseikonia: Aniseikonia,
     PerturbationKind.orientation_rearing: OrientationRearing,
@@ -348,8 +384,8 @@ def make_perturbation(kind: str, params: dict | None = None) -> Perturbation:
         >>> make_perturbation("rol", {"deg": 10})
         Traceback (most recent call last):
         ...
-        ValueError: kind must be one of 'roll', 'strabismus', 'anisometropia', 'monocular_deprivation', \
-'aniseikonia', 'orientation_rearing', 'camera_shift', got 'rol'
+        ValueError: kind must be one of 'roll', 'strabismus', 'anisometropia', 'refractive_error', \
+'monocular_deprivation', 'aniseikonia', 'orientation_rearing', 'camera_shift', got 'rol'
     """
     try:
         member = PerturbationKind(str(kind))
