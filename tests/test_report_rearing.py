@@ -25,7 +25,8 @@ def _atoms(seed: int, eye: str | None) -> torch.Tensor:
     return atoms
 
 
-def _run(folder: Path, condition: str, seed: int, eye: str | None, seconds: float, correction=None) -> Path:
+def _run(folder: Path, condition: str, seed: int, eye: str | None, seconds: float, correction=None,
+         eye_at_correction: str | None = "none") -> Path:
     folder.mkdir(parents=True)
     OmegaConf.save(OmegaConf.create({"seed": seed, "perturbations": REARING[condition]}), folder / "config.yaml")
     summary = {"train_seconds": seconds, "final": {"vergence_mae_deg": 0.5 + seed},
@@ -36,6 +37,9 @@ def _run(folder: Path, condition: str, seed: int, eye: str | None, seconds: floa
         vergence = {"before": correction[0], "final": correction[1], "iterations_to_recover": 40}
         summary["perturbation"] = {"recovery": {"right eye blurred, corrected early ends": {
             "iteration": 600, "vergence": vergence}}}
+    if eye_at_correction != "none":  # the code as the perturbation left it
+        summary["perturbation"]["code"] = {"right eye 2 D myopic, corrected early ends": {
+            "iteration": 600, "code": {"stereo/fine": code_summary(_atoms(seed, eye_at_correction))}}}
     (folder / "summary.json").write_text(json.dumps(summary))
     return folder
 
@@ -58,6 +62,24 @@ def test_the_table_reads_each_condition_from_its_runs(tmp_path, capsys):
     assert out[10] == "| anisometropia_early (1) | 0.100 | 0.500 | 2.000 -> 0.300 | 130 |"
     assert out[12] == "suite: 4 runs, training 7.7 min in all (460 s; summary.json's train_seconds summed)"
     assert out[13] == f"wrote {plot}" and plot.stat().st_size > 10_000
+
+
+def test_the_code_at_the_correction_is_read_beside_the_code_at_the_end(tmp_path, capsys):
+    _run(tmp_path / "anisometropia_early_s0", "anisometropia_early", 0, None, 130.0, correction=(2.0, 0.3))
+    for seed in (0, 1):  # the left eye's atoms at the correction, binocular ones at the end
+        _run(tmp_path / f"refractive_early_s{seed}", "refractive_early", seed, None, 100.0, correction=(1.0, 0.2),
+             eye_at_correction="left")
+    plot = tmp_path / "rearing.png"
+    assert main(["rearing", str(tmp_path), "--plot", str(plot)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    at = out.index("| condition (runs) | dictionary | at the correction -> at the end: mean abs. binocularity index "
+                   "| mean index | left-dominated % | right-dominated % |")
+    # Only the runs that read the code at their correction (not the older anisometropia run).
+    assert len(out[at + 2:out.index("", at)]) == 1
+    row = out[at + 2].split(" | ")
+    assert row[:2] == ["| refractive_early (2)", "stereo/fine"]
+    assert row[2].startswith("1.000 (1.000-1.000) -> 0.") and row[4] == "100 (100-100) -> 0 (0-0)"
+    assert row[3].startswith("-0.86 (-0.86--0.86) -> ") and plot.stat().st_size > 10_000
 
 
 def test_a_run_of_no_condition_is_named(tmp_path, capsys):

@@ -6,7 +6,8 @@ The suite is ``python train.py -m seed=0,1,2 rearing=normal,monocular,...`` (doc
 :data:`aectorch.runtime.presets.REARING`. Everything else comes from its ``summary.json``, through
 `aectorch.runs.Run`: the learned code's read-outs (`aectorch.coding.readouts.code_summary`, per
 dictionary), the evaluation (normal eyes, the final state), the final training window and the
-read-out of the correction (the anisometropia conditions' event ends), and the training time.
+read-outs of the correction (the corrected conditions' event ends: the vergence, and the code as
+the perturbation left it, `aectorch.runtime.loop.Perturbations`), and the training time.
 """
 
 from __future__ import annotations
@@ -121,10 +122,19 @@ def _correction(summary: Mapping) -> dict | None:
             "iterations_to_recover": vergence["iterations_to_recover"]}
 
 
+def _code_at_correction(summary: Mapping, cue: str) -> dict:
+    """``cue``'s dictionaries' read-outs (`code_summary`) at the first event's end (a correction),
+    ``{scale: readout}``; empty without one, or for a run from before these read-outs."""
+    ends = [entry for label, entry in ((summary.get("perturbation") or {}).get("code") or {}).items()
+            if label.endswith(" ends")]
+    return {} if not ends else {k.split("/", 1)[1]: v for k, v in ends[0]["code"].items() if k.startswith(f"{cue}/")}
+
+
 def rearing_rows(groups: Mapping[str, Sequence[Run]], cue: str = "stereo") -> list[dict]:
     """One row per run: its condition and seed, its training time, :func:`code_numbers` of each of
-    ``cue``'s dictionaries (``"code"``, and ``"initial"`` of its start), the evaluation's and the
-    final training window's vergence MAE and the correction's read-out (`_correction`)."""
+    ``cue``'s dictionaries (``"code"``, ``"initial"`` of its start and ``"at_correction"`` as the
+    perturbation left it, where the run has a correction), the evaluation's and the final
+    training window's vergence MAE and the correction's read-out (`_correction`)."""
     rows = []
     for name, runs in groups.items():
         for run in runs:
@@ -135,9 +145,12 @@ def rearing_rows(groups: Mapping[str, Sequence[Run]], cue: str = "stereo") -> li
                        if k.startswith(f"{cue}/")}
             if not code:
                 raise KeyError(f"{run.path / 'summary.json'} has no read-outs of the {cue!r} cue's dictionaries")
+            at_correction = _code_at_correction(summary, cue)
             rows.append({"condition": name, "seed": run.config.get("seed"), "run": str(run.path),
                          "train_seconds": float(summary["train_seconds"]), "code": code, "initial": initial,
                          "code_raw": {k.split("/", 1)[1]: v for k, v in run.code.items() if k.startswith(f"{cue}/")},
+                         "at_correction": {k: code_numbers(v) for k, v in at_correction.items()},
+                         "at_correction_raw": at_correction,
                          "vergence_eval": (summary.get("evaluation") or {}).get("vergence_mae_deg"),
                          "vergence_window": summary["final"].get("vergence_mae_deg"),
                          "correction": _correction(summary)})
@@ -163,10 +176,11 @@ def rearing_table(groups: Mapping[str, Sequence[Run]], cue: str = "stereo") -> l
     atoms (|index| > 3/7) and of atoms
     preferring vertical (90 deg) and horizontal (0 deg) stripes; then per condition the vergence
     MAE of the evaluation (normal eyes, the final state) and of the final training window, the
-    correction's read-out (the short training window when the anisometropia is corrected, and at
-    the end) and the training time. Cells are means over the seeds (smallest-largest); the random
-    start's mean index is in square brackets. The last line is the suite's total training time
-    (``summary.json``'s ``train_seconds`` summed over the runs)."""
+    correction's read-out (the short training window when the blurred eye is corrected, and at
+    the end) and the training time; then, for the runs that read it, the code at the correction
+    (as the perturbation left it) against the code at the end. Cells are means over the seeds
+    (smallest-largest); the random start's mean index is in square brackets. The last line is the
+    suite's total training time (``summary.json``'s ``train_seconds`` summed over the runs)."""
     rows = rearing_rows(groups, cue)
     lines = ["| condition (runs) | dictionary | mean abs. binocularity index [start] | mean index | left-dominated % "
              "| right-dominated % | vertical % | horizontal % |", "|---|---|---|---|---|---|---|---|"]
@@ -190,18 +204,37 @@ def rearing_table(groups: Mapping[str, Sequence[Run]], cue: str = "stereo") -> l
         lines.append(f"| {name} ({len(mine)}) | {_cell([r['vergence_eval'] for r in mine])} | "
                      f"{_cell([r['vergence_window'] for r in mine])} | {fix} | "
                      f"{_cell([r['train_seconds'] for r in mine], '.0f')} |")
+    lines += _correction_code_table(rows, groups, cue)
     total = sum(r["train_seconds"] for r in rows)
     lines += ["", f"suite: {len(rows)} runs, training {total / 60:.1f} min in all ({total:.0f} s; "
               f"summary.json's train_seconds summed)"]
     return lines
 
 
+def _correction_code_table(rows: Sequence[dict], groups: Mapping, cue: str) -> list[str]:
+    """The code as the perturbation left it (read at the correction) against the code at the end,
+    per condition with that read-out and ``cue`` dictionary; none without such a condition."""
+    lines = []
+    for name in groups:
+        mine = [r for r in rows if r["condition"] == name and r["at_correction"]]
+        for scale in mine[0]["at_correction"] if mine else []:
+            before, after = [r["at_correction"][scale] for r in mine], [r["code"][scale] for r in mine]
+            cells = [f"{_cell([c[key] for c in before], spec, percent)} -> "
+                     f"{_cell([c[key] for c in after], spec, percent)}" for key, spec, percent in (("mean_abs_index", ".3f", False), ("mean_index", "+.2f", False),
+                                                ("left", ".0f", True), ("right", ".0f", True))]
+            lines.append(f"| {name} ({len(mine)}) | {cue}/{scale} | {' | '.join(cells)} |")
+    if not lines:
+        return []
+    return ["", "| condition (runs) | dictionary | at the correction -> at the end: mean abs. binocularity index "
+            "| mean index | left-dominated % | right-dominated % |", "|---|---|---|---|---|---|", *lines]
+
+
 def plot_rearing(groups: Mapping[str, Sequence[Run]], path: str | os.PathLike, cue: str = "stereo") -> Path:
     """The rearing suite in one figure: per ``cue`` dictionary (row) and condition (column) the
     binocularity histogram (share of the atoms per bin, the mean over the seeds; bars: smallest
-    to largest run; grey outline: the random start), then the vergence MAE at the end (evaluation
-    with normal eyes, and the final training window) per condition, and the short training
-    window's vergence when the anisometropia is corrected and at the end."""
+    to largest run; red outline: at the correction, where the runs read it), then the vergence
+    MAE at the end (evaluation with normal eyes, and the final training window) per condition,
+    and the short training window's vergence when the blurred eye is corrected and at the end."""
     rows = rearing_rows(groups, cue)
     names = list(groups)
     scales = list(rows[0]["code_raw"])
@@ -238,6 +271,10 @@ def _histogram(ax, rows: Sequence[dict], scale: str) -> None:
     ax.bar(edges[:-1], mean, width=np.diff(edges), align="edge", color="tab:blue", alpha=0.8,
            yerr=np.stack([mean - shares.min(0), shares.max(0) - mean]), error_kw={"linewidth": 0.7},
            ecolor="black")
+    fixed = [r["at_correction_raw"][scale]["binocularity"] for r in rows if scale in r["at_correction_raw"]]
+    if fixed:  # the code as the perturbation left it
+        before = np.mean([np.asarray(e["counts"], float) / max(1.0, float(np.sum(e["counts"]))) for e in fixed], 0)
+        ax.stairs(before, edges, color="tab:red", linewidth=1.0, label="at the correction")
     ax.set_xlim(-1, 1)
     ax.set_ylim(0, 1.05)
     ax.tick_params(labelsize=6)

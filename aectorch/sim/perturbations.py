@@ -253,7 +253,8 @@ class RefractiveError:
         object.__setattr__(self, "dioptres", _real(self.dioptres, "dioptres", unit="dioptres"))
 
     def apply(self, optics: Optics, eye: int | None) -> Optics:
-        return replace(optics, refraction_D=_set_eye(optics.refraction_D, eye, optics.refraction_D[eye] + self.dioptres))
+        refraction = optics.refraction_D[eye] + self.dioptres
+        return replace(optics, refraction_D=_set_eye(optics.refraction_D, eye, refraction))
 
     def describe(self) -> str:
         return f"refractive error {self.dioptres:+g} D"
