@@ -70,13 +70,15 @@ def test_the_code_at_the_correction_is_read_beside_the_code_at_the_end(tmp_path,
         _run(tmp_path / f"refractive_early_s{seed}", "refractive_early", seed, None, 100.0, correction=(1.0, 0.2),
              eye_at_correction="left")
     plot = tmp_path / "rearing.png"
-    assert main(["rearing", str(tmp_path), "--plot", str(plot)]) == 0
+    _run(tmp_path / "later" / "refractive_early_s2", "refractive_early", 2, None, 100.0, correction=(1.0, 0.2))
+    assert main(["rearing", str(tmp_path), str(tmp_path / "later"), "--plot", str(plot)]) == 0  # two sweeps
     out = capsys.readouterr().out.splitlines()
     at = out.index("| condition (runs) | dictionary | at the correction -> at the end: mean abs. binocularity index "
                    "| mean index | left-dominated % | right-dominated % |")
     # Only the runs that read the code at their correction (not the older anisometropia run).
     assert len(out[at + 2:out.index("", at)]) == 1
     row = out[at + 2].split(" | ")
+    assert out[3].startswith("| refractive_early (3) | stereo/fine |")  # the later sweep's run too
     assert row[:2] == ["| refractive_early (2)", "stereo/fine"]
     assert row[2].startswith("1.000 (1.000-1.000) -> 0.") and row[4] == "100 (100-100) -> 0 (0-0)"
     assert row[3].startswith("-0.86 (-0.86--0.86) -> ") and plot.stat().st_size > 10_000
@@ -89,6 +91,9 @@ def test_a_run_of_no_condition_is_named(tmp_path, capsys):
     assert main(["rearing", str(tmp_path)]) == 2
     assert "are those of no rearing condition" in capsys.readouterr().err
     assert main(["rearing", str(tmp_path / "missing")]) == 2
+    _run(tmp_path / "again" / "normal_s0", "normal", 0, None, 1.0)
+    with pytest.raises(ValueError, match="runs of the same condition and seed"):
+        rearing_runs(tmp_path / "again", tmp_path / "again")
     (tmp_path / "empty").mkdir()
     with pytest.raises(FileNotFoundError, match="holds no finished run"):
         rearing_runs(tmp_path / "empty")

@@ -139,7 +139,7 @@ def _accommodation_policy(args) -> list[str]:
 
 
 def _rearing(args) -> list[str]:
-    groups = rearing_runs(args.folder)
+    groups = rearing_runs(*args.folder)
     lines = rearing_table(groups, args.cue)
     if args.plot is not None:
         lines.append(f"wrote {plot_rearing(groups, args.plot, args.cue)}")
@@ -331,7 +331,8 @@ def _experiment_commands(command) -> None:
     sub.add_argument("--textures", type=int, default=8, help="the first this many test textures")
 
     sub = command("rearing", _rearing, rearing_table)
-    sub.add_argument("folder", type=Path, help="the suite's sweep folder (python train.py -m ... hydra.sweep.dir=...)")
+    sub.add_argument("folder", type=Path, nargs="+",
+                     help="the suite's sweep folders (python train.py -m ... hydra.sweep.dir=...)")
     sub.add_argument("--cue", default="stereo", help="the cue whose dictionaries are read out (default: stereo)")
     sub.add_argument("--plot", type=Path, default=None, help="also draw the suite's figure into this PNG")
 

@@ -59,23 +59,29 @@ def rearing_condition(config: Mapping) -> str:
                      f"({', '.join(REARING)})")
 
 
-def rearing_runs(folder: str | os.PathLike) -> dict[str, list[Run]]:
-    """The run folders of a suite (``folder`` and the folders in it that hold a ``summary.json``), by
-    condition in :data:`REARING`'s order, each list by seed.
+def rearing_runs(folder: str | os.PathLike, *more: str | os.PathLike) -> dict[str, list[Run]]:
+    """The run folders of a suite (``folder`` and the folders in it that hold a ``summary.json``;
+    and those of ``more`` sweep folders, e.g. conditions run later), by condition in
+    :data:`REARING`'s order, each list by seed.
 
     Raises:
-        FileNotFoundError: ``folder`` holds no finished run.
+        FileNotFoundError: a folder holds no finished run.
+        ValueError: two runs of the same condition and seed.
     """
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise FileNotFoundError(f"sweep folder {str(folder)!r}: no such folder")
-    paths = [folder] if (folder / "summary.json").is_file() else sorted(
-        p for p in folder.iterdir() if (p / "summary.json").is_file())
-    if not paths:
-        raise FileNotFoundError(f"{folder} holds no finished run (no */summary.json)")
     groups: dict[str, list[Run]] = {}
-    for run in map(Run, paths):
-        groups.setdefault(rearing_condition(run.config), []).append(run)
+    for folder in map(Path, (folder, *more)):
+        if not folder.is_dir():
+            raise FileNotFoundError(f"sweep folder {str(folder)!r}: no such folder")
+        paths = [folder] if (folder / "summary.json").is_file() else sorted(
+            p for p in folder.iterdir() if (p / "summary.json").is_file())
+        if not paths:
+            raise FileNotFoundError(f"{folder} holds no finished run (no */summary.json)")
+        for run in map(Run, paths):
+            group = groups.setdefault(rearing_condition(run.config), [])
+            twin = [r for r in group if r.config.get("seed", 0) == run.config.get("seed", 0)]
+            if twin:
+                raise ValueError(f"{run.path} and {twin[0].path} are runs of the same condition and seed")
+            group.append(run)
     return {name: sorted(groups[name], key=lambda r: r.config.get("seed", 0)) for name in REARING if name in groups}
 
 
