@@ -54,7 +54,8 @@ def trial_protocol(cfg: ExperimentConfig) -> TrialProtocol:
                          q_iterations=e.q_iterations, object_speed_deg=tuple(e.object_speed_deg),
                          object_depth_speed_m=tuple(e.object_depth_speed_m), aperture_m=e.aperture_m,
                          accommodation_start_D=e.accommodation_start_D, yoked_accommodation=e.yoked_accommodation,
-                         pan_range_deg=tuple(e.pan_range_deg), vergence_range_deg=tuple(e.vergence_range_deg))
+                         pan_range_deg=tuple(e.pan_range_deg), vergence_range_deg=tuple(e.vergence_range_deg),
+                         pursuit_velocity=e.pursuit_velocity)
 
 
 def trial_options(cfg: ExperimentConfig) -> dict:

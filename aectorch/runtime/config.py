@@ -109,6 +109,10 @@ class EnvConfig:
             to a near point of about 8 cm; without a floor, a learner whose reward is flat on a
             view of little texture can drift its eyes apart (issue 50). ``[-90, 90]`` leaves only
             the pan limits (what runs did before the range existed).
+        pursuit_velocity: the eyes keep a pursuit velocity that moves them on between iterations,
+            and the environment serves the ``slip`` cue (``learner.cues.slip``,
+            ``+experiment=slip``), which learns it from the retinal slip: the left eye's previous
+            frame against its current one (docs/simulation.md). ``false`` (default): the paper's.
         device: torch device of the environment and the learner (``"cpu"``, ``"cuda"``, ...).
         dtype: ``"float32"`` or ``"float64"``, of the environment and the learner.
     """
@@ -133,6 +137,7 @@ class EnvConfig:
     yoked_accommodation: bool = True
     pan_range_deg: list[float] = field(default_factory=lambda: list(PAN_RANGE_DEG))
     vergence_range_deg: list[float] = field(default_factory=lambda: list(VERGENCE_RANGE_DEG))
+    pursuit_velocity: bool = False
     device: str = "cpu"
     dtype: DType = DType.float32
 
@@ -159,6 +164,7 @@ class EnvConfig:
         if self.accommodation_start_D is not None:
             check_real(self.accommodation_start_D, f"{owner}.accommodation_start_D", minimum=0, unit="dioptres")
         check_bool(self.yoked_accommodation, f"{owner}.yoked_accommodation")
+        check_bool(self.pursuit_velocity, f"{owner}.pursuit_velocity")
         pan, vergence = check_oculomotor_range(self.pan_range_deg, self.vergence_range_deg, prefix=f"{owner}.")
         self.pan_range_deg, self.vergence_range_deg = list(pan), list(vergence)
         check_device(self.device, f"{owner}.device")

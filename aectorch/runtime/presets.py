@@ -6,7 +6,8 @@ apply (`aectorch.runtime.store.register_configs`):
 - ``experiment``: ``roll_perturbation`` (the paper's Fig. 4 experiment: one eye rolled at half
   of the training, the other at three quarters, :data:`ROLL_PERTURBATION`), added with
   ``+experiment=roll_perturbation``, and ``accommodation`` (:data:`ACCOMMODATION`, the
-  accommodation cue beside pursuit and vergence), added with ``+experiment=accommodation``;
+  accommodation cue beside pursuit and vergence), added with ``+experiment=accommodation``, and
+  ``slip`` (:data:`SLIP`, a pursuit velocity learned from the retinal slip), ``+experiment=slip``;
 - ``plasticity``: ``decay`` (the default, no change), ``floor`` and ``raise``
   (:data:`PLASTICITY`): how plastic the learners stay, a perturbation experiment's choice;
 - ``rearing``: the AEC lineage's rearing conditions (:data:`REARING`), each a list of
@@ -19,7 +20,7 @@ from typing import Any
 
 from aectorch.framework import PAPER_ACTIONS_DEG, default_cues
 
-__all__ = ["ACCOMMODATION", "PAPER_PRESET", "PLASTICITY", "REARING", "REARING_SETTINGS", "ROLL_PERTURBATION"]
+__all__ = ["ACCOMMODATION", "PAPER_PRESET", "PLASTICITY", "REARING", "REARING_SETTINGS", "ROLL_PERTURBATION", "SLIP"]
 
 #: The paper's values (Wong et al. 2017) where they differ from the defaults, applied by
 #: ``preset=paper``: dotted key -> value. What the paper states and the defaults change: its
@@ -62,6 +63,16 @@ ACCOMMODATION: dict[str, Any] = {
     "env.accommodation_start_D": 0.0,
     "learner.cues.accommodation": {"efficiency": "information", "symmetry": None, "scales": ["fine", "full"],
                                    "actions_deg": [-0.5, -0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2, 0.5]},
+}
+
+#: A pursuit velocity learned from the retinal slip (issue 53's moving object), ``+experiment=slip``:
+#: the eyes keep a velocity that moves them on between iterations, and the ``slip`` cue (the left
+#: eye's previous frame against its current one; its actions change the velocity, degrees per
+#: iteration) learns it beside pursuit's position steps and vergence. Mirroring the world mirrors
+#: both frames and negates the velocity change, as for the parallax cue.
+SLIP: dict[str, Any] = {
+    "env.pursuit_velocity": True,
+    "learner.cues.slip": {"symmetry": "mirror"},
 }
 
 #: The plasticity regimes a perturbation experiment chooses from (``plasticity=<name>``): name ->

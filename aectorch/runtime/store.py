@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from aectorch.runtime.config import ExperimentConfig
-from aectorch.runtime.presets import ACCOMMODATION, PAPER_PRESET, PLASTICITY, REARING, REARING_SETTINGS, ROLL_PERTURBATION
+from aectorch.runtime.presets import ACCOMMODATION, PAPER_PRESET, PLASTICITY, REARING, REARING_SETTINGS, ROLL_PERTURBATION, SLIP
 
 __all__ = ["register_configs"]
 
@@ -47,6 +47,7 @@ def register_configs() -> None:
     store.store(group="experiment", name="roll_perturbation", node=_nested(ROLL_PERTURBATION),
                 package="_global_")
     store.store(group="experiment", name="accommodation", node=_nested(ACCOMMODATION), package="_global_")
+    store.store(group="experiment", name="slip", node=_nested(SLIP), package="_global_")
     for name, values in PLASTICITY.items():
         store.store(group="plasticity", name=name, node=_nested(values), package="_global_")
     for name, events in REARING.items():

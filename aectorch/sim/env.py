@@ -157,6 +157,13 @@ ACCOMMODATION_RIGHT = CueSpec("accommodation_right", "stereo_observation", "appl
                               "accommodation_right_to_optimum", ("left", "right"))
 
 
+#: The retinal-slip cue (`ActiveDepthEnv.CUES` with ``pursuit_velocity``, first in the order): it
+#: sees the left eye's previous frame (the end of the last iteration) against its current one and
+#: changes the eyes' pursuit velocity, which moves them on between iterations; its error is that
+#: velocity against the optimal pan's change over the next iteration (degrees per iteration).
+SLIP = CueSpec("pursuit_velocity", "slip_observation", "apply_slip", "slip_to_optimum", ("left_previous", "left"))
+
+
 #: How :meth:`ActiveDepthEnv.parallax_observation` and ``stereo_observation`` render the foveal
 #: scales they are asked for: mipmapped textures (``GL_LINEAR_MIPMAP_LINEAR``), 2 x 2 lookups per
 #: pixel at a level of detail biased by -0.5: within 0.5 % of the exact area average
@@ -205,11 +212,12 @@ def _native_blur(images: Tensor) -> bool:
         and not (torch.is_grad_enabled() and images.requires_grad) and fused_kernels_apply(images)
 
 
-#: A moving object's state and the eyes' focus in `ActiveDepthEnv.state_dict` (its key -> the
+#: A moving object's state, the eyes' focus and pursuit velocity in `ActiveDepthEnv.state_dict` (its key -> the
 #: attribute), each ``[B, ...]`` and present only while it is not ``None``.
 _OBJECT_STATE = {"object_speed": "object_speed", "object_pinned_speed": "_pinned_speed",
                  "object_trial_depth_speed": "_trial_depth_speed", "object_start_target_m": "_start_target_m",
-                 "focus_dioptres": "focus_dioptres"}
+                 "focus_dioptres": "focus_dioptres", "pursuit_velocity_deg": "velocity_deg",
+                 "previous_pans_deg": "_previous_pans"}
 
 
 def _window(camera: PinholeCamera, window: str | PixelWindow) -> PixelWindow:
@@ -299,6 +307,11 @@ class ActiveDepthEnv:
             `aectorch.sim.motion`): the ranges its sideways speed (degrees per iteration, drawn per
             fixation) and its depth speed (metres per iteration, drawn per trial) are drawn from;
             ``(0, 0)`` both (default): it stands still. :meth:`set_object_speed` pins them.
+        pursuit_velocity: the eyes keep a pursuit velocity (degrees per iteration, 0 at each
+            fixation's start) that moves them on between iterations, as the object and the body
+            move, and the ``slip`` cue joins :attr:`CUES` first: it sees the left eye's previous
+            frame against its current one (:meth:`slip_observation`, the retinal slip) and changes
+            the velocity (:meth:`apply_slip`). Default ``False`` (`TrialProtocol`).
         pan_range_deg, vergence_range_deg: the oculomotor range (`aectorch.sim.oculomotor`):
             ``(low, high)`` of each eye's pan (within the head's joint limits) and of the vergence
             (holding 0), degrees; every movement ends within it (default `TrialProtocol`'s: pans
@@ -360,6 +373,7 @@ class ActiveDepthEnv:
         aperture_m: float = DEFAULT_PROTOCOL.aperture_m,
         accommodation_start_D: float | None = DEFAULT_PROTOCOL.accommodation_start_D,
         yoked_accommodation: bool = DEFAULT_PROTOCOL.yoked_accommodation,
+        pursuit_velocity: bool = DEFAULT_PROTOCOL.pursuit_velocity,
         pan_range_deg: tuple[float, float] = DEFAULT_PROTOCOL.pan_range_deg,
         vergence_range_deg: tuple[float, float] = DEFAULT_PROTOCOL.vergence_range_deg,
         pursuit_start_deg=START_PURSUIT_DEG,
@@ -377,7 +391,7 @@ class ActiveDepthEnv:
         check_int(num_envs, "num_envs")
         protocol = TrialProtocol(renderer, fixation_iterations, shift_m, shift_iterations, yoked_pursuit, q_iterations,
                                  object_speed_deg, object_depth_speed_m, aperture_m, accommodation_start_D, yoked_accommodation,
-                                 pan_range_deg, vergence_range_deg)
+                                 pan_range_deg, vergence_range_deg, pursuit_velocity)
         renderer = str(protocol.renderer)
         distances = check_distances(distances_m, "distances_m")
         if dtype not in (torch.float32, torch.float64):
@@ -431,6 +445,13 @@ class ActiveDepthEnv:
         if self.accommodation_start_D is not None:  # this environment serves the accommodation cue(s) too
             self.CUES = {**type(self).CUES, "accommodation": ACCOMMODATION,
                          **({} if self.yoked_accommodation else {"accommodation_right": ACCOMMODATION_RIGHT})}
+        self.pursuit_velocity = protocol.pursuit_velocity
+        if self.pursuit_velocity:  # the slip cue first: it sees the frame the last iteration ended with
+            self.CUES = {"slip": SLIP, **self.CUES}
+        # The pursuit velocity [B] (deg per iteration) and the pans the last iteration ended with
+        # [B, 2] (None: off, or the fixation's first iteration).
+        self.velocity_deg: Tensor | None = None
+        self._previous_pans: Tensor | None = None
         self.object_speed_deg, self.object_depth_speed_m = protocol.object_speed_deg, protocol.object_depth_speed_m
         check_object_motion(self.object_speed_deg, self.object_depth_speed_m, distances,
                             protocol.fixation_iterations, self.scene.background_x_m - float(self.head.eye_x_m))
@@ -525,6 +546,9 @@ class ActiveDepthEnv:
         self._first_optics: Optics | None = None
         if moves:
             self._start_object(fixation)
+        if self.pursuit_velocity:  # the eyes start still
+            self.velocity_deg = torch.zeros(self.num_envs, dtype=self.dtype, device=self.device)
+            self._previous_pans = None
         if self.accommodation_start_D is not None:  # both eyes at the start focus, as vergence starts parallel
             self.focus_dioptres = torch.full((self.num_envs, 2), float(self.accommodation_start_D),
                                              dtype=self.dtype, device=self.device)
@@ -789,13 +813,16 @@ class ActiveDepthEnv:
         return self.pan_deg[:, 1] - self.pan_deg[:, 0]
 
     # -- ground truth ----------------------------------------------------------------------
-    def optimal_left_pan_deg(self) -> Tensor:
+    def optimal_left_pan_deg(self, target_m: Tensor | None = None, body_shift_m: Tensor | None = None) -> Tensor:
         """The left pan that keeps the fixation target on the left axis at the shifted position
-        (of the left eye's axis: with a squint's offset the command differs by it)."""
+        (of the left eye's axis: with a squint's offset the command differs by it); ``target_m``
+        ``[B, 3]`` and ``body_shift_m`` ``[B]`` default to now's."""
+        target = self.target_m if target_m is None else target_m
+        body = self.body_shift_m if body_shift_m is None else body_shift_m
         shift = self._eye_shift()
         if shift is None:
-            return self.head.pursuit_pan_deg(self.target_m, self.body_shift_m)
-        return self.head.pursuit_pan_deg(self.target_m - shift[0], self.body_shift_m)
+            return self.head.pursuit_pan_deg(target, body)
+        return self.head.pursuit_pan_deg(target - shift[0], body)
 
     def optimal_right_pan_deg(self, left_pan_deg: Tensor | None = None) -> Tensor:
         """The right pan whose axis meets the plane where the left axis does (current left pan,
@@ -952,6 +979,13 @@ class ActiveDepthEnv:
             crops of ``window``) without scales or with ``window=True``.
         """
         key = self._key(scales, window)
+        first = self._first_left(key, scales, window)
+        second = self._current_left(key, scales, window)
+        return {name: torch.cat((first[name], second[name]), dim=1) for name in first}
+
+    def _first_left(self, key, scales, window: bool) -> dict[str, Tensor]:
+        """The left eye's image at the fixation's start (its start pan, roll, optics and object
+        place), rendered once per fixation and kept."""
         first = self._first_image.get(key)
         if first is None:
             zero = torch.zeros_like(self.body_shift_m)
@@ -964,11 +998,41 @@ class ActiveDepthEnv:
                                  optics=replace(self._first_optics, orientation_bands=self.optics.orientation_bands),
                                  plane=self._start_plane if self.moving else None)
             self._first_image[key] = first
+        return first
+
+    def _current_left(self, key, scales, window: bool) -> dict[str, Tensor]:
+        """The left eye's image now: the last one rendered when the eye has not moved since."""
         cached = self._last_left
         if cached is not None and cached[0] == self._left_view and cached[1] == key:
-            second = cached[2]  # the left eye has not moved since the last stereo frame
+            return cached[2]
+        second = self._render(self.body_shift_m, self.pan_deg, slice(0, 1), scales=scales, window=window)
+        self._last_left = (self._left_view, key, second)
+        return second
+
+    def slip_observation(self, scales=None, *, window: bool = False) -> dict[str, Tensor]:
+        """The retinal-slip pair (with ``pursuit_velocity``): the left eye's previous frame, then its
+        current one.
+
+        The previous frame is the left eye as the last iteration ended (its pans after every
+        movement, the body and the object where they were; in a fixation's first iteration, the
+        fixation's first image); between the two the object and the body moved on and the eyes
+        moved by their pursuit velocity, so the image slips by the object's motion the eye did not
+        follow. Rendered with the optics of now. ``scales``, ``window`` and the returned dict as
+        for :meth:`parallax_observation`.
+        """
+        if not self.pursuit_velocity:
+            raise ValueError("slip_observation needs pursuit_velocity=True (the environment's slip cue)")
+        key = self._key(scales, window)
+        if self._previous_pans is None:
+            first = self._first_left(key, scales, window)
         else:
-            second = self._render(self.body_shift_m, self.pan_deg, slice(0, 1), scales=scales, window=window)
+            plane = None
+            if self.moving:  # the object where it was during the last iteration
+                distance, y = object_place(self.distance_m, self.object_speed, self.iteration)
+                plane = (distance + float(self.head.eye_x_m), y)
+            first = self._render(self._body_shift(self.iteration - 1), self._previous_pans, slice(0, 1),
+                                 scales=scales, window=window, plane=plane)
+        second = self._current_left(key, scales, window)
         return {name: torch.cat((first[name], second[name]), dim=1) for name in first}
 
     def stereo_observation(self, scales=None, *, window: bool = False) -> dict[str, Tensor]:
@@ -1007,6 +1071,20 @@ class ActiveDepthEnv:
         """The pursuit increments ``[B]`` that put the left eye at its optimal pan now."""
         return self.optimal_left_pan_deg() - self.eye_pan_deg[:, 0]
 
+    def slip_to_optimum(self) -> Tensor:
+        """The increments ``[B]`` that set the pursuit velocity to the optimal left pan's change over
+        the next iteration (the object's and the body's motion as the left eye sees it)."""
+        return self.optimal_velocity_deg() - self.velocity_deg
+
+    def optimal_velocity_deg(self) -> Tensor:
+        """The optimal left pan's change ``[B]`` from this iteration to the next, degrees."""
+        target = self.target_m
+        if self.moving:  # the target where the object will be
+            distance, y = object_place(self.distance_m, self.object_speed, self.iteration + 2)
+            start = self._start_target_m
+            target = torch.stack((distance + float(self.head.eye_x_m), start[:, 1] + y, start[:, 2]), -1)
+        return self.optimal_left_pan_deg(target, self._body_shift(self.iteration + 1)) - self.optimal_left_pan_deg()
+
     def vergence_to_optimum(self) -> Tensor:
         """The vergence increments ``[B]`` that put the right eye at its optimal pan now."""
         return self.optimal_right_pan_deg() - self.eye_pan_deg[:, 1]
@@ -1033,6 +1111,14 @@ class ActiveDepthEnv:
         self.pan_deg = self.clamp_pan_deg(self.pan_deg + step)
         self._moved()
 
+    def apply_slip(self, delta_deg: Tensor) -> None:
+        """Add the increments ``[B]`` (degrees per iteration) to the eyes' pursuit velocity (with
+        ``pursuit_velocity``): the eyes move by it when the iteration ends (both with
+        ``yoked_pursuit``, else the left), within the oculomotor range."""
+        if not self.pursuit_velocity:
+            raise ValueError("apply_slip needs pursuit_velocity=True (the environment's slip cue)")
+        self.velocity_deg = self.velocity_deg + self._check_increment(delta_deg, "delta_deg")
+
     def apply_vergence(self, delta_deg: Tensor) -> None:
         """Add the vergence increments ``[B]`` (degrees) to the right eye's pan (within the
         oculomotor range, :meth:`clamp_pan_deg`: the vergence stays within ``vergence_range_deg``)."""
@@ -1040,14 +1126,21 @@ class ActiveDepthEnv:
         step = torch.stack((torch.zeros_like(delta), delta), dim=-1)
         self.pan_deg = self.clamp_pan_deg(self.pan_deg + step)
 
+    def _extra_errors_deg(self) -> dict[str, Tensor] | None:
+        """The errors of the eye movements beyond pursuit and vergence that this environment
+        serves (accommodation; the pursuit velocity against its optimum), by movement."""
+        extra = {m: self.accommodation_error_deg(e) for e, m in enumerate(("accommodation", "accommodation_right"))
+                 if m in self.CUES}
+        if self.pursuit_velocity:
+            extra[SLIP.movement] = -self.slip_to_optimum()
+        return extra or None
+
     def end_iteration(self) -> IterationInfo:
         """End the iteration: the ground truth after its movements, and the next iteration, fixation
         or trial begins."""
         optimal_left = self.optimal_left_pan_deg()
         optimal_right = self.optimal_right_pan_deg()
-        extra = None if "accommodation" not in self.CUES else \
-            {m: self.accommodation_error_deg(e) for e, m in enumerate(("accommodation", "accommodation_right"))
-             if m in self.CUES}
+        extra = self._extra_errors_deg()
         iteration, fixation = self.iteration, self.fixation
         fixation_end = iteration == self.fixation_iterations - 1
         trial_end = fixation_end and fixation == 1
@@ -1071,6 +1164,12 @@ class ActiveDepthEnv:
                 self._moved()
             if self.moving:  # and so does the object
                 self._place_object(self.iteration)
+                self._moved()
+            if self.pursuit_velocity:  # and the eyes, at their pursuit velocity
+                self._previous_pans = self.pan_deg
+                v = self.velocity_deg
+                self.pan_deg = self.clamp_pan_deg(self.pan_deg + torch.stack(
+                    (v, v if self.yoked_pursuit else torch.zeros_like(v)), -1))
                 self._moved()
         return IterationInfo(
             left_pan_deg=info_left,

@@ -74,6 +74,10 @@ class TrialProtocol:
         vergence_range_deg: ``(low, high)``, the vergence's range in degrees (right pan minus
             left pan, positive converging); it holds 0. Default (-2, 40): 2 degrees past
             parallel to a near point of 8 cm.
+        pursuit_velocity: the eyes keep a pursuit velocity that moves them on between iterations,
+            learned by the ``slip`` cue from the retinal slip (the left eye's previous frame
+            against its current one; `ActiveDepthEnv.slip_observation`). ``False`` (default): the
+            eyes move only by the cues' increments, the paper's.
 
     Example:
         >>> protocol = TrialProtocol(fixation_iterations=10)
@@ -96,6 +100,7 @@ class TrialProtocol:
     yoked_accommodation: bool = True
     pan_range_deg: tuple[float, float] = PAN_RANGE_DEG
     vergence_range_deg: tuple[float, float] = VERGENCE_RANGE_DEG
+    pursuit_velocity: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "renderer", check_choice(self.renderer, "renderer", RendererName))
@@ -106,6 +111,7 @@ class TrialProtocol:
         check_int(self.q_iterations, "q_iterations")
         check_real(self.aperture_m, "aperture_m", minimum=0, unit="metres")
         check_bool(self.yoked_accommodation, "yoked_accommodation")
+        check_bool(self.pursuit_velocity, "pursuit_velocity")
         if self.accommodation_start_D is not None:
             check_real(self.accommodation_start_D, "accommodation_start_D", minimum=0, unit="dioptres")
             if self.aperture_m == 0:
