@@ -87,6 +87,17 @@ def test_tracking_writes_its_rows_and_the_report_reads_them(run, tmp_path, capsy
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("2 runs") and lines[3].startswith("| 0 | ") and " +- " in lines[4]
     assert (tmp_path / "t.png").exists()
+    # --within: the percentage of fixations within the limit, per run, then mean +- sd over the runs
+    limit = 0.5 * (result["per_trial"][2]["pursuit_tracking_deg"][0] + result["per_trial"][2]["pursuit_tracking_deg"][1])
+    assert report(["tracking", str(tmp_path / "run0"), str(tmp_path / "run1"), "--within", str(limit)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[1].endswith(f"| pursuit within {limit:g} (%) | vergence within {limit:g} (%) |")
+    percent = []
+    for seed in (0, 1):
+        rows = json.loads((tmp_path / f"run{seed}" / "tracking.json").read_text())["tracking"]["per_trial"]
+        errors = [e for row in rows if abs(row["speed_deg"]) == 1.5 for e in row["pursuit_tracking_deg"]]
+        percent.append(100.0 * sum(e <= limit for e in errors) / len(errors))
+    assert lines[4].split(" | ")[-2].split(" +- ")[0] == f"{sum(percent) / 2:.1f}"
     assert report(["tracking", str(run[0].parent)]) == 2  # no tracking.json there
 
 

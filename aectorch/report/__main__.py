@@ -119,7 +119,7 @@ def _adaptation(args) -> list[str]:
 
 
 def _tracking(args) -> list[str]:
-    return tracking_table([Run(run) for run in args.runs], args.eval, args.plot, args.target)
+    return tracking_table([Run(run) for run in args.runs], args.eval, args.plot, args.target, args.within)
 
 
 def _accommodation(args) -> list[str]:
@@ -312,6 +312,8 @@ def _experiment_commands(command) -> None:
     sub.add_argument("--eval", default="tracking.json", help="the tracking test's file in each run folder")
     sub.add_argument("--plot", type=Path, default=None, help="also draw the error against speed into this PNG")
     sub.add_argument("--target", type=float, default=None, help="draw a target error (deg)")
+    sub.add_argument("--within", type=float, default=None,
+                     help="also the percentage of fixations whose mean |error| is within this many degrees")
 
     sub = command("accommodation", _accommodation, accommodation.accommodation_table)
     sub.add_argument("groups", nargs="+", help="name=run,run,...")

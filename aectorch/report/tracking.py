@@ -11,23 +11,31 @@ from aectorch.runs import Run
 __all__ = ["tracking_table"]
 
 
-def _stats(values: list[float]) -> str:
+def _stats(values: list[float], digits: int = 3) -> str:
     mean = sum(values) / len(values)
     if len(values) < 2:
-        return f"{mean:.3f}"
+        return f"{mean:.{digits}f}"
     sd = math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1))
-    return f"{mean:.3f} +- {sd:.3f}"
+    return f"{mean:.{digits}f} +- {sd:.{digits}f}"
+
+
+def _within(per_trial: list[dict], speed: float, key: str, limit_deg: float) -> float:
+    """The percentage of fixations (two per trial) at ``|speed|`` whose mean ``key`` is within ``limit_deg``."""
+    values = [e for row in per_trial if abs(row["speed_deg"]) == speed for e in row[key]]
+    return 100.0 * sum(e <= limit_deg for e in values) / len(values)
 
 
 def tracking_table(runs: Sequence[Run], evaluation: str, plot: Path | None = None,
-                   target_deg: float | None = None) -> list[str]:
+                   target_deg: float | None = None, within_deg: float | None = None) -> list[str]:
     """The tracking errors of a moving object per speed: mean +- standard deviation over runs.
 
     Reads ``evaluation`` (``python -m aectorch.evaluate ... tracking=[...]``'s JSON) in each run
     folder: for each sideways speed (degrees per iteration) every eye movement's mean |error| after
     each fixation's first ``skip`` iterations, over all trials of a run, then over the runs (one
     value per run: the seeds' spread). ``--plot`` draws the error against speed
-    (`aectorch.figures.plot_tracking`), ``--target`` a dotted line at that error.
+    (`aectorch.figures.plot_tracking`), ``--target`` a dotted line at that error. ``--within X``
+    adds, for each movement, the percentage of fixations whose mean |error| is within X (from the
+    per-trial rows: a few lost fixations and a spread of small errors can have the same mean).
     """
     results = [run.evaluation(evaluation) for run in runs]
     if not results:
@@ -46,8 +54,15 @@ def tracking_table(runs: Sequence[Run], evaluation: str, plot: Path | None = Non
              f"depth speed {first['depth_speed_m']:g} m per iteration",
              "| speed (deg/iteration) | " + " | ".join(k[: -len("_tracking_deg")] for k in keys) + " |",
              "|---|" + "---|" * len(keys)]
+    plain = [k for k in keys if not k.endswith(("_lead_tracking_deg", "_speed_tracking_deg"))] if within_deg else []
+    if plain:
+        lines[1] = lines[1] + "".join(f" {k[: -len('_tracking_deg')]} within {within_deg:g} (%) |" for k in plain)
+        lines[2] = lines[2] + "---|" * len(plain)
     for i, speed in enumerate(speeds):
-        lines.append(f"| {speed:g} | " + " | ".join(_stats([rows[i][k] for rows in per_run]) for k in keys) + " |")
+        within = [_stats([_within(result["tracking"]["per_trial"], speed, k, within_deg) for result in results], 1)
+                  for k in plain]
+        cells = [_stats([rows[i][k] for rows in per_run]) for k in keys] + within
+        lines.append(f"| {speed:g} | " + " | ".join(cells) + " |")
     if plot is not None:
         from aectorch.figures import plot_tracking
 
