@@ -114,3 +114,24 @@ def test_the_learner_learns_the_slip_cue_from_its_config(bank):
     held = JointLearner(LearnerConfig(cues=cues, active_cues=["parallax", "stereo"]),
                         generator=torch.Generator().manual_seed(0))
     assert float(held.iteration(env).errors_deg["pursuit_velocity"].abs().max()) < 1e-4
+
+
+def test_velocity_memory_keeps_the_pursuit_steps_as_velocity(bank):
+    """With ``velocity_memory`` a pursuit step also goes on as velocity: an eye that catches up on a
+    lag by position steps alone (a proportional step, the slip cue idle) ends up at the object's
+    speed with no lag; without it the lag stays."""
+    with pytest.raises(ValueError, match="velocity_memory needs pursuit_velocity"):
+        ActiveDepthEnv(1, textures=bank, velocity_memory=True)
+    lags = {}
+    for memory in (False, True):
+        env = ActiveDepthEnv(1, textures=bank, fixation_iterations=30, shift_m=0.0, pursuit_velocity=True,
+                             velocity_memory=memory, object_speed_deg=(0.0, 1.0))
+        env.set_object_speed(torch.tensor([1.0]), None)
+        env.set_trial(torch.tensor([0]), torch.tensor([2.0]))
+        for _ in range(25):
+            env.apply_pursuit(0.5 * env.pursuit_to_optimum())  # half the seen offset
+            info = env.end_iteration()
+        lags[memory] = float(info.pursuit_error_deg)
+        if memory:
+            assert abs(float(env.velocity_deg) - 1.0) < 0.02
+    assert lags[False] < -0.9 and abs(lags[True]) < 0.02

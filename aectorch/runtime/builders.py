@@ -55,7 +55,7 @@ def trial_protocol(cfg: ExperimentConfig) -> TrialProtocol:
                          object_depth_speed_m=tuple(e.object_depth_speed_m), aperture_m=e.aperture_m,
                          accommodation_start_D=e.accommodation_start_D, yoked_accommodation=e.yoked_accommodation,
                          pan_range_deg=tuple(e.pan_range_deg), vergence_range_deg=tuple(e.vergence_range_deg),
-                         pursuit_velocity=e.pursuit_velocity)
+                         pursuit_velocity=e.pursuit_velocity, velocity_memory=e.velocity_memory)
 
 
 def trial_options(cfg: ExperimentConfig) -> dict:

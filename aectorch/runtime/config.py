@@ -113,6 +113,8 @@ class EnvConfig:
             and the environment serves the ``slip`` cue (``learner.cues.slip``,
             ``+experiment=slip``), which learns it from the retinal slip: the left eye's previous
             frame against its current one (docs/simulation.md). ``false`` (default): the paper's.
+        velocity_memory: with ``pursuit_velocity``, each pursuit step also adds to the pursuit
+            velocity (integral action: a lag pursuit keeps catching up on raises the velocity).
         device: torch device of the environment and the learner (``"cpu"``, ``"cuda"``, ...).
         dtype: ``"float32"`` or ``"float64"``, of the environment and the learner.
     """
@@ -138,6 +140,7 @@ class EnvConfig:
     pan_range_deg: list[float] = field(default_factory=lambda: list(PAN_RANGE_DEG))
     vergence_range_deg: list[float] = field(default_factory=lambda: list(VERGENCE_RANGE_DEG))
     pursuit_velocity: bool = False
+    velocity_memory: bool = False
     device: str = "cpu"
     dtype: DType = DType.float32
 
@@ -165,6 +168,7 @@ class EnvConfig:
             check_real(self.accommodation_start_D, f"{owner}.accommodation_start_D", minimum=0, unit="dioptres")
         check_bool(self.yoked_accommodation, f"{owner}.yoked_accommodation")
         check_bool(self.pursuit_velocity, f"{owner}.pursuit_velocity")
+        check_bool(self.velocity_memory, f"{owner}.velocity_memory")
         pan, vergence = check_oculomotor_range(self.pan_range_deg, self.vergence_range_deg, prefix=f"{owner}.")
         self.pan_range_deg, self.vergence_range_deg = list(pan), list(vergence)
         check_device(self.device, f"{owner}.device")

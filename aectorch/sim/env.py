@@ -312,6 +312,7 @@ class ActiveDepthEnv:
             move, and the ``slip`` cue joins :attr:`CUES` first: it sees the left eye's previous
             frame against its current one (:meth:`slip_observation`, the retinal slip) and changes
             the velocity (:meth:`apply_slip`). Default ``False`` (`TrialProtocol`).
+        velocity_memory: with ``pursuit_velocity``, each pursuit step also adds to the velocity.
         pan_range_deg, vergence_range_deg: the oculomotor range (`aectorch.sim.oculomotor`):
             ``(low, high)`` of each eye's pan (within the head's joint limits) and of the vergence
             (holding 0), degrees; every movement ends within it (default `TrialProtocol`'s: pans
@@ -374,6 +375,7 @@ class ActiveDepthEnv:
         accommodation_start_D: float | None = DEFAULT_PROTOCOL.accommodation_start_D,
         yoked_accommodation: bool = DEFAULT_PROTOCOL.yoked_accommodation,
         pursuit_velocity: bool = DEFAULT_PROTOCOL.pursuit_velocity,
+        velocity_memory: bool = DEFAULT_PROTOCOL.velocity_memory,
         pan_range_deg: tuple[float, float] = DEFAULT_PROTOCOL.pan_range_deg,
         vergence_range_deg: tuple[float, float] = DEFAULT_PROTOCOL.vergence_range_deg,
         pursuit_start_deg=START_PURSUIT_DEG,
@@ -391,7 +393,7 @@ class ActiveDepthEnv:
         check_int(num_envs, "num_envs")
         protocol = TrialProtocol(renderer, fixation_iterations, shift_m, shift_iterations, yoked_pursuit, q_iterations,
                                  object_speed_deg, object_depth_speed_m, aperture_m, accommodation_start_D, yoked_accommodation,
-                                 pan_range_deg, vergence_range_deg, pursuit_velocity)
+                                 pan_range_deg, vergence_range_deg, pursuit_velocity, velocity_memory)
         renderer = str(protocol.renderer)
         distances = check_distances(distances_m, "distances_m")
         if dtype not in (torch.float32, torch.float64):
@@ -445,7 +447,7 @@ class ActiveDepthEnv:
         if self.accommodation_start_D is not None:  # this environment serves the accommodation cue(s) too
             self.CUES = {**type(self).CUES, "accommodation": ACCOMMODATION,
                          **({} if self.yoked_accommodation else {"accommodation_right": ACCOMMODATION_RIGHT})}
-        self.pursuit_velocity = protocol.pursuit_velocity
+        self.pursuit_velocity, self.velocity_memory = protocol.pursuit_velocity, protocol.velocity_memory
         if self.pursuit_velocity:  # the slip cue first: it sees the frame the last iteration ended with
             self.CUES = {"slip": SLIP, **self.CUES}
         # The pursuit velocity [B] (deg per iteration) and the pans the last iteration ended with
@@ -1107,6 +1109,8 @@ class ActiveDepthEnv:
         With ``yoked_pursuit`` the right eye turns by the same increment.
         """
         delta = self._check_increment(delta_deg, "delta_deg")
+        if self.velocity_memory:  # the step also goes on as velocity
+            self.velocity_deg = self.velocity_deg + delta
         step = torch.stack((delta, delta if self.yoked_pursuit else torch.zeros_like(delta)), dim=-1)
         self.pan_deg = self.clamp_pan_deg(self.pan_deg + step)
         self._moved()

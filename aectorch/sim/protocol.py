@@ -78,6 +78,9 @@ class TrialProtocol:
             learned by the ``slip`` cue from the retinal slip (the left eye's previous frame
             against its current one; `ActiveDepthEnv.slip_observation`). ``False`` (default): the
             eyes move only by the cues' increments, the paper's.
+        velocity_memory: with ``pursuit_velocity``, each pursuit step (the parallax cue's) also
+            adds to the pursuit velocity, so that a lag pursuit keeps catching up on raises the
+            velocity until it matches (integral action). Default ``False``.
 
     Example:
         >>> protocol = TrialProtocol(fixation_iterations=10)
@@ -101,6 +104,7 @@ class TrialProtocol:
     pan_range_deg: tuple[float, float] = PAN_RANGE_DEG
     vergence_range_deg: tuple[float, float] = VERGENCE_RANGE_DEG
     pursuit_velocity: bool = False
+    velocity_memory: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "renderer", check_choice(self.renderer, "renderer", RendererName))
@@ -112,6 +116,9 @@ class TrialProtocol:
         check_real(self.aperture_m, "aperture_m", minimum=0, unit="metres")
         check_bool(self.yoked_accommodation, "yoked_accommodation")
         check_bool(self.pursuit_velocity, "pursuit_velocity")
+        check_bool(self.velocity_memory, "velocity_memory")
+        if self.velocity_memory and not self.pursuit_velocity:
+            raise ValueError("velocity_memory needs pursuit_velocity=True (a velocity to remember the steps in)")
         if self.accommodation_start_D is not None:
             check_real(self.accommodation_start_D, "accommodation_start_D", minimum=0, unit="dioptres")
             if self.aperture_m == 0:
