@@ -250,6 +250,8 @@ def test_checkpoint_errors_name_the_path(tmp_path):
     ("perturbation.roll_deg=3.0", None),  # valid
     ("perturbation.first_fraction=0.9", None),  # valid without a roll
     ("+experiment=roll_perturbation", None),
+    ("+experiment=slip", None),
+    ("env.velocity_memory=true", "env.velocity_memory"),
 ])
 def test_config_errors_name_the_field(override, field, textures):
     from hydra import compose, initialize

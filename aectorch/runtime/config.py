@@ -169,6 +169,9 @@ class EnvConfig:
         check_bool(self.yoked_accommodation, f"{owner}.yoked_accommodation")
         check_bool(self.pursuit_velocity, f"{owner}.pursuit_velocity")
         check_bool(self.velocity_memory, f"{owner}.velocity_memory")
+        if self.velocity_memory and not self.pursuit_velocity:
+            raise ValueError(f"{owner}.velocity_memory needs {owner}.pursuit_velocity=true (a velocity to remember "
+                             "the pursuit steps in)")
         pan, vergence = check_oculomotor_range(self.pan_range_deg, self.vergence_range_deg, prefix=f"{owner}.")
         self.pan_range_deg, self.vergence_range_deg = list(pan), list(vergence)
         check_device(self.device, f"{owner}.device")

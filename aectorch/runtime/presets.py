@@ -69,9 +69,11 @@ ACCOMMODATION: dict[str, Any] = {
 #: the eyes keep a velocity that moves them on between iterations, and the ``slip`` cue (the left
 #: eye's previous frame against its current one; its actions change the velocity, degrees per
 #: iteration) learns it beside pursuit's position steps and vergence. Mirroring the world mirrors
-#: both frames and negates the velocity change, as for the parallax cue.
+#: both frames and negates the velocity change, as for the parallax cue. Pursuit's steps also go on
+#: as velocity (``velocity_memory``): without it the eye lags (docs/results.md, "A moving object").
 SLIP: dict[str, Any] = {
     "env.pursuit_velocity": True,
+    "env.velocity_memory": True,
     "learner.cues.slip": {"symmetry": "mirror"},
 }
 
