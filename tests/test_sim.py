@@ -22,6 +22,7 @@ from aectorch.sim import (
     render_planes,
     sample_bilinear,
 )
+from aectorch.sim.protocol import TrialProtocol
 
 torch.set_num_threads(1)
 CAMERA = PinholeCamera()
@@ -973,6 +974,9 @@ def test_clamp_eyes_is_the_nearest_pair_within_the_range():
 def test_the_oculomotor_range_rejects_bad_values_by_name(kwargs, match):
     with pytest.raises(ValueError, match=match):
         ActiveDepthEnv(1, textures=torch.rand(1, 32, 32), fixation_iterations=2, **kwargs)
+    if "HOAP-3" not in match:  # the protocol checks the range too (the head's joint limits are the environment's)
+        with pytest.raises(ValueError, match=match):
+            TrialProtocol(**kwargs)
 
 
 @pytest.mark.parametrize("renderer", ["torch", "pyrender"])

@@ -128,16 +128,16 @@ class TrialProtocol:
                                                                  unit="degrees per iteration"))
         object.__setattr__(self, "object_depth_speed_m", check_range(self.object_depth_speed_m, "object_depth_speed_m",
                                                                      unit="metres per iteration"))
-
-    @property
-    def moving(self) -> bool:
-        """Whether the object moves (either speed range is not ``(0, 0)``)."""
-        return self.object_speed_deg != (0.0, 0.0) or self.object_depth_speed_m != (0.0, 0.0)
         # (the joint limits are the environment's head's: `ActiveDepthEnv` checks them)
         pan, vergence = check_oculomotor_range(self.pan_range_deg, self.vergence_range_deg,
                                                pan_limits_deg=(-math.inf, math.inf))
         object.__setattr__(self, "pan_range_deg", pan)
         object.__setattr__(self, "vergence_range_deg", vergence)
+
+    @property
+    def moving(self) -> bool:
+        """Whether the object moves (either speed range is not ``(0, 0)``)."""
+        return self.object_speed_deg != (0.0, 0.0) or self.object_depth_speed_m != (0.0, 0.0)
 
     def env_kwargs(self) -> dict:
         """The keyword arguments of `ActiveDepthEnv` this protocol sets."""
