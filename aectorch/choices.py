@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from enum import Enum
 
-__all__ = ["AgentName", "Algorithm", "Choice", "DictionaryStart", "DType", "Eye", "Features", "PerturbationKind", "Policy", "Pooling", "Readout", "RendererName", "Reward",
+__all__ = ["AgentName", "Algorithm", "Choice", "DictionaryStart", "DType", "Eye", "Features", "PerturbationKind", "Policy", "Pooling", "Proprioception", "Readout", "RendererName", "Reward",
            "Symmetry", "WatchdogMode"]
 
 
@@ -107,6 +107,15 @@ class DictionaryStart(Choice):
 
     random = "random"
     binocular = "binocular"
+
+
+class Proprioception(Choice):
+    """What a cue's agent may sense of its own eyes besides the images (`ActiveDepthEnv.proprioception`):
+    the commanded vergence angle (degrees), the left eye's commanded pan (degrees) or its focus (dioptres)."""
+
+    vergence = "vergence"
+    pan = "pan"
+    focus = "focus"
 
 
 class Readout(Choice):

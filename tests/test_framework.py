@@ -374,6 +374,57 @@ def test_a_learner_with_a_cue_the_environment_lacks_says_so():
         learner.iteration(env)
 
 
+def test_a_cues_agent_sees_its_proprioception_after_its_code():
+    cues = default_cues(encoder=EncoderConfig(num_atoms=16))
+    cues["stereo"].proprioception = ("vergence",)
+    cues["accommodation"] = CueConfig(encoder=EncoderConfig(num_atoms=16), scales=("fine", "full"),
+                                      efficiency="information", proprioception=["vergence", "focus"])
+    learner = JointLearner(LearnerConfig(cues=cues), generator=torch.Generator().manual_seed(0))
+    env = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64), fixation_iterations=3, accommodation_start_D=0.5,
+                         seed=0)
+    acc, stereo = learner.accommodation, learner.stereo
+    assert acc.agent.num_features == acc.encoder.num_features + 2
+    sensed = []
+    watch = lambda cue, _: sensed.append(env.proprioception(["vergence", "focus"])) if cue == "accommodation" else None
+    for _ in range(3):  # one fixation: PPO learns from its first two steps at its end
+        learner.iteration(env, watch=watch)
+    assert torch.equal(sensed[0][:, 1], torch.full((2,), 0.5)) and sensed[1][:, 0].abs().min() > 0
+    seen = torch.cat(sensed[:2]).double()
+    torch.testing.assert_close(acc.agent.feature_mean[-2:].double(), seen.mean(0))
+    # z-scored with the code, but not scaled with it to the agent's feature norm
+    f = acc.features(torch.rand(2, acc.encoder.num_features), sensed[2])
+    x, a = acc.agent.normalize(f), acc.agent
+    z = (f[:, -2:] - a.feature_mean[-2:]) / torch.sqrt(a.feature_m2[-2:] / (a.feature_count - 1) + a.config.normalize_eps)
+    torch.testing.assert_close(x[:, -2:], z)
+    torch.testing.assert_close(torch.linalg.vector_norm(x[:, :-2], dim=-1), torch.full((2,), a.config.feature_norm))
+    # The swap symmetry leaves the vergence angle as it is: its column keeps its place, and the
+    # symmetric start weighs it alike for each action and its negation.
+    n = stereo.encoder.num_features
+    assert int(stereo.feature_permutation[-1]) == n and stereo.feature_permutation.numel() == n + 1
+    before = JointLearner(LearnerConfig(cues=cues), generator=torch.Generator().manual_seed(0)).stereo
+    w = before.agent.policy.weight[:, -1]
+    torch.testing.assert_close(w, w[before.action_negation])
+    pooled = torch.rand(2, acc.encoder.num_features)
+    with pytest.raises(ValueError, match=r"proprioception must be \[B, 2\]"):
+        acc.features(pooled)
+
+
+def test_proprioception_is_checked_where_it_is_configured_and_sensed():
+    with pytest.raises(ValueError, match="cue.proprioception must be one of"):
+        CueConfig(proprioception=["vergance"])
+    with pytest.raises(ValueError, match="'pan' changes sign under cue.symmetry=swap"):
+        CueConfig(symmetry="swap", proprioception=["pan"])
+    with pytest.raises(ValueError, match="must be distinct"):
+        CueConfig(proprioception=["focus", "focus"])
+    env, _ = make()
+    with pytest.raises(ValueError, match="'focus' needs an environment whose eyes accommodate"):
+        env.proprioception(["focus"])
+    sensed = env.proprioception(["pan", "vergence"])
+    assert torch.equal(sensed, torch.stack((env.left_pan_deg, env.vergence_deg), -1))
+    env.set_focus(torch.tensor([0.25, 0.75]))
+    assert torch.equal(env.proprioception(["focus"])[:, 0], torch.full((env.num_envs,), 0.25))
+
+
 # -- adding a cue: its config, its environment methods, its tests (docs/architecture.md) ------------
 class TorsionEnv(ActiveDepthEnv):
     """An environment with a third, toy cue: a torsion of the right eye that brightens its image;

@@ -290,6 +290,8 @@ class NaturalActorCritic(nn.Module):
         generator: optional `torch.Generator` for the initial actor and critic weights.
         dtype, device: of the weights (default: torch's defaults). Inputs are cast to
             this dtype and must be on this device.
+        unscaled_features: the last this many features (a cue's proprioception) are left out
+            of the scaling to ``feature_norm`` (default 0: all scaled).
         **options: fields of `ActorCriticConfig` that override `config`, e.g.
             ``alpha_v=0.1``.
 
@@ -331,10 +333,14 @@ class NaturalActorCritic(nn.Module):
         generator: torch.Generator | None = None,
         dtype: torch.dtype | None = None,
         device: torch.device | str | None = None,
+        unscaled_features: int = 0,
         **options,
     ) -> None:
         super().__init__()
         check_int(num_features, "num_features")
+        self.unscaled_features = check_int(unscaled_features, "unscaled_features", 0)
+        if unscaled_features >= num_features:
+            raise ValueError(f"unscaled_features must be < num_features = {num_features}, got {unscaled_features}")
         actions = tuple(actions_deg) if not isinstance(actions_deg, torch.Tensor) else tuple(
             actions_deg.tolist()
         )
@@ -423,7 +429,7 @@ class NaturalActorCritic(nn.Module):
         if cfg.normalize_features:
             x = standardize(features, self.feature_count, self.feature_mean, self.feature_m2, cfg.normalize_eps)
         if cfg.feature_norm is not None:
-            x = scale_to_norm(x, cfg.feature_norm)
+            x = scale_to_norm(x, cfg.feature_norm, self.unscaled_features)
         return x
 
     def _log_policy(self, x: torch.Tensor, temperature: float) -> torch.Tensor:

@@ -24,10 +24,11 @@ def agent_config(name: str):
 
 def make_agent(name: str, num_features: int, actions_deg: Sequence[float], config=None, *,
                generator: torch.Generator | None = None, dtype: torch.dtype | None = None,
-               device: torch.device | str | None = None):
+               device: torch.device | str | None = None, unscaled_features: int = 0):
     """Build the agent called ``name`` (``"nac"``: `NaturalActorCritic`, ``"ppo"``: `PPO`) for
     ``num_features`` features and the action set ``actions_deg``, with its config
-    (`ActorCriticConfig`, `PPOConfig`; ``None``: the defaults).
+    (`ActorCriticConfig`, `PPOConfig`; ``None``: the defaults); the last ``unscaled_features``
+    of them are left out of the scaling to its ``feature_norm``.
 
     Example:
         >>> agent = make_agent("ppo", 6, (-0.1, 0.0, 0.1), generator=torch.Generator().manual_seed(0))
@@ -35,4 +36,5 @@ def make_agent(name: str, num_features: int, actions_deg: Sequence[float], confi
         torch.Size([2])
     """
     cls, _ = AGENTS[check_choice(name, "agent", AgentName)]
-    return cls(num_features, actions_deg, config, generator=generator, dtype=dtype, device=device)
+    return cls(num_features, actions_deg, config, generator=generator, dtype=dtype, device=device,
+               unscaled_features=unscaled_features)

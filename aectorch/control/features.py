@@ -16,9 +16,10 @@ __all__ = ["merge_moments", "scale_to_norm", "standardize"]
 
 
 def standardize(features: Tensor, count: Tensor, mean: Tensor, m2: Tensor, eps: float,
-                norm: float | None = None, *, out: Tensor | None = None) -> Tensor:
+                norm: float | None = None, *, out: Tensor | None = None, unscaled: int = 0) -> Tensor:
     """``(features - mean) / sqrt(var + eps)`` with the sample variance ``m2 / (count - 1)`` (1
-    before two samples), then, when ``norm`` is given, each row scaled to that Euclidean norm.
+    before two samples), then, when ``norm`` is given, each row scaled to that Euclidean norm
+    (all but its last ``unscaled`` entries: `scale_to_norm`).
     ``out``: the result is written there (it may be ``features`` itself; no gradient).
 
     Shape:
@@ -42,18 +43,31 @@ def standardize(features: Tensor, count: Tensor, mean: Tensor, m2: Tensor, eps: 
         raise RuntimeError("standardize: out= with a gradient")
     x = features - mean if out is None else torch.sub(features, mean, out=out)
     x = x.div_(torch.sqrt(var + eps)) if inplace else x / torch.sqrt(var + eps)
-    return x if norm is None else _scale_to_norm(x, norm, inplace)
+    return x if norm is None else _scale_to_norm(x, norm, inplace, unscaled)
 
 
-def scale_to_norm(x: Tensor, norm: float) -> Tensor:
-    """Each row of ``x`` `[..., F]` scaled to Euclidean norm ``norm`` (a zero row stays zero)."""
-    return _scale_to_norm(x, norm, False)
+def scale_to_norm(x: Tensor, norm: float, unscaled: int = 0) -> Tensor:
+    """Each row of ``x`` `[..., F]` scaled to Euclidean norm ``norm`` (a zero row stays zero);
+    ``unscaled`` > 0: the first ``F - unscaled`` entries scaled to it, the last ``unscaled``
+    (a cue's proprioception) left as they are.
+
+    Example:
+        >>> scale_to_norm(torch.tensor([[3.0, 4.0, 5.0]]), 1.0, unscaled=1).tolist()
+        [[0.6000000238418579, 0.800000011920929, 5.0]]
+    """
+    return _scale_to_norm(x, norm, False, unscaled)
 
 
-def _scale_to_norm(x: Tensor, norm: float, inplace: bool) -> Tensor:
+def _scale_to_norm(x: Tensor, norm: float, inplace: bool, unscaled: int = 0) -> Tensor:
     """`scale_to_norm`, in place on ``x`` when ``inplace``."""
-    scale = norm / torch.linalg.vector_norm(x, dim=-1, keepdim=True).clamp_min(torch.finfo(x.dtype).tiny)
-    return x.mul_(scale) if inplace else x * scale
+    head = x[..., : x.shape[-1] - unscaled] if unscaled else x
+    scale = norm / torch.linalg.vector_norm(head, dim=-1, keepdim=True).clamp_min(torch.finfo(x.dtype).tiny)
+    if not unscaled:
+        return x.mul_(scale) if inplace else x * scale
+    if inplace:
+        head.mul_(scale)
+        return x
+    return torch.cat((head * scale, x[..., x.shape[-1] - unscaled:]), -1)
 
 
 def merge_moments(count: Tensor, mean: Tensor, m2: Tensor, f: Tensor, mask: Tensor | None,

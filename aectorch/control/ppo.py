@@ -145,6 +145,8 @@ class PPO(nn.Module):
         generator: draws the initial weights and shuffles the minibatches (the cue's generator:
             its state is the learner's).
         dtype, device: of the networks.
+        unscaled_features: the last this many features (a cue's proprioception) are z-scored but
+            left out of the scaling to ``feature_norm`` (default 0: all scaled).
         **options: fields of `PPOConfig` that override ``config``.
 
     Attributes:
@@ -169,9 +171,13 @@ class PPO(nn.Module):
 
     def __init__(self, num_features: int, actions_deg: Sequence[float] = DEFAULT_ACTIONS_DEG,
                  config: PPOConfig | None = None, *, generator: torch.Generator | None = None,
-                 dtype: torch.dtype | None = None, device: torch.device | str | None = None, **options) -> None:
+                 dtype: torch.dtype | None = None, device: torch.device | str | None = None,
+                 unscaled_features: int = 0, **options) -> None:
         super().__init__()
         check_int(num_features, "num_features")
+        self.unscaled_features = check_int(unscaled_features, "unscaled_features", 0)
+        if unscaled_features >= num_features:
+            raise ValueError(f"unscaled_features must be < num_features = {num_features}, got {unscaled_features}")
         config = PPOConfig() if config is None else config
         if not isinstance(config, PPOConfig):
             raise TypeError(f"config must be a PPOConfig or None, got {type(config).__name__}")
@@ -228,7 +234,8 @@ class PPO(nn.Module):
     def _standardize(self, features: Tensor, out: Tensor | None = None) -> Tensor:
         """`normalize`, written to ``out`` (which may be ``features``) when given."""
         return standardize(features.to(self.feature_mean.dtype), self.feature_count, self.feature_mean,
-                           self.feature_m2, self.config.normalize_eps, self.config.feature_norm, out=out)
+                           self.feature_m2, self.config.normalize_eps, self.config.feature_norm, out=out,
+                           unscaled=self.unscaled_features)
 
     def _buffer(self, name: str, shape: tuple[int, ...], like: Tensor, dtype: torch.dtype | None = None) -> Tensor:
         """A contiguous tensor of ``shape`` (contents undefined) in memory kept under ``name``: the

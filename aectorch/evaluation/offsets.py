@@ -99,7 +99,9 @@ def offset_sweep(
                 shifted = torch.full((stop - start,), offset, dtype=dtype, device=device)
                 env.set_pan_deg(_pans_at(env, movement, shifted))
                 coded = cue_learner.encoder.encode(env.observe(cue, scales))
-                features = cue_learner._features(coded.features)
+                sensed = env.proprioception(cue_learner.config.proprioception) \
+                    if cue_learner.config.proprioception else None
+                features = cue_learner.features(coded.features, sensed)
                 greedy = cue_learner.agent.act(features, greedy=True, generator=learner.generator)
                 probabilities = cue_learner.agent.log_policy(features).exp()
                 rows["reward"].append(coded.reward)

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 from aectorch._checks import check_bool, check_choice, check_int, check_real
-from aectorch.choices import AgentName, Efficiency, Features, Readout, Reward, Symmetry
+from aectorch.choices import AgentName, Efficiency, Features, Proprioception, Readout, Reward, Symmetry
 from aectorch.coding.encoder import EncoderConfig
 from aectorch.coding.patches import DEFAULT_SCALES, SCALE_NAMES
 from aectorch.control import DEFAULT_ACTIONS_DEG, PAPER_ACTIONS_DEG, ActorCriticConfig, PPOConfig
@@ -81,6 +81,17 @@ class CueConfig:
             policy's mean increment, sum_a pi(a|s) a, the default: where the policy hesitates
             between stepping either way, it steps little) or ``"argmax"`` (the most probable
             action's, the paper's greedy policy). Training samples actions either way.
+        proprioception: what the agent senses of its own eyes besides the code (default none):
+            names of `aectorch.choices.Proprioception`, ``vergence`` (the commanded vergence
+            angle, degrees), ``pan`` (the left eye's commanded pan, degrees), ``focus`` (the left
+            eye's focus, dioptres; needs accommodating eyes), read when the cue observes
+            (`ActiveDepthEnv.proprioception`) and appended to its features, which the agent
+            z-scores with the rest (but leaves out of the scaling to its ``feature_norm``, which
+            would shrink each to a few per cent of a z-score among hundreds). The vergence angle encodes the distance once vergence is right,
+            so with the focus it tells an accommodation cue which way the object's focus lies,
+            which the blur alone cannot (docs/results.md, "Accommodation"). A cue's symmetry
+            leaves the vergence angle and the focus unchanged; ``pan`` changes sign under it, so
+            it needs ``symmetry=null``.
     """
 
     agent: AgentName = AgentName.ppo
@@ -96,6 +107,7 @@ class CueConfig:
     efficiency: Efficiency = Efficiency.reconstruction
     motor_cost: float = 0.0
     readout: Readout = Readout.mean
+    proprioception: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         # Messages name the field as "cue.<field>"; `aectorch.runtime.config.to_experiment_config`
@@ -121,6 +133,7 @@ class CueConfig:
             raise ValueError(f"{owner}.scales must be distinct, got {list(self.scales)!r}")
         check_real(self.feature_scale, f"{owner}.feature_scale", above=0)
         check_real(self.motor_cost, f"{owner}.motor_cost", minimum=0)
+        self._check_proprioception(owner)
         for name, cls in (("encoder", EncoderConfig), ("nac", ActorCriticConfig), ("ppo", PPOConfig)):
             if isinstance(getattr(self, name), dict):
                 setattr(self, name, cls(**getattr(self, name)))
@@ -132,6 +145,17 @@ class CueConfig:
             if self.encoder.num_atoms % 2:
                 raise ValueError(f"{owner}.encoder.num_atoms must be even with {owner}.symmetry (atoms come in "
                                  f"pairs), got {self.encoder.num_atoms}")
+
+    def _check_proprioception(self, owner: str) -> None:
+        names = self.proprioception
+        if isinstance(names, str) or not hasattr(names, "__iter__"):
+            raise ValueError(f"{owner}.proprioception must be a list of {list(Proprioception.values())}, got {names!r}")
+        self.proprioception = tuple(str(check_choice(n, f"{owner}.proprioception", Proprioception)) for n in names)
+        if len(set(self.proprioception)) != len(self.proprioception):
+            raise ValueError(f"{owner}.proprioception must be distinct, got {list(self.proprioception)!r}")
+        if self.symmetry is not None and Proprioception.pan in self.proprioception:
+            raise ValueError(f"{owner}.proprioception 'pan' changes sign under {owner}.symmetry={self.symmetry}; "
+                             f"use {owner}.symmetry=null or leave 'pan' out")
 
     @property
     def agent_config(self):

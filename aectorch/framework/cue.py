@@ -62,16 +62,21 @@ class CueLearner(nn.Module):
         self.config, self.encoder, self.agent = config, encoder, agent
         self.generator, self.shard = generator, shard
         # The index of each action's negation: a symmetric cue's transformed transition takes it
-        # (the features take the encoder's `feature_permutation`). A buffer, so `.to()` moves it.
+        # (the features take `feature_permutation`). Buffers, so `.to()` moves them.
         symmetric = encoder.feature_permutation is not None
-        negation = None
+        negation = permutation = None
         if symmetric:
             actions = torch.tensor(config.actions_deg, dtype=torch.float64)
             negation = (actions[None, :] == -actions[:, None]).to(torch.int64).argmax(-1)
             negation = negation.to(agent.actions_deg.device)
+            # The code's features permuted; the proprioception the symmetry leaves unchanged after them.
+            code = encoder.feature_permutation
+            permutation = torch.cat((code, torch.arange(code.numel(), code.numel() + len(config.proprioception),
+                                                        dtype=code.dtype, device=code.device)))
         self.register_buffer("action_negation", negation, persistent=False)
+        self.register_buffer("feature_permutation", permutation, persistent=False)
         if symmetric:  # start the policy and the critic symmetric as well
-            agent.symmetrize_(encoder.feature_permutation, negation)
+            agent.symmetrize_(permutation, negation)
         # The running scale of the ``scaled`` reward (its buffers are in the checkpoint); none otherwise.
         self.reward_scale = RewardScale() if config.reward == Reward.scaled else None
         self.previous: tuple[Tensor, Tensor, Tensor] | None = None  # (features, action, reward)
@@ -86,20 +91,26 @@ class CueLearner(nn.Module):
     @staticmethod
     def build_agent(config: CueConfig, num_features: int, *, generator: torch.Generator, dtype=None,
                     device=None) -> Agent:
-        """The agent of ``config`` (``config.agent`` with its settings) for ``num_features`` features."""
-        return make_agent(config.agent, num_features, config.actions_deg, config.agent_config,
-                          generator=generator, dtype=dtype, device=device)
+        """The agent of ``config`` (``config.agent`` with its settings) for the code's
+        ``num_features`` features and the cue's proprioception after them: z-scored with the
+        code's, but left out of the scaling to the agent's ``feature_norm``, which would weigh
+        a few senses among hundreds of code features by a few per cent each."""
+        k = len(config.proprioception)
+        return make_agent(config.agent, num_features + k, config.actions_deg, config.agent_config,
+                          generator=generator, dtype=dtype, device=device, unscaled_features=k)
 
-    def step(self, observation: dict[str, Tensor], *, learn: bool, greedy: bool, last: bool = False) -> CueRecord:
+    def step(self, observation: dict[str, Tensor], *, learn: bool, greedy: bool, last: bool = False,
+             proprioception: Tensor | None = None) -> CueRecord:
         """Encode ``observation`` (the environment's ``{scale: [B, 2, side, side]}``, or its whole
         window), learn from the pending transition (``last``: this observation ends the fixation),
-        act, and take a dictionary step."""
+        act, and take a dictionary step. ``proprioception``: ``[B, k]``, the cue's
+        ``config.proprioception`` sensed with the observation (`ActiveDepthEnv.proprioception`)."""
         with stage("encode"), torch.no_grad():
             out = self.encoder.encode(observation)
             if self.config.efficiency == Efficiency.information:
                 out = out._replace(reward=self._information(observation, out))
         with stage("rl"):
-            features = self._features(out.features)
+            features = self.features(out.features, proprioception)
             td_error = self._learn(features, out.reward, last) if learn and self.previous is not None else None
             action = self._act(features, greedy)
         if learn and self.encoder.config.lr > 0:
@@ -124,10 +135,21 @@ class CueLearner(nn.Module):
         energy = [input_energy(observation[s.name], s) for s in self.encoder.scales]
         return focus_reward(energy, [code.error for code in out.codes])
 
-    def _features(self, pooled: Tensor) -> Tensor:
+    def features(self, pooled: Tensor, proprioception: Tensor | None = None) -> Tensor:
+        """What the agent sees ``[B, F + k]``: the code's pooled activities ``[B, F]`` as
+        ``config.features`` says, times ``config.feature_scale``, then the ``k`` columns of
+        ``proprioception`` ``[B, k]`` (``config.proprioception``; the agent z-scores them all)."""
         if self.config.features == Features.unit:
             pooled = pooled / torch.linalg.vector_norm(pooled, dim=-1, keepdim=True).clamp_min(1e-12)
-        return pooled * self.config.feature_scale
+        pooled = pooled * self.config.feature_scale
+        k = len(self.config.proprioception)
+        if k == 0 and proprioception is None:
+            return pooled
+        if proprioception is None or proprioception.shape != (pooled.shape[0], k):
+            got = None if proprioception is None else tuple(proprioception.shape)
+            raise ValueError(f"proprioception must be [B, {k}] = [{pooled.shape[0]}, {k}] (the cue's "
+                             f"{list(self.config.proprioception)}), got {got}")
+        return torch.cat((pooled, proprioception.to(pooled.dtype)), -1)
 
     def _learn(self, features: Tensor, reward: Tensor, last: bool) -> Tensor:
         """The agent learns the pending transition, whose reward is this observation's; with the
@@ -137,7 +159,7 @@ class CueLearner(nn.Module):
         if self.config.motor_cost:
             learned = learned - self.config.motor_cost * self.agent.actions_deg[a_prev].abs().to(learned.dtype)
         f_next = features
-        fmap = self.encoder.feature_permutation
+        fmap = self.feature_permutation
         if fmap is not None:  # also learn from the transformed transition
             f_prev = torch.cat((f_prev, f_prev[:, fmap]))
             a_prev = torch.cat((a_prev, self.action_negation[a_prev]))

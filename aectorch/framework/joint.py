@@ -183,7 +183,8 @@ class JointLearner(nn.Module):
                 observation = env.observe(name, scales, window=watch is not None)
             if watch is not None:
                 watch(name, observation)
-            records[name] = cue.step(observation, learn=learn, greedy=greedy, last=last)
+            sensed = env.proprioception(cue.config.proprioception) if cue.config.proprioception else None
+            records[name] = cue.step(observation, learn=learn, greedy=greedy, last=last, proprioception=sensed)
             with stage("env"):
                 env.act(name, records[name].increments_deg)
         with stage("env"):

@@ -143,7 +143,8 @@ def policy_table(learner, textures: int = 8) -> list[str]:
                 env.set_focus(torch.full((n, 2), 1.0 / distance + defocus).clamp_min(0.0))
                 observation = env.stereo_observation(cue.encoder.scales)
                 out = cue.encoder.encode(observation)
-                policy = cue.agent.log_policy(cue._features(out.features)).exp()
+                sensed = env.proprioception(cue.config.proprioception) if cue.config.proprioception else None
+                policy = cue.agent.log_policy(cue.features(out.features, sensed)).exp()
                 increment = policy @ cue.agent.actions_deg.to(policy.dtype)
                 cells.append(f"{float(increment.mean()):+.3f}, {float(cue._information(observation, out).mean()):.3f}")
             lines.append(f"{distance:.1f} m | " + " | ".join(cells))

@@ -161,10 +161,10 @@ def _from_2(payload: dict) -> dict:
 
 #: Fields that versions of format 3 added, with what a file without them did: the environment's
 #: optics (``None``: the roll of ``roll_deg`` and nothing else), the cues' reconstruction efficiency
-#: (issue 53), their rates without a floor,
+#: and no proprioception (issue 53), their rates without a floor,
 #: and the oculomotor range of the config's ``env`` (issue 50): the eye pan limits alone, no
 #: vergence range but theirs.
-_ADDED_3 = {"env": {"optics": None, "first_optics": None}, "cue": {"efficiency": "reconstruction"},
+_ADDED_3 = {"env": {"optics": None, "first_optics": None}, "cue": {"efficiency": "reconstruction", "proprioception": []},
             "encoder": {"floor": None}, "nac": {"actor_floor": None},
             "config_env": {"pan_range_deg": [-45.0, 45.0], "vergence_range_deg": [-90.0, 90.0]}}
 
@@ -185,7 +185,7 @@ def _complete_3(payload: dict) -> dict:
     for cue in cues.values():
         if isinstance(cue, dict):
             for key, value in _ADDED_3["cue"].items():
-                cue.setdefault(key, value)
+                cue.setdefault(key, copy.copy(value))
         for section in ("encoder", "nac"):
             if isinstance(cue, dict) and isinstance(cue.get(section), dict):
                 for key, value in _ADDED_3[section].items():

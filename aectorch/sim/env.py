@@ -50,8 +50,8 @@ from typing import NamedTuple, Sequence
 import torch
 from torch import Tensor
 
-from aectorch._checks import check_distances, check_int, is_real
-from aectorch.choices import RendererName
+from aectorch._checks import check_choice, check_distances, check_int, is_real
+from aectorch.choices import Proprioception, RendererName
 from aectorch.ops.backend import fused_kernels_apply
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.hoap3 import HOAP3Head
@@ -680,6 +680,29 @@ class ActiveDepthEnv:
     def accommodation_right_to_optimum(self) -> Tensor:
         """The increments ``[B]`` that focus the right eye on the object now."""
         return -self.accommodation_error_deg(1)
+
+    def proprioception(self, names) -> Tensor:
+        """What the eyes sense of themselves now, ``[B, len(names)]``, one column per name of
+        `aectorch.choices.Proprioception`: ``vergence`` (:attr:`vergence_deg`, the commanded
+        vergence angle, degrees), ``pan`` (the left eye's commanded pan, degrees) and ``focus``
+        (the left eye's focus, dioptres; only where the eyes accommodate, ``accommodation_start_D``
+        or :meth:`set_focus`: an eye that follows the object would sense its distance). Efference
+        copies of the commands, not ground truth: a squint's offset is not in them.
+
+        Example:
+            >>> env = ActiveDepthEnv(2, textures=torch.rand(2, 64, 64), accommodation_start_D=0.0, seed=0)
+            >>> env.proprioception(["vergence", "focus"]).shape
+            torch.Size([2, 2])
+        """
+        names = [check_choice(n, "proprioception", Proprioception) for n in names]
+        if Proprioception.focus in names and self.focus_dioptres is None:
+            raise ValueError("proprioception 'focus' needs an environment whose eyes accommodate "
+                             "(accommodation_start_D, env.accommodation_start_D; or set_focus): these eyes follow the object")
+        columns = {Proprioception.vergence: lambda: self.vergence_deg, Proprioception.pan: lambda: self.pan_deg[:, 0],
+                   Proprioception.focus: lambda: self.focus_dioptres[:, 0]}
+        if not names:
+            return self.pan_deg.new_zeros(self.num_envs, 0)
+        return torch.stack([columns[n]() for n in names], -1)
 
     def _world_blur_arcmin(self, optics: Optics) -> Tensor | None:
         """Each eye's defocus blur disc ``[B, 2]`` (diameter, arcmin) with the refractive errors of
