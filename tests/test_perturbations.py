@@ -236,12 +236,19 @@ def test_oblique_rearing_keeps_the_stripes_rising_to_the_right():
 
 def test_the_image_functions():
     kernel = disc_kernel(1.5)
-    assert kernel.shape == (3, 3) and math.isclose(float(kernel.sum()), 1.0, rel_tol=1e-6)
-    assert torch.equal(disc_kernel(0.4), torch.ones(1, 1)) and blur_margin(2.6) == 3
+    assert kernel.shape == (5, 5) and math.isclose(float(kernel.sum()), 1.0, rel_tol=1e-6)
+    assert torch.equal(disc_kernel(0.0), torch.ones(1, 1)) and blur_margin(2.6) == 3 and blur_margin(0.2) == 1
+    # A disc within the centre pixel blurs too, more as it grows (the pixels' area averages): the
+    # next column's share is the mean over the disc of the tent's x+ (the rows' tents sum to 1),
+    # in closed form 2r / (3 pi) for a disc of radius r within the centre pixel.
+    centres = [float(disc_kernel(r)[1, 1]) for r in (0.08, 0.1, 0.25, 0.4)]
+    assert centres == sorted(centres, reverse=True) and centres[0] < 1.0
+    for r in (0.1, 0.4):
+        assert math.isclose(float(disc_kernel(r, subsamples=256)[:, 2].sum()), 2 * r / (3 * math.pi), rel_tol=0.02)
     impulse = torch.zeros(9, 9)
     impulse[4, 4] = 1
-    expected = torch.zeros(7, 7)
-    expected[2:5, 2:5] = kernel  # the disc is symmetric: convolution and correlation agree
+    expected = torch.zeros(5, 5)
+    expected[:, :] = kernel  # the disc is symmetric: convolution and correlation agree
     torch.testing.assert_close(defocus(impulse, 1.5), expected)
     images = torch.rand(2, 5, 5)
     torch.testing.assert_close(scale_contrast(images, 1.0), images)

@@ -410,33 +410,30 @@ def make_perturbation(kind: str, params: dict | None = None) -> Perturbation:
 
 # -- the image work ------------------------------------------------------------------------------
 def blur_margin(radius_px: float) -> int:
-    """Pixels a disc of ``radius_px`` (pixels) reaches beyond the centre pixel: the margin
-    :func:`defocus` consumes on every side."""
-    return max(0, math.ceil(radius_px - 0.5 - 1e-9))
+    """Pixels a disc of ``radius_px`` (pixels), averaged over each pixel's area, reaches beyond
+    the centre pixel: the margin :func:`defocus` consumes on every side (``ceil(radius_px)``)."""
+    return max(0, math.ceil(radius_px - 1e-9))
 
 
 def disc_kernel(radius_px: float, *, dtype: torch.dtype = torch.float32, device=None,
                 subsamples: int = 16) -> Tensor:
-    """The defocus kernel ``[2M + 1, 2M + 1]`` (M = :func:`blur_margin`): each pixel's share of a
-    uniform disc of ``radius_px`` pixels centred on the middle pixel (its area inside the disc,
-    from ``subsamples`` x ``subsamples`` points per pixel), summing to 1. A disc smaller than a
-    pixel's half-width is the identity.
+    """The defocus kernel ``[2M + 1, 2M + 1]`` (M = :func:`blur_margin`): a rendered image, each
+    pixel the area average of the scene, blurred by a uniform disc of ``radius_px`` pixels and
+    averaged again over each pixel's area. Its pixels are taken as constant over their area, so
+    each entry is the mean over the disc of the two pixel boxes' overlap (the tent ``max(0, 1 -
+    |x|)`` per axis), from ``subsamples`` points per pixel along each axis; it sums to 1 and grows
+    from the identity continuously with the radius (a disc within the centre pixel blurs too, as
+    a lens's would; one smaller than a point spacing is the identity).
 
     Example:
         >>> k = disc_kernel(1.5)
-        >>> k.shape, round(float(k.sum()), 6), bool(k[1, 1] > k[0, 0] > 0)
-        (torch.Size([3, 3]), 1.0, True)
+        >>> k.shape, round(float(k.sum()), 6), bool(k[2, 2] > k[1, 2] > k[0, 2] > 0)
+        (torch.Size([5, 5]), 1.0, True)
+        >>> round(float(disc_kernel(0.25)[1, 1]), 3)
+        0.805
     """
-    margin = blur_margin(radius_px)
-    if margin == 0:
-        return torch.ones(1, 1, dtype=dtype, device=device)
-    offsets = (torch.arange(subsamples, dtype=torch.float64) + 0.5) / subsamples - 0.5
-    centres = torch.arange(-margin, margin + 1, dtype=torch.float64)
-    points = (centres[:, None] + offsets[None, :]).reshape(-1)  # [(2M+1) * S]
-    inside = (points[:, None] ** 2 + points[None, :] ** 2) <= radius_px ** 2
-    side = 2 * margin + 1
-    share = inside.reshape(side, subsamples, side, subsamples).double().sum(dim=(1, 3))
-    return (share / share.sum()).to(dtype=dtype, device=device)
+    return disc_kernels(torch.tensor([float(radius_px)], dtype=torch.float64), subsamples=subsamples)[0].to(
+        dtype=dtype, device=device)
 
 
 def defocus(images: Tensor, radius_px: float) -> Tensor:
@@ -457,24 +454,21 @@ def disc_kernels(radius_px: Tensor, *, subsamples: int = 16) -> Tensor:
 
     Example:
         >>> k = disc_kernels(torch.tensor([0.0, 1.5]))
-        >>> k.shape, torch.equal(k[1], disc_kernel(1.5)), float(k[0, 1, 1])
-        (torch.Size([2, 3, 3]), True, 1.0)
+        >>> k.shape, torch.equal(k[1], disc_kernel(1.5)), float(k[0, 2, 2])
+        (torch.Size([2, 5, 5]), True, 1.0)
     """
     margin = blur_margin(float(radius_px.max())) if radius_px.numel() else 0
-    offsets = (torch.arange(subsamples, dtype=torch.float64) + 0.5) / subsamples - 0.5
+    dtype = radius_px.dtype if radius_px.is_floating_point() else torch.float32
+    if margin == 0:
+        return torch.ones(radius_px.shape[0], 1, 1, dtype=dtype, device=radius_px.device)
+    # Points on a grid of `subsamples` per pixel, the centre among them; each point's tent weights.
+    points = torch.arange(-margin * subsamples, margin * subsamples + 1, dtype=torch.float64) / subsamples
     centres = torch.arange(-margin, margin + 1, dtype=torch.float64)
-    points = (centres[:, None] + offsets[None, :]).reshape(-1)
+    tent = (1.0 - (centres[:, None] - points[None, :]).abs()).clamp_min(0.0).to(radius_px.device)  # [2M+1, P]
     square = (points[:, None] ** 2 + points[None, :] ** 2).to(radius_px.device)
-    inside = square <= radius_px.double()[:, None, None] ** 2  # [N, (2M+1) S, (2M+1) S]
-    side = 2 * margin + 1
-    share = inside.reshape(-1, side, subsamples, side, subsamples).double().sum(dim=(2, 4))
-    total = share.sum(dim=(1, 2), keepdim=True)
-    # A disc within the centre pixel (as disc_kernel: the identity), even one too small for any point.
-    identity = torch.zeros(side, side, dtype=torch.float64, device=radius_px.device)
-    identity[margin, margin] = 1.0
-    small = (radius_px.double() <= 0.5 + 1e-9)[:, None, None] | (total == 0)
-    kernels = torch.where(small, identity, share / total.clamp_min(1))
-    return kernels.to(radius_px.dtype if radius_px.is_floating_point() else torch.float32)
+    inside = (square <= radius_px.double()[:, None, None] ** 2).double()  # [N, P, P]; the centre always
+    kernels = tent @ inside @ tent.T
+    return (kernels / kernels.sum(dim=(1, 2), keepdim=True)).to(dtype)
 
 
 def defocus_each(images: Tensor, radius_px: Tensor) -> Tensor:
