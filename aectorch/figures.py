@@ -204,6 +204,13 @@ def _color(index: int) -> str:
     return COLORS[index % len(COLORS)]
 
 
+def _eye_ylabel(movements: Sequence[str]) -> str:
+    """The eye-error axis's label: degrees, and degrees per iteration for a velocity among
+    ``movements`` (``pursuit_velocity``, the slip cue's)."""
+    velocity = any(m.endswith("velocity") for m in movements)
+    return "eye movement MAE (deg" + ("; velocity: deg per iteration)" if velocity else ")")
+
+
 def _error_panels(ax_eye, ax_depth, x: np.ndarray, records: Sequence[Mapping]) -> None:
     """Panels (a) the eye movements' MAE (deg) and (b) depth MAE (m) over iterations."""
     keys = _keys(records, "_mae_deg")
@@ -216,7 +223,7 @@ def _error_panels(ax_eye, ax_depth, x: np.ndarray, records: Sequence[Mapping]) -
         ax_eye.legend(loc="upper right", fontsize=8)
     else:
         _no_data(ax_eye, " / ".join(repr(k) for k in keys) or "'<movement>_mae_deg'")
-    ax_eye.set_ylabel("eye movement MAE (deg)")
+    ax_eye.set_ylabel(_eye_ylabel([k[: -len("_mae_deg")] for k in keys]))
     ax_eye.set_title("(a) eye movement error", loc="left", fontsize=10)
     _curve(ax_depth, x, depth, color=DEPTH_COLOR, label="depth")
     if np.isfinite(depth).any():
@@ -470,7 +477,7 @@ def _recent_panels(ax_eye, ax_depth, ax_within, x: np.ndarray, records: Sequence
     ax_within.axhline(0.95, color="grey", linewidth=0.8)
     ax_within.set_ylim(0, 1.02)
     ax_within.legend(loc="lower right", fontsize=7)
-    ax_eye.set_ylabel("eye movement MAE (deg)")
+    ax_eye.set_ylabel(_eye_ylabel(movements))
     ax_depth.set_ylabel("depth MAE (m)")
     ax_within.set_ylabel("within 1 px")
     ax_eye.set_title("(a) eye movement error, last fixation ends (solid)", loc="left", fontsize=10)
@@ -530,7 +537,7 @@ def plot_evaluation(result: Mapping, path: str | os.PathLike) -> Path:
         ax_eye.plot(distance, _series(rows, key), marker="os^vD"[i % 5], color=_color(i),
                     label=key[: -len("_mae_deg")])
     ax_eye.legend(fontsize=8)
-    ax_eye.set_ylabel("eye movement MAE (deg)")
+    ax_eye.set_ylabel(_eye_ylabel([k[: -len("_mae_deg")] for k in eyes]))
     ax_eye.set_title("(a) eye movement error", loc="left", fontsize=10)
     ax_depth.plot(distance, depth, marker="o", color=DEPTH_COLOR)
     ax_depth.set_ylabel("depth MAE (m)")

@@ -80,6 +80,14 @@ def test_plot_dictionaries_bad_input(tmp_path):
 # plot_training / plot_perturbation
 
 
+def test_the_eye_axis_names_the_velocitys_unit():
+    """The slip cue's pursuit velocity is in degrees per iteration, beside the angles in degrees."""
+    from aectorch.figures import _eye_ylabel
+    assert _eye_ylabel(["pursuit", "vergence"]) == "eye movement MAE (deg)"
+    assert _eye_ylabel(["pursuit", "vergence", "pursuit_velocity"]) == \
+        "eye movement MAE (deg; velocity: deg per iteration)"
+
+
 def test_plot_training_two_panels_with_gaps_and_events(tmp_path):
     records = records_run()
     records[30]["pursuit_mae_deg"] = None  # a gap
