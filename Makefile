@@ -7,7 +7,7 @@ ARGS ?=
 PYTEST_ARGS ?=
 # LEROBOT=0 skips the LeRobot bridge's tests (they run in their own .venv-lerobot).
 LEROBOT ?= 1
-# pytest-xdist worker processes of the main suite (on 2 cores: 7 min 51 s with 2 on an AMD EPYC).
+# pytest-xdist worker processes of the main suite (on 2 cores: 8 min 10 s with 2 on an idle AMD EPYC, 1,058 tests).
 TEST_WORKERS ?= 2
 
 # `make bench`: the benchmark suite at full size, its results written to benchmarks/results
