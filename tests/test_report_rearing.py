@@ -107,3 +107,18 @@ def test_every_condition_is_recognised_and_the_shares_count_the_bins():
     assert numbers["mean_index"] == pytest.approx(6 / 7)  # the last bin's centre
     balanced = code_numbers(code_summary(torch.cat([_atoms(1, "left")[:16]] * 2)))
     assert (balanced["mean_abs_index"], balanced["left"], balanced["right"]) == (0.0, 0.0, 0.0)
+
+
+def test_scales_keep_only_those_dictionaries(tmp_path, capsys):
+    folder = _run(tmp_path / "monocular_s0", "monocular", 0, "left", 120.0)
+    summary = json.loads((folder / "summary.json").read_text())
+    summary["code"]["stereo/full"] = code_summary(_atoms(5, None))
+    (folder / "summary.json").write_text(json.dumps(summary))
+    assert main(["rearing", str(tmp_path)]) == 0
+    every = capsys.readouterr().out.splitlines()
+    assert [line.split(" | ")[1] for line in every[2:4]] == ["stereo/fine", "stereo/full"]
+    assert main(["rearing", str(tmp_path), "--scales", "full"]) == 0
+    only = capsys.readouterr().out.splitlines()
+    assert only[2] == every[3] and only[3] == "" and only[5:] == every[6:]  # the other tables unchanged
+    assert main(["rearing", str(tmp_path), "--scales", "coarse"]) == 2
+    assert "scales: ['coarse'] are not among the 'stereo' cue's dictionaries ['fine', 'full']" in capsys.readouterr().err

@@ -140,7 +140,7 @@ def _accommodation_policy(args) -> list[str]:
 
 def _rearing(args) -> list[str]:
     groups = rearing_runs(*args.folder)
-    lines = rearing_table(groups, args.cue)
+    lines = rearing_table(groups, args.cue, args.scales)
     if args.plot is not None:
         lines.append(f"wrote {plot_rearing(groups, args.plot, args.cue)}")
     return lines
@@ -336,6 +336,8 @@ def _experiment_commands(command) -> None:
     sub.add_argument("folder", type=Path, nargs="+",
                      help="the suite's sweep folders (python train.py -m ... hydra.sweep.dir=...)")
     sub.add_argument("--cue", default="stereo", help="the cue whose dictionaries are read out (default: stereo)")
+    sub.add_argument("--scales", nargs="+", default=None,
+                     help="only these dictionaries in the per-dictionary tables (e.g. fine full; default: all)")
     sub.add_argument("--plot", type=Path, default=None, help="also draw the suite's figure into this PNG")
 
     sub = command("rl", _rl, tables.rl_table)

@@ -176,7 +176,8 @@ def _cell(values: Sequence, spec: str = ".3f", percent: bool = False) -> str:
     return text if len(values) == 1 else f"{text} ({format(min(values), spec)}-{format(max(values), spec)})"
 
 
-def rearing_table(groups: Mapping[str, Sequence[Run]], cue: str = "stereo") -> list[str]:
+def rearing_table(groups: Mapping[str, Sequence[Run]], cue: str = "stereo",
+                  scales: Sequence[str] | None = None) -> list[str]:
     """The rearing suite's tables: per condition and ``cue`` dictionary (scale), the mean absolute
     binocularity index, its signed mean (from the bins), the shares of left- and right-dominated
     atoms (|index| > 3/7) and of atoms
@@ -186,13 +187,19 @@ def rearing_table(groups: Mapping[str, Sequence[Run]], cue: str = "stereo") -> l
     the end) and the training time; then, for the runs that read it, the code at the correction
     (as the perturbation left it) against the code at the end. Cells are means over the seeds
     (smallest-largest); the random start's mean index is in square brackets. The last line is the
-    suite's total training time (``summary.json``'s ``train_seconds`` summed over the runs)."""
+    suite's total training time (``summary.json``'s ``train_seconds`` summed over the runs).
+    ``scales`` keeps only those dictionaries in the per-dictionary tables (default: all)."""
     rows = rearing_rows(groups, cue)
+    known = {scale for r in rows for scale in r["code"]}
+    if scales is not None and not set(scales) <= known:
+        raise ValueError(f"scales: {sorted(set(scales) - known)} are not among the {cue!r} cue's "
+                         f"dictionaries {sorted(known)}")
+    keep = (lambda scale: True) if scales is None else (lambda scale: scale in scales)
     lines = ["| condition (runs) | dictionary | mean abs. binocularity index [start] | mean index | left-dominated % "
              "| right-dominated % | vertical % | horizontal % |", "|---|---|---|---|---|---|---|---|"]
     for name in groups:
         mine = [r for r in rows if r["condition"] == name]
-        for scale in mine[0]["code"]:
+        for scale in filter(keep, mine[0]["code"]):
             code = [r["code"][scale] for r in mine]
             start = _mean([r["initial"].get(scale, {}).get("mean_abs_index") for r in mine])
             lines.append(f"| {name} ({len(mine)}) | {cue}/{scale} | {_cell([c['mean_abs_index'] for c in code])} "
@@ -210,20 +217,20 @@ def rearing_table(groups: Mapping[str, Sequence[Run]], cue: str = "stereo") -> l
         lines.append(f"| {name} ({len(mine)}) | {_cell([r['vergence_eval'] for r in mine])} | "
                      f"{_cell([r['vergence_window'] for r in mine])} | {fix} | "
                      f"{_cell([r['train_seconds'] for r in mine], '.0f')} |")
-    lines += _correction_code_table(rows, groups, cue)
+    lines += _correction_code_table(rows, groups, cue, keep)
     total = sum(r["train_seconds"] for r in rows)
     lines += ["", f"suite: {len(rows)} runs, training {total / 60:.1f} min in all ({total:.0f} s; "
               f"summary.json's train_seconds summed)"]
     return lines
 
 
-def _correction_code_table(rows: Sequence[dict], groups: Mapping, cue: str) -> list[str]:
+def _correction_code_table(rows: Sequence[dict], groups: Mapping, cue: str, keep=lambda scale: True) -> list[str]:
     """The code as the perturbation left it (read at the correction) against the code at the end,
     per condition with that read-out and ``cue`` dictionary; none without such a condition."""
     lines = []
     for name in groups:
         mine = [r for r in rows if r["condition"] == name and r["at_correction"]]
-        for scale in mine[0]["at_correction"] if mine else []:
+        for scale in filter(keep, mine[0]["at_correction"] if mine else []):
             before, after = [r["at_correction"][scale] for r in mine], [r["code"][scale] for r in mine]
             cells = [f"{_cell([c[key] for c in before], spec, percent)} -> "
                      f"{_cell([c[key] for c in after], spec, percent)}" for key, spec, percent in (("mean_abs_index", ".3f", False), ("mean_index", "+.2f", False),
