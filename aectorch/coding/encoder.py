@@ -130,7 +130,7 @@ class BinocularEncoder(nn.Module):
 
     Args:
         config: the coder's hyperparameters (default `EncoderConfig()`).
-        scales: the patch scales (default `DEFAULT_SCALES`: wide, coarse, fine; the paper's:
+        scales: the patch scales (default `DEFAULT_SCALES`: wide, coarse, fine, full; the paper's:
             ``("coarse", "fine")``).
         symmetry: ``None`` (default), or a symmetry of the image pairs that every dictionary then
             keeps (atoms in pairs, `SparseDictionary`'s ``mirror``; `patch_permutation`):

@@ -195,7 +195,8 @@ class LearnerConfig:
         render_scales: ask the environment for each scale's crop rendered directly at the scale's
             resolution (``ActiveDepthEnv.observe(cue, scales=...)``: mipmapped textures, 2 x 2
             lookups per pixel, within 0.5 % of the exact area average, then the rest of the
-            pyramid's blur; 2,488 rendered pixels per eye image against the 128 px crop's 16,384)
+            pyramid's blur; 4,252 rendered pixels per eye image for the default four scales against
+            the 128 px crop's 16,384)
             instead of rendering the crops and reducing them with the pyramid.
         skip_fixation_boundary: do not learn from the transition between two fixations.
         depth_hidden: hidden units of the depth MLP (paper: 10).

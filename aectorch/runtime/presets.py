@@ -3,8 +3,8 @@ apply (`aectorch.runtime.store.register_configs`):
 
 - ``preset``: ``default`` (no change, selected by default) and ``paper`` (:data:`PAPER_PRESET`,
   the paper's values), chosen with ``preset=paper``;
-- ``experiment``: ``roll_perturbation`` (the paper's Fig. 4 experiment: one eye rolled at half
-  of the training, the other at three quarters, :data:`ROLL_PERTURBATION`), added with
+- ``experiment``: ``roll_perturbation`` (the paper's Fig. 4 experiment: one eye rolled 7 deg at
+  0.4 of a 3000-iteration run, the other too at 0.8, :data:`ROLL_PERTURBATION`), added with
   ``+experiment=roll_perturbation``, and ``accommodation`` (:data:`ACCOMMODATION`, the
   accommodation cue beside pursuit and vergence), added with ``+experiment=accommodation``, and
   ``slip`` (:data:`SLIP`, a pursuit velocity learned from the retinal slip), ``+experiment=slip``;
