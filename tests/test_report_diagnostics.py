@@ -139,3 +139,27 @@ def test_depth_tolerance_is_the_eye_error_that_moves_the_geometrys_depth(capsys)
         for j in range(4):
             assert float(change[j]) == pytest.approx(row[f"q{j + 1}"] / 5, rel=0.02)
     assert 0.1 < rows[0]["q2"] < 0.25 and rows[1]["q2"] < rows[0]["q2"] / 5  # vergence: 0.17 deg at 1 m
+
+
+def test_offsets_sweeps_the_pan_cues_of_a_learner_with_the_slip_cue(tmp_path, capsys):
+    """``+experiment=slip``'s learner also learns a velocity (the slip cue), which no offset moves:
+    the diagnostic sweeps its parallax and stereo cues, comparable with a default learner's."""
+    from omegaconf import OmegaConf
+
+    from aectorch.runtime import load_learner, run_experiment
+    from aectorch.runtime.config import to_experiment_config
+
+    torch.set_num_threads(1)
+    images = _images(tmp_path / "images", 2)
+    dotlist = ["env.num_envs=4", "env.fixation_iterations=2", "env.pursuit_velocity=true",
+               "learner.cues.slip.symmetry=mirror", "train.iterations=2", "train.progress=false",
+               "train.figures=false", "train.tensorboard=false", "eval.enabled=false", f"env.textures={images}"]
+    dotlist += [f"learner.cues.{cue}.encoder.num_atoms=16" for cue in ("slip", "parallax", "stereo")]
+    run_experiment(to_experiment_config(OmegaConf.from_dotlist(dotlist)), tmp_path / "run")
+    checkpoint, out = tmp_path / "run" / "checkpoint.pt", tmp_path / "offsets.json"
+    assert sorted(load_learner(checkpoint)[1].cues) == ["parallax", "slip", "stereo"]
+    assert main(["offsets", f"slip={checkpoint}", "--textures", str(images), "--depths", "1.0", "--step", "0.5",
+                 "--json", str(out)]) == 0
+    assert capsys.readouterr().out.splitlines()[0] == "| cues: parallax / stereo | slip |"
+    stored = json.loads(out.read_text())["cues"]
+    assert list(stored) == ["parallax", "stereo"] and stored["stereo"]["trials"] == 2

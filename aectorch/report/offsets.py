@@ -8,7 +8,7 @@ from typing import Mapping, Sequence
 
 from aectorch.evaluation import offset_summary, offset_sweep
 from aectorch.runs import read_json
-from aectorch.sim import TextureBank
+from aectorch.sim import ActiveDepthEnv, TextureBank
 
 __all__ = ["OFFSET_ROWS", "offset_measurement", "offsets_table", "read_measurement"]
 
@@ -29,8 +29,11 @@ def offset_measurement(checkpoint: str | Path, textures: str | Path | None,
                        distances_m: Sequence[float] = (1.0, 1.5, 2.0, 2.5, 3.0), *, step_deg: float = 0.02,
                        progress: bool = False, plot: Path | None = None) -> dict:
     """A checkpoint's offset diagnostic: `aectorch.evaluation.offset_sweep` of each cue it learns
-    on ``textures`` (a folder of images; None: the 40 test textures) at ``distances_m``, the eye
-    -1 to +1 deg off the optimum in steps of ``step_deg``, summarised by `offset_summary`; ``plot`` draws the sweeps (`aectorch.figures.plot_offsets`).
+    that steps an eye's pan (`ActiveDepthEnv.CUES`: parallax and stereo; the slip cue's velocity and
+    the accommodation cue's focus are not swept) on ``textures`` (a folder of images; None: the 40
+    test textures) at ``distances_m``, the eye -1 to +1 deg off the optimum in steps of
+    ``step_deg``, summarised by `offset_summary`; ``plot`` draws the sweeps
+    (`aectorch.figures.plot_offsets`).
     Returns ``{"checkpoint", "textures", "cues": {cue: summary}}``, the JSON ``--json`` writes."""
     from aectorch.runtime import load_learner
 
@@ -41,7 +44,7 @@ def offset_measurement(checkpoint: str | Path, textures: str | Path | None,
     count = round(1 / step_deg)
     offsets_deg = [round(-1.0 + i / count, 6) for i in range(2 * count + 1)]
     sweeps = {cue: offset_sweep(learner, bank, cue=cue, offsets_deg=offsets_deg, distances_m=distances_m,
-                                progress=progress) for cue in learner.cues}
+                                progress=progress) for cue in learner.cues if cue in ActiveDepthEnv.CUES}
     if plot is not None:
         from aectorch.figures import plot_offsets
 
