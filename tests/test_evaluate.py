@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import math
 
 import numpy as np
 import pytest
@@ -224,6 +225,15 @@ def test_offset_sweep_reads_the_cues_reward_and_greedy_increment_off_the_optimum
     x = torch.linspace(-1, 1, 101, dtype=torch.float64)
     bang = torch.where(x <= 0, 0.2, -0.2)[None].repeat(2, 1)
     assert limit_cycle(x, bang).tolist() == pytest.approx([0.1, 0.1], abs=0.01)
+    # Far from the optimum: a map that steps back below it and on away above it (a runaway), as counted.
+    far = torch.tensor([-3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0], dtype=torch.float64)
+    runaway = torch.tensor([[0.2, 0.2, 0.2, 0.0, -0.2, 0.2, 0.2], [0.2, -0.01, 0.2, 0.0, -0.2, -0.2, 0.2]])
+    flat = torch.zeros(2, 7, dtype=torch.float64)
+    sweep = {"offsets_deg": far, "reward": flat, "increment_deg": flat, "expected_increment_deg": runaway}
+    summary = offset_summary(sweep)
+    # (-0.01 at -2 deg steps away by less than the smallest action: not counted)
+    assert summary["away_far_below"] == 0.0 and summary["away_far_above"] == 0.75  # 3 of the 4 beyond 1 deg
+    assert math.isnan(offset_summary({**sweep, "offsets_deg": far / 3})["away_far_above"])  # no offset beyond 1 deg
 
 
 def test_the_rows_hold_the_texture_statistics_of_each_trials_first_view():

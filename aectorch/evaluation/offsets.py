@@ -24,10 +24,13 @@ from aectorch._checks import check_int
 from aectorch.evaluation.trials import EVAL_BATCH_SIZE, placement, _all_conditions, _check_trial_arguments, _trial_session
 from aectorch.sim import TextureBank, TrialProtocol, resolve_protocol
 
-__all__ = ["DEFAULT_OFFSETS_DEG", "limit_cycle", "offset_summary", "offset_sweep"]
+__all__ = ["AWAY_MIN_DEG", "DEFAULT_OFFSETS_DEG", "limit_cycle", "offset_summary", "offset_sweep"]
 
 #: -1 to +1 degree in 0.02 degree steps (about a tenth of a pixel).
 DEFAULT_OFFSETS_DEG = tuple(round(-1.0 + 0.02 * i, 2) for i in range(101))
+#: `offset_summary` counts a mean increment of at least this many degrees (the default actions'
+#: smallest step) that points away from the optimum as a step away.
+AWAY_MIN_DEG = 0.05
 
 
 def _pans_at(env, movement: str, offset: Tensor) -> Tensor:
@@ -138,13 +141,21 @@ def limit_cycle(offsets_deg: Tensor, increment_deg: Tensor, *, steps: int = 30, 
     return torch.stack(seen[-last:], 1).mean(1)
 
 
-def offset_summary(sweep: dict[str, Tensor], *, probe_deg: float = 0.1, pixel_deg: float = 0.22) -> dict:
+def offset_summary(sweep: dict[str, Tensor], *, probe_deg: float = 0.1, pixel_deg: float = 0.22,
+                   far_deg: float = 1.0) -> dict:
     """The sweep's numbers: where the reward peaks (mean |offset| of each trial's peak, and the
     fraction within ``pixel_deg``), how much lower it is ``probe_deg`` off the optimum (mean of
     both sides' drop, per trial, averaged), the greedy map's mean zero crossing, the share of
-    trials whose greedy increment at the optimum is 0, and the limit cycle's mean |offset| of the
-    greedy map and (``mean_readout_limit_cycle_abs_deg``) of the mean read-out's map."""
+    trials whose greedy increment at the optimum is 0, the limit cycle's mean |offset| of the
+    greedy map and (``mean_readout_limit_cycle_abs_deg``) of the mean read-out's map, and, of the
+    offsets more than ``far_deg`` below (``away_far_below``) and above (``away_far_above``) the
+    optimum, the share of trials x offsets where the mean read-out steps away from it (by at least
+    `AWAY_MIN_DEG`; NaN where the sweep reaches no such offset)."""
     x, reward, increment = sweep["offsets_deg"], sweep["reward"], sweep["increment_deg"]
+    expected = sweep["expected_increment_deg"]
+    away = (torch.sign(expected) == torch.sign(x)) & (expected.abs() >= AWAY_MIN_DEG)
+    far = {side: away[:, mask].double().mean() if bool(mask.any()) else torch.tensor(float("nan"))
+           for side, mask in (("below", x < -far_deg), ("above", x > far_deg))}
     peak = x[reward.argmax(1)]
     zero = int((x.abs()).argmin())
     sides = [int((x - s).abs().argmin()) for s in (-probe_deg, probe_deg)]
@@ -163,6 +174,8 @@ def offset_summary(sweep: dict[str, Tensor], *, probe_deg: float = 0.1, pixel_de
         "expected_map_zero_crossing_deg": crossing,
         "greedy_zero_at_optimum": float((increment[:, zero] == 0).double().mean()),
         "limit_cycle_abs_deg": float(limit_cycle(x, increment).mean()),
-        "mean_readout_limit_cycle_abs_deg": float(limit_cycle(x, sweep["expected_increment_deg"]).mean()),
+        "mean_readout_limit_cycle_abs_deg": float(limit_cycle(x, expected).mean()),
+        "away_far_below": float(far["below"]),
+        "away_far_above": float(far["above"]),
         "trials": int(reward.shape[0]),
     }

@@ -176,7 +176,7 @@ def _offsets(args) -> list[str]:
             measurements[label] = offsets.read_measurement(path)
         else:
             measurements[label] = offsets.offset_measurement(path, args.textures, args.depths, step_deg=args.step,
-                                                             progress=args.progress, plot=args.plot)
+                                                             span_deg=args.span, progress=args.progress, plot=args.plot)
             _write_json(args.json, measurements[label])
     return offsets.offsets_table(measurements)
 
@@ -271,7 +271,8 @@ def _diagnostic_commands(command) -> None:
     sub.add_argument("learners", nargs="+", help="label=checkpoint.pt or label=measurement.json")
     sub.add_argument("--textures", default=None, help="a folder of images (default: the 40 test textures)")
     sub.add_argument("--depths", type=float, nargs="+", default=[1.0, 1.5, 2.0, 2.5, 3.0], help="distances (m)")
-    sub.add_argument("--step", type=float, default=0.02, help="the offsets' step (deg; default 0.02; rounded to divide 1 deg)")
+    sub.add_argument("--step", type=float, default=0.02, help="the offsets' step (deg; default 0.02; rounded to divide the span)")
+    sub.add_argument("--span", type=float, default=1.0, help="the offsets reach -span to +span (deg; default 1)")
     sub.add_argument("--json", type=Path, help="write the one learner's measurement here")
     sub.add_argument("--plot", type=Path, help="draw the one learner's sweeps into this PNG")
     sub.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")

@@ -21,28 +21,34 @@ OFFSET_ROWS = {
     "greedy_zero_at_optimum": "greedy (argmax) increment 0 at the optimum",
     "limit_cycle_abs_deg": "where the argmax map settles (mean abs offset of its limit cycle, deg)",
     "mean_readout_limit_cycle_abs_deg": "where the mean read-out settles (deg)",
+    "away_far_below": "the mean read-out steps away from the optimum, over 1 deg below it",
+    "away_far_above": "the mean read-out steps away from the optimum, over 1 deg above it",
 }
-_FRACTIONS = ("reward_peak_within_px", "greedy_zero_at_optimum")
+_FRACTIONS = ("reward_peak_within_px", "greedy_zero_at_optimum", "away_far_below", "away_far_above")
+#: Rows left out when no learner has them (a sweep within +-1 deg reaches no offset beyond 1 deg).
+_FAR_ROWS = ("away_far_below", "away_far_above")
 
 
 def offset_measurement(checkpoint: str | Path, textures: str | Path | None,
                        distances_m: Sequence[float] = (1.0, 1.5, 2.0, 2.5, 3.0), *, step_deg: float = 0.02,
-                       progress: bool = False, plot: Path | None = None) -> dict:
+                       span_deg: float = 1.0, progress: bool = False, plot: Path | None = None) -> dict:
     """A checkpoint's offset diagnostic: `aectorch.evaluation.offset_sweep` of each cue it learns
     that steps an eye's pan (`ActiveDepthEnv.CUES`: parallax and stereo; the slip cue's velocity and
     the accommodation cue's focus are not swept) on ``textures`` (a folder of images; None: the 40
-    test textures) at ``distances_m``, the eye -1 to +1 deg off the optimum in steps of
-    ``step_deg``, summarised by `offset_summary`; ``plot`` draws the sweeps
+    test textures) at ``distances_m``, the eye -``span_deg`` to +``span_deg`` off the optimum in
+    steps of about ``step_deg``, summarised by `offset_summary`; ``plot`` draws the sweeps
     (`aectorch.figures.plot_offsets`).
     Returns ``{"checkpoint", "textures", "cues": {cue: summary}}``, the JSON ``--json`` writes."""
     from aectorch.runtime import load_learner
 
+    if not 0 < span_deg <= 45:
+        raise ValueError(f"--span must be in (0, 45] degrees, got {span_deg}")
+    if not 0 < step_deg <= span_deg:
+        raise ValueError(f"--step must be in (0, span] = (0, {span_deg}] degrees, got {step_deg}")
     _, learner = load_learner(checkpoint)
     bank = TextureBank.default("test") if textures is None else TextureBank.from_folder(textures)
-    if not 0 < step_deg <= 1:
-        raise ValueError(f"--step must be in (0, 1] degrees, got {step_deg}")
-    count = round(1 / step_deg)
-    offsets_deg = [round(-1.0 + i / count, 6) for i in range(2 * count + 1)]
+    count = round(span_deg / step_deg)
+    offsets_deg = [round(-span_deg + span_deg * i / count, 6) for i in range(2 * count + 1)]
     sweeps = {cue: offset_sweep(learner, bank, cue=cue, offsets_deg=offsets_deg, distances_m=distances_m,
                                 progress=progress) for cue in learner.cues if cue in ActiveDepthEnv.CUES}
     if plot is not None:
@@ -63,10 +69,11 @@ def offsets_table(measurements: Mapping[str, dict]) -> list[str]:
     """Where trained learners lose their precision: the offset diagnostic, a column per learner.
 
     Each learner is ``label=PATH``: a checkpoint, whose diagnostic is computed
-    (`offset_measurement`: each cue's coding reward and greedy increment with its eye -1 to +1 deg
-    off the optimum in 0.02 deg steps, the body at the end of its shift, the other movement at its
-    optimum), or a JSON that ``--json`` wrote, read as stored. A row per number of
-    `aectorch.evaluation.offset_summary`; a cell holds the cues' values, ``parallax / stereo``.
+    (`offset_measurement`: each cue's coding reward and greedy increment with its eye -1 to +1 deg,
+    or ``--span``, off the optimum in 0.02 deg steps, the body at the end of its shift, the other
+    movement at its optimum), or a JSON that ``--json`` wrote, read as stored. A row per number of
+    `aectorch.evaluation.offset_summary` (those beyond 1 deg where some learner's sweep reaches
+    there); a cell holds the cues' values, ``parallax / stereo``.
     """
     if not measurements:
         raise ValueError("offsets needs at least one label=checkpoint or label=measurement.json")
@@ -78,7 +85,8 @@ def offsets_table(measurements: Mapping[str, dict]) -> list[str]:
     lines = [f"| cues: {' / '.join(cues)} | " + " | ".join(measurements) + " |", "|---|" + "---|" * len(measurements)]
     for key, text in OFFSET_ROWS.items():
         cells = [" / ".join(_cell(m["cues"][cue].get(key), key) for cue in cues) for m in measurements.values()]
-        lines.append(f"| {text} | " + " | ".join(cells) + " |")
+        if key not in _FAR_ROWS or any(cell.strip(" /-") for cell in cells):
+            lines.append(f"| {text} | " + " | ".join(cells) + " |")
     trials = {m["cues"][cues[0]]["trials"] for m in measurements.values()}
     sources = sorted({m["textures"] for m in measurements.values()})
     lines.append(f"({', '.join(map(str, sorted(trials)))} conditions of {', '.join(sources)})")
