@@ -165,9 +165,23 @@ def test_a_symmetrized_agent_gives_the_transformed_state_the_negated_actions_pro
         torch.testing.assert_close(logp_t, logp[:, negation])
 
 
+def test_ppo_lr_decays_by_the_updates_made():
+    agent = PPO(3, ACTIONS, PPOConfig(lr=0.01, lr_decay=2.0), generator=_gen())
+    constant = PPO(3, ACTIONS, PPOConfig(lr=0.01), generator=_gen())
+    f = torch.randn(4, 3, generator=_gen(1))
+    rates = []
+    for step in range(3):
+        for a in (agent, constant):
+            act = a.act(f, uniform=torch.rand(4, generator=_gen(step)))
+            a.learn(Transitions(f, act.actions, torch.randn(4, generator=_gen(step)), f, last=True))
+        rates.append((agent.optimizer.param_groups[0]["lr"], constant.optimizer.param_groups[0]["lr"]))
+    assert rates == [(0.01, 0.01), (pytest.approx(0.01 * 2 / 3), 0.01), (pytest.approx(0.005), 0.01)]
+    assert not torch.equal(agent.policy.weight, constant.policy.weight)  # the first update alike, then not
+
+
 def test_ppo_config_rejects_bad_values():
     for field, value in (("lr", 0), ("epochs", 0), ("discount", 1.5), ("gae_lambda", -0.1), ("hidden", -1),
-                         ("clip", -0.2), ("feature_norm", 0)):
+                         ("clip", -0.2), ("feature_norm", 0), ("lr_decay", 0)):
         with pytest.raises(ValueError, match=f"PPOConfig.{field} must be"):
             PPOConfig(**{field: value})
 

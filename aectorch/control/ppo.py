@@ -67,6 +67,10 @@ class PPOConfig:
         normalize_eps: added to the variance of the z-scoring (> 0).
         actor_init: the policy's output weights start uniform in ``[-actor_init, actor_init]``
             (>= 0; biases at 0), a near-uniform policy.
+        lr_decay: ``None`` (default: a constant learning rate), or tau (> 0): the u-th update
+            (0-based) steps at ``lr * tau / (tau + u)``, as the natural actor-critic's
+            ``actor_decay`` decays its actor, so the final policy is no snapshot of a constant-step
+            walk (a run of 2400 iterations makes 80 updates).
     """
 
     lr: float = 0.003
@@ -84,6 +88,7 @@ class PPOConfig:
     feature_norm: Optional[float] = 3.0
     normalize_eps: float = 1e-8
     actor_init: float = 0.01
+    lr_decay: Optional[float] = None
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -99,8 +104,9 @@ class PPOConfig:
             check_int(getattr(self, name), f"{owner}.{name}", 1)
         check_int(self.hidden, f"{owner}.hidden", 0)
         check_bool(self.normalize_advantage, f"{owner}.normalize_advantage")
-        if self.feature_norm is not None:
-            check_real(self.feature_norm, f"{owner}.feature_norm", above=0)
+        for name in ("feature_norm", "lr_decay"):
+            if getattr(self, name) is not None:
+                check_real(getattr(self, name), f"{owner}.{name}", above=0)
 
 
 def _torchrl():
@@ -331,6 +337,10 @@ class PPO(nn.Module):
         columns = {"observation": x.flatten(0, 1), "action": actions.flatten(), "action_log_prob": old.flatten(),
                    "advantage": advantage.flatten(0, 1), "value_target": target.flatten(0, 1)}
         rows = actions.numel()
+        if cfg.lr_decay is not None:  # this is update fixations_seen / fixations - 1 (0-based)
+            done = self.fixations_seen // cfg.fixations - 1
+            for group in self.optimizer.param_groups:
+                group["lr"] = cfg.lr * cfg.lr_decay / (cfg.lr_decay + done)
         parameters = [p for group in self.optimizer.param_groups for p in group["params"]]
         minibatches = min(cfg.minibatches, rows)  # a rollout smaller than that: one each
         size = rows // minibatches
