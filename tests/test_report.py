@@ -15,6 +15,7 @@ from aectorch.evaluation.summary import BEYOND_DEG, WITHIN_DEG
 from aectorch.report.__main__ import main
 from aectorch.report.tables import band
 from aectorch.runs import Run, read_json, read_metrics
+from aectorch.sim import PinholeCamera
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -299,6 +300,9 @@ def test_accommodation_gives_each_groups_mean_and_sd(tmp_path, capsys):
         if mae_D is not None:
             result["accommodation_focus"] = {"mae_D": mae_D, "mae_px": 4 * mae_D, "within_0.25px": 0.1,
                                              "within_0.5px": 0.2}
+            px = PinholeCamera().degrees_per_pixel  # two fixation ends per trial, in blur-disc degrees
+            result["per_trial"] = [{"distance_m": 1.0, "accommodation_errors_deg": [-mae_D * px, -0.5 * px]},
+                                   {"distance_m": 3.0, "accommodation_errors_deg": [0.25 * px, 0.25 * px]}]
         (folder / "evaluation.json").write_text(json.dumps(result))
         return str(folder)
 
@@ -309,6 +313,12 @@ def test_accommodation_gives_each_groups_mean_and_sd(tmp_path, capsys):
     assert lines[0] == "| | with (2 seeds) | plain (2 seeds) |"
     assert "| vergence MAE (deg) | 0.030 +- 0.014 | 0.050 +- 0.000 |" in lines
     assert "| accommodation MAE (D) | 0.500 +- 0.141 | - |" in lines
+    assert main(["accommodation", f"with={acc}", f"plain={plain}", "--per-distance"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    at = lines.index("| distance (m) | with: px, mean abs. / signed | plain: px, mean abs. / signed |")
+    assert lines[at + 2:] == ["| 1 | 0.50 / -0.50 | - |", "| 3 | 0.25 / +0.25 | - |"]  # (0.4 + 0.5 + 0.6 + 0.5) / 4
+    assert main(["accommodation", f"plain={plain}", "--per-distance"]) == 2
+    assert "no per-trial accommodation errors" in capsys.readouterr().err
     assert main(["accommodation", "nogroup"]) == 2
     assert "groups are name=run,run,..." in capsys.readouterr().err
 

@@ -124,7 +124,7 @@ def _tracking(args) -> list[str]:
 
 def _accommodation(args) -> list[str]:
     groups = {name: [Run(r) for r in runs.split(",")] for name, runs in _pairs(args.groups, "groups are name=run,run,...")}
-    return accommodation.accommodation_table(groups, args.eval)
+    return accommodation.accommodation_table(groups, args.eval, args.per_distance)
 
 
 def _focus_curve(args) -> list[str]:
@@ -319,6 +319,8 @@ def _experiment_commands(command) -> None:
     sub = command("accommodation", _accommodation, accommodation.accommodation_table)
     sub.add_argument("groups", nargs="+", help="name=run,run,...")
     sub.add_argument("--eval", default=EVALUATION, help=f"evaluation file in each run folder (default: {EVALUATION})")
+    sub.add_argument("--per-distance", action="store_true",
+                     help="also the accommodation error per distance (px: mean abs. / signed)")
 
     sub = command("focus-curve", _focus_curve, accommodation.focus_curve)
     sub.add_argument("--photos", required=True, help="a folder of photographs (the choosing photographs)")

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import statistics
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -16,9 +17,9 @@ from aectorch.coding.focus import focus_reward, input_energy
 from aectorch.framework import CueConfig, CueLearner
 from aectorch.report.compare import _mean_sd
 from aectorch.runs import EVALUATION, Run
-from aectorch.sim import ActiveDepthEnv, TextureBank
+from aectorch.sim import ActiveDepthEnv, PinholeCamera, TextureBank
 
-__all__ = ["DEFOCUS_D", "DISTANCES_M", "accommodation_table", "focus_curve", "focus_measures", "policy_table",
+__all__ = ["DEFOCUS_D", "DISTANCES_M", "accommodation_table", "distance_table", "focus_curve", "focus_measures", "policy_table",
            "train_focus_coder"]
 
 #: The distances the focus curve codes each image at (m).
@@ -35,10 +36,14 @@ _KEYS = (("vergence MAE (deg)", lambda e: e["vergence_mae_deg"]),
          ("fixation ends within 0.5 px", lambda e: e.get("accommodation_focus", {}).get("within_0.5px")))
 
 
-def accommodation_table(groups: Mapping[str, Sequence[Run]], evaluation: str = EVALUATION) -> list[str]:
+def accommodation_table(groups: Mapping[str, Sequence[Run]], evaluation: str = EVALUATION,
+                        per_distance: bool = False) -> list[str]:
     """Groups of runs side by side (e.g. with the accommodation cue and plain): the mean +- sd over
     each group's runs of the final state's vergence, pursuit and depth MAE and accommodation error
-    (blur-disc degrees, dioptres, full-scale pixels, fractions within 0.25 and 0.5 px)."""
+    (blur-disc degrees, dioptres, full-scale pixels, fractions within 0.25 and 0.5 px); with
+    ``per_distance``, then per distance and group the accommodation error at the fixation ends in
+    pixels: the mean |error| and the signed mean (negative: focused beyond the object), over the
+    runs' trials (`distance_table`)."""
     evals = {name: [run.evaluation(evaluation) for run in runs] for name, runs in groups.items()}
     lines = ["| | " + " | ".join(f"{name} ({len(e)} seeds)" for name, e in evals.items()) + " |",
              "|---" * (len(evals) + 1) + "|"]
@@ -48,6 +53,30 @@ def accommodation_table(groups: Mapping[str, Sequence[Run]], evaluation: str = E
             mean, sd = _mean_sd([read(result) for result in results])
             cells.append("-" if mean is None else f"{mean:.3f} +- {sd:.3f}")
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return lines + (["", *distance_table(evals)] if per_distance else [])
+
+
+def distance_table(evals: Mapping[str, Sequence[Mapping]]) -> list[str]:
+    """Per distance (rows) and group (columns): the accommodation error of the per-trial rows'
+    fixation ends (``accommodation_errors_deg``) in full-scale pixels, mean |error| / signed mean
+    over all the group's trials; groups without the error get ``-``."""
+    per_px = PinholeCamera().degrees_per_pixel
+    errors: dict[str, dict[float, list[float]]] = {}
+    for name, results in evals.items():
+        for result in results:
+            for row in result.get("per_trial", []):
+                if row.get("accommodation_errors_deg") is not None:
+                    errors.setdefault(name, {}).setdefault(float(row["distance_m"]), []).extend(
+                        e / per_px for e in row["accommodation_errors_deg"])
+    if not errors:
+        raise KeyError("no per-trial accommodation errors in these evaluations (a run with the accommodation cue)")
+    distances = sorted({d for rows in errors.values() for d in rows})
+    lines = ["| distance (m) | " + " | ".join(f"{name}: px, mean abs. / signed" for name in evals) + " |",
+             "|---" * (len(evals) + 1) + "|"]
+    for d in distances:
+        cells = [f"{statistics.fmean(abs(e) for e in errors[n][d]):.2f} / {statistics.fmean(errors[n][d]):+.2f}"
+                 if d in errors.get(n, {}) else "-" for n in evals]
+        lines.append(f"| {d:g} | " + " | ".join(cells) + " |")
     return lines
 
 
