@@ -277,16 +277,19 @@ def _figure(rows: int, columns: int):
 def _histogram(ax, rows: Sequence[dict], scale: str) -> None:
     import numpy as np
 
+    def shares_of(histograms):  # each histogram's share of the atoms per bin
+        return np.array([np.asarray(e["counts"], float) / max(1.0, float(np.sum(e["counts"]))) for e in histograms])
+
     entries = [r["code_raw"][scale]["binocularity"] for r in rows]
     edges = np.asarray(entries[0]["edges"], dtype=float)
-    shares = np.array([np.asarray(e["counts"], float) / max(1.0, float(np.sum(e["counts"]))) for e in entries])
+    shares = shares_of(entries)
     mean = shares.mean(0)
     ax.bar(edges[:-1], mean, width=np.diff(edges), align="edge", color="tab:blue", alpha=0.8,
            yerr=np.stack([mean - shares.min(0), shares.max(0) - mean]), error_kw={"linewidth": 0.7},
            ecolor="black")
     fixed = [r["at_correction_raw"][scale]["binocularity"] for r in rows if scale in r["at_correction_raw"]]
     if fixed:  # the code as the perturbation left it
-        before = np.mean([np.asarray(e["counts"], float) / max(1.0, float(np.sum(e["counts"]))) for e in fixed], 0)
+        before = shares_of(fixed).mean(0)
         ax.stairs(before, edges, color="tab:red", linewidth=1.0, label="at the correction")
     ax.set_xlim(-1, 1)
     ax.set_ylim(0, 1.05)

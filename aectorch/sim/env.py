@@ -604,10 +604,15 @@ class ActiveDepthEnv:
     def _place_object(self, iteration: int) -> None:
         """The object where it is during ``iteration`` of the fixation (`aectorch.sim.motion`);
         the fixation target moves with it."""
+        self.plane_x_m, self.plane_y_m, self.target_m = self._object_at(iteration)
+
+    def _object_at(self, iteration: int) -> tuple[Tensor, Tensor, Tensor]:
+        """Where the moving object is during ``iteration`` of the fixation: its plane's world x and
+        sideways offset ``[B]``, and the fixation target on it ``[B, 3]``."""
         distance, y = object_place(self.distance_m, self.object_speed, iteration + 1)
-        self.plane_x_m, self.plane_y_m = distance + float(self.head.eye_x_m), y
+        plane_x = distance + float(self.head.eye_x_m)
         start = self._start_target_m
-        self.target_m = torch.stack((self.plane_x_m, start[:, 1] + y, start[:, 2]), -1)
+        return plane_x, y, torch.stack((plane_x, start[:, 1] + y, start[:, 2]), -1)
 
     # -- focus -----------------------------------------------------------------------------------
     def set_focus(self, dioptres=None) -> None:
@@ -1051,10 +1056,8 @@ class ActiveDepthEnv:
         if self._previous_pans is None:
             first = self._first_left(key, scales, window)
         else:
-            plane = None
-            if self.moving:  # the object where it was during the last iteration
-                distance, y = object_place(self.distance_m, self.object_speed, self.iteration)
-                plane = (distance + float(self.head.eye_x_m), y)
+            # the object where it was during the last iteration
+            plane = self._object_at(self.iteration - 1)[:2] if self.moving else None
             first = self._render(self._body_shift(self.iteration - 1), self._previous_pans, slice(0, 1),
                                  scales=scales, window=window, plane=plane)
         second = self._current_left(key, scales, window)
@@ -1103,11 +1106,8 @@ class ActiveDepthEnv:
 
     def optimal_velocity_deg(self) -> Tensor:
         """The optimal left pan's change ``[B]`` from this iteration to the next, degrees."""
-        target = self.target_m
-        if self.moving:  # the target where the object will be
-            distance, y = object_place(self.distance_m, self.object_speed, self.iteration + 2)
-            start = self._start_target_m
-            target = torch.stack((distance + float(self.head.eye_x_m), start[:, 1] + y, start[:, 2]), -1)
+        # the target where the object will be
+        target = self._object_at(self.iteration + 1)[2] if self.moving else self.target_m
         return self.optimal_left_pan_deg(target, self._body_shift(self.iteration + 1)) - self.optimal_left_pan_deg()
 
     def vergence_to_optimum(self) -> Tensor:
@@ -1134,9 +1134,13 @@ class ActiveDepthEnv:
         delta = self._check_increment(delta_deg, "delta_deg")
         if self.velocity_memory:  # the step also goes on as velocity
             self.velocity_deg = self.velocity_deg + delta
-        step = torch.stack((delta, delta if self.yoked_pursuit else torch.zeros_like(delta)), dim=-1)
-        self.pan_deg = self.clamp_pan_deg(self.pan_deg + step)
+        self.pan_deg = self.clamp_pan_deg(self.pan_deg + self._pursuit_step(delta))
         self._moved()
+
+    def _pursuit_step(self, delta: Tensor) -> Tensor:
+        """The pans' change ``[B, 2]`` of a pursuit increment ``[B]``: both eyes with
+        ``yoked_pursuit``, else the left alone."""
+        return torch.stack((delta, delta if self.yoked_pursuit else torch.zeros_like(delta)), dim=-1)
 
     def apply_slip(self, delta_deg: Tensor) -> None:
         """Add the increments ``[B]`` (degrees per iteration) to the eyes' pursuit velocity (with
@@ -1194,9 +1198,7 @@ class ActiveDepthEnv:
                 self._moved()
             if self.pursuit_velocity:  # and the eyes, at their pursuit velocity
                 self._previous_pans = self.pan_deg
-                v = self.velocity_deg
-                self.pan_deg = self.clamp_pan_deg(self.pan_deg + torch.stack(
-                    (v, v if self.yoked_pursuit else torch.zeros_like(v)), -1))
+                self.pan_deg = self.clamp_pan_deg(self.pan_deg + self._pursuit_step(self.velocity_deg))
                 self._moved()
         return IterationInfo(
             left_pan_deg=info_left,
