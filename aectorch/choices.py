@@ -60,10 +60,12 @@ class Pooling(Choice):
 
 
 class Features(Choice):
-    """What the actor-critics see: the pooled activities or them normalised to unit length."""
+    """What the actor-critics see: the pooled activities, them normalised to unit length, or none
+    of the code (the agent senses its proprioception alone)."""
 
     pooled = "pooled"
     unit = "unit"
+    none = "none"
 
 
 class Reward(Choice):

@@ -339,8 +339,8 @@ class NaturalActorCritic(nn.Module):
         super().__init__()
         check_int(num_features, "num_features")
         self.unscaled_features = check_int(unscaled_features, "unscaled_features", 0)
-        if unscaled_features >= num_features:
-            raise ValueError(f"unscaled_features must be < num_features = {num_features}, got {unscaled_features}")
+        if unscaled_features > num_features:
+            raise ValueError(f"unscaled_features must be <= num_features = {num_features}, got {unscaled_features}")
         actions = tuple(actions_deg) if not isinstance(actions_deg, torch.Tensor) else tuple(
             actions_deg.tolist()
         )

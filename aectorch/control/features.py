@@ -60,6 +60,8 @@ def scale_to_norm(x: Tensor, norm: float, unscaled: int = 0) -> Tensor:
 
 def _scale_to_norm(x: Tensor, norm: float, inplace: bool, unscaled: int = 0) -> Tensor:
     """`scale_to_norm`, in place on ``x`` when ``inplace``."""
+    if unscaled >= x.shape[-1]:  # nothing to scale (an agent that senses its proprioception alone)
+        return x
     head = x[..., : x.shape[-1] - unscaled] if unscaled else x
     scale = norm / torch.linalg.vector_norm(head, dim=-1, keepdim=True).clamp_min(torch.finfo(x.dtype).tiny)
     if not unscaled:

@@ -182,8 +182,8 @@ class PPO(nn.Module):
         super().__init__()
         check_int(num_features, "num_features")
         self.unscaled_features = check_int(unscaled_features, "unscaled_features", 0)
-        if unscaled_features >= num_features:
-            raise ValueError(f"unscaled_features must be < num_features = {num_features}, got {unscaled_features}")
+        if unscaled_features > num_features:
+            raise ValueError(f"unscaled_features must be <= num_features = {num_features}, got {unscaled_features}")
         config = PPOConfig() if config is None else config
         if not isinstance(config, PPOConfig):
             raise TypeError(f"config must be a PPOConfig or None, got {type(config).__name__}")

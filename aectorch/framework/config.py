@@ -50,7 +50,9 @@ class CueConfig:
         nac: the natural actor-critic's hyperparameters (`ActorCriticConfig`), with ``agent=nac``.
         ppo: PPO's hyperparameters (`PPOConfig`), with ``agent=ppo``.
         features: what the agent sees: ``"pooled"`` (the pooled activities f of eq. 5, times
-            ``feature_scale``) or ``"unit"`` (f / ||f||, times ``feature_scale``). The pooled
+            ``feature_scale``), ``"unit"`` (f / ||f||, times ``feature_scale``) or ``"none"``
+            (none of the code: the agent senses its ``proprioception`` alone, while the code
+            still makes its reward). The pooled
             activities grow while the dictionaries learn (better atoms take larger coefficients),
             and the critic's steps diverge once ``alpha * ||f||^2 > 2``; unit features keep that
             bound fixed.
@@ -153,6 +155,9 @@ class CueConfig:
         self.proprioception = tuple(str(check_choice(n, f"{owner}.proprioception", Proprioception)) for n in names)
         if len(set(self.proprioception)) != len(self.proprioception):
             raise ValueError(f"{owner}.proprioception must be distinct, got {list(self.proprioception)!r}")
+        if self.features == Features.none and not self.proprioception:
+            raise ValueError(f"{owner}.features=none leaves the agent nothing to see: give it {owner}.proprioception "
+                             f"(a list of {list(Proprioception.values())}) or features pooled or unit")
         if self.symmetry is not None and Proprioception.pan in self.proprioception:
             raise ValueError(f"{owner}.proprioception 'pan' changes sign under {owner}.symmetry={self.symmetry}; "
                              f"use {owner}.symmetry=null or leave 'pan' out")

@@ -71,6 +71,8 @@ class CueLearner(nn.Module):
             negation = negation.to(agent.actions_deg.device)
             # The code's features permuted; the proprioception the symmetry leaves unchanged after them.
             code = encoder.feature_permutation
+            if config.features == Features.none:  # the agent sees no code
+                code = code[:0]
             permutation = torch.cat((code, torch.arange(code.numel(), code.numel() + len(config.proprioception),
                                                         dtype=code.dtype, device=code.device)))
         self.register_buffer("action_negation", negation, persistent=False)
@@ -96,6 +98,8 @@ class CueLearner(nn.Module):
         code's, but left out of the scaling to the agent's ``feature_norm``, which would weigh
         a few senses among hundreds of code features by a few per cent each."""
         k = len(config.proprioception)
+        if config.features == Features.none:  # the agent senses its proprioception alone
+            num_features = 0
         return make_agent(config.agent, num_features + k, config.actions_deg, config.agent_config,
                           generator=generator, dtype=dtype, device=device, unscaled_features=k)
 
@@ -137,11 +141,12 @@ class CueLearner(nn.Module):
 
     def features(self, pooled: Tensor, proprioception: Tensor | None = None) -> Tensor:
         """What the agent sees ``[B, F + k]``: the code's pooled activities ``[B, F]`` as
-        ``config.features`` says, times ``config.feature_scale``, then the ``k`` columns of
+        ``config.features`` says (none of them with ``none``: ``F = 0``), times
+        ``config.feature_scale``, then the ``k`` columns of
         ``proprioception`` ``[B, k]`` (``config.proprioception``; the agent z-scores them all)."""
         if self.config.features == Features.unit:
             pooled = pooled / torch.linalg.vector_norm(pooled, dim=-1, keepdim=True).clamp_min(1e-12)
-        pooled = pooled * self.config.feature_scale
+        pooled = pooled[:, :0] if self.config.features == Features.none else pooled * self.config.feature_scale
         k = len(self.config.proprioception)
         if k == 0 and proprioception is None:
             return pooled
