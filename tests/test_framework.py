@@ -409,6 +409,30 @@ def test_a_cues_agent_sees_its_proprioception_after_its_code():
         acc.features(pooled)
 
 
+def test_an_agent_with_features_none_senses_its_proprioception_alone():
+    cues = default_cues(encoder=EncoderConfig(num_atoms=16))
+    cues["accommodation"] = CueConfig(encoder=EncoderConfig(num_atoms=16), scales=("fine", "full"), features="none",
+                                      efficiency="information", proprioception=["vergence", "focus"])
+    cues["stereo"].features, cues["stereo"].proprioception = "none", ("vergence",)  # with the swap symmetry
+    learner = JointLearner(LearnerConfig(cues=cues), generator=torch.Generator().manual_seed(0))
+    env = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64), fixation_iterations=3, accommodation_start_D=0.5, seed=0)
+    acc, stereo = learner.accommodation, learner.stereo
+    assert acc.agent.num_features == 2 and stereo.agent.num_features == 1
+    assert stereo.feature_permutation.tolist() == [0]
+    before = acc.agent.policy.weight.clone()
+    for _ in range(3):  # PPO learns at the fixation's end, from the senses alone
+        records = learner.iteration(env)
+    assert records.accommodation.reward.shape == (2,) and not torch.equal(before, acc.agent.policy.weight)
+    sensed = env.proprioception(["vergence", "focus"])
+    f = acc.features(torch.rand(2, acc.encoder.num_features), sensed)
+    assert torch.equal(f, sensed)  # the code is left out; the senses are z-scored, not scaled to a norm
+    z = (f - acc.agent.feature_mean) / torch.sqrt(acc.agent.feature_m2 / (acc.agent.feature_count - 1)
+                                                  + acc.agent.config.normalize_eps)
+    torch.testing.assert_close(acc.agent.normalize(f), z.to(f.dtype))
+    with pytest.raises(ValueError, match="features=none leaves the agent nothing to see"):
+        CueConfig(features="none")
+
+
 def test_proprioception_is_checked_where_it_is_configured_and_sensed():
     with pytest.raises(ValueError, match="cue.proprioception must be one of"):
         CueConfig(proprioception=["vergance"])

@@ -94,6 +94,10 @@ class CueConfig:
             which the blur alone cannot (docs/results.md, "Accommodation"). A cue's symmetry
             leaves the vergence angle and the focus unchanged; ``pan`` changes sign under it, so
             it needs ``symmetry=null``.
+        reward_scales: the scales whose coding efficiency the agent learns from (default, empty:
+            all of ``scales``); the code of every scale is still learned and seen. The wide and
+            coarse scales' reconstruction errors barely change within a pixel of the optimum, so
+            they add noise to the fine scales' signal (docs/results.md, issue 50).
     """
 
     agent: AgentName = AgentName.ppo
@@ -110,6 +114,7 @@ class CueConfig:
     motor_cost: float = 0.0
     readout: Readout = Readout.mean
     proprioception: tuple[str, ...] = ()
+    reward_scales: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         # Messages name the field as "cue.<field>"; `aectorch.runtime.config.to_experiment_config`
@@ -133,6 +138,10 @@ class CueConfig:
             raise ValueError(f"{owner}.scales must be a non-empty subset of {SCALE_NAMES}, got {list(self.scales)!r}")
         if len(set(self.scales)) != len(self.scales):
             raise ValueError(f"{owner}.scales must be distinct, got {list(self.scales)!r}")
+        self.reward_scales = tuple(self.reward_scales)
+        if any(s not in self.scales for s in self.reward_scales) or len(set(self.reward_scales)) != len(self.reward_scales):
+            raise ValueError(f"{owner}.reward_scales must be distinct names of {owner}.scales {list(self.scales)} "
+                             f"(empty: all of them), got {list(self.reward_scales)!r}")
         check_real(self.feature_scale, f"{owner}.feature_scale", above=0)
         check_real(self.motor_cost, f"{owner}.motor_cost", minimum=0)
         self._check_proprioception(owner)

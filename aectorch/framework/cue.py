@@ -113,6 +113,8 @@ class CueLearner(nn.Module):
             out = self.encoder.encode(observation)
             if self.config.efficiency == Efficiency.information:
                 out = out._replace(reward=self._information(observation, out))
+            elif self.config.reward_scales:
+                out = out._replace(reward=-out.errors[:, self._reward_index()].sum(-1))
         with stage("rl"):
             features = self.features(out.features, proprioception)
             td_error = self._learn(features, out.reward, last) if learn and self.previous is not None else None
@@ -136,8 +138,15 @@ class CueLearner(nn.Module):
         if missing:
             raise ValueError(f"efficiency=information needs each scale's own images (learner.render_scales=true); "
                              f"the observation lacks {missing}")
-        energy = [input_energy(observation[s.name], s) for s in self.encoder.scales]
-        return focus_reward(energy, [code.error for code in out.codes])
+        chosen = self._reward_index()
+        energy = [input_energy(observation[self.encoder.scales[i].name], self.encoder.scales[i]) for i in chosen]
+        return focus_reward(energy, [out.codes[i].error for i in chosen])
+
+    def _reward_index(self) -> list[int]:
+        """The positions among the encoder's scales of those the reward sums (``config.reward_scales``;
+        all where it is empty)."""
+        names = [s.name for s in self.encoder.scales]
+        return [names.index(n) for n in self.config.reward_scales] if self.config.reward_scales else list(range(len(names)))
 
     def features(self, pooled: Tensor, proprioception: Tensor | None = None) -> Tensor:
         """What the agent sees ``[B, F + k]``: the code's pooled activities ``[B, F]`` as

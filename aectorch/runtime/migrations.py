@@ -161,10 +161,10 @@ def _from_2(payload: dict) -> dict:
 
 #: Fields that versions of format 3 added, with what a file without them did: the environment's
 #: optics (``None``: the roll of ``roll_deg`` and nothing else), the cues' reconstruction efficiency
-#: and no proprioception (issue 53), their rates without a floor,
+#: and no proprioception (issue 53), a reward of all their scales (issue 50), their rates without a floor,
 #: and the oculomotor range of the config's ``env`` (issue 50): the eye pan limits alone, no
 #: vergence range but theirs.
-_ADDED_3 = {"env": {"optics": None, "first_optics": None}, "cue": {"efficiency": "reconstruction", "proprioception": []},
+_ADDED_3 = {"env": {"optics": None, "first_optics": None}, "cue": {"efficiency": "reconstruction", "proprioception": [], "reward_scales": []},
             "encoder": {"floor": None}, "nac": {"actor_floor": None},
             "config_env": {"pan_range_deg": [-45.0, 45.0], "vergence_range_deg": [-90.0, 90.0]}}
 
