@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 
 import pytest
 import torch
@@ -431,6 +432,33 @@ def test_an_agent_with_features_none_senses_its_proprioception_alone():
     torch.testing.assert_close(acc.agent.normalize(f), z.to(f.dtype))
     with pytest.raises(ValueError, match="features=none leaves the agent nothing to see"):
         CueConfig(features="none")
+
+
+def test_a_cues_agent_learns_from_the_efficiency_of_its_reward_scales():
+    cues = default_cues(encoder=EncoderConfig(num_atoms=16))
+    cues["stereo"].reward_scales = ("full", "fine")
+    cues["accommodation"] = CueConfig(encoder=EncoderConfig(num_atoms=16), scales=("fine", "full"), reward_scales=["full"],
+                                      efficiency="information", proprioception=["vergence", "focus"])
+    learner = JointLearner(LearnerConfig(cues=cues), generator=torch.Generator().manual_seed(0))
+    env = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64), fixation_iterations=3, accommodation_start_D=0.5, seed=0)
+    records = learner.iteration(env)
+    stereo, parallax, acc = records.stereo, records.parallax, records.accommodation
+    names = [s.name for s in learner.stereo.encoder.scales]
+    torch.testing.assert_close(stereo.reward, -stereo.errors[:, [names.index("full"), names.index("fine")]].sum(-1))
+    torch.testing.assert_close(parallax.reward, -parallax.errors.sum(-1))  # default: every scale
+    # the information of the full scale alone: its own term of the two scales' sum
+    both = CueConfig(encoder=EncoderConfig(num_atoms=16), scales=("fine", "full"), efficiency="information")
+    observation = env.observe("accommodation", learner.accommodation.encoder.scales)
+    out = learner.accommodation.encoder.encode(observation)
+    learner.accommodation.config = both
+    fine_and_full = learner.accommodation._information(observation, out)
+    learner.accommodation.config = dataclasses.replace(both, reward_scales=("fine",))
+    fine = learner.accommodation._information(observation, out)
+    learner.accommodation.config = dataclasses.replace(both, reward_scales=("full",))
+    torch.testing.assert_close(learner.accommodation._information(observation, out), fine_and_full - fine)
+    assert acc.reward.shape == (2,)
+    with pytest.raises(ValueError, match=r"cue.reward_scales must be distinct names of cue.scales"):
+        CueConfig(scales=("fine", "full"), reward_scales=["coarse"])
 
 
 def test_proprioception_is_checked_where_it_is_configured_and_sensed():
