@@ -196,6 +196,7 @@ def test_the_experiment_adds_the_cue_and_the_evaluation_reports_dioptres_and_pix
         node[last] = value
     cfg = to_experiment_config(OmegaConf.merge(OmegaConf.structured(ExperimentConfig), nested))
     assert cfg.env.accommodation_start_D == 0.0 and cfg.learner.cues["accommodation"].efficiency == "information"
+    assert cfg.learner.cues["accommodation"].features == "none"  # its agent senses the vergence angle and the focus
     assert list(cfg.learner.cues) == ["parallax", "stereo", "accommodation"]
     per_px = 0.2226  # the camera's degrees per pixel (rounded)
     report = accommodation_report(torch.tensor([0.0, 0.1 * per_px, -0.4 * per_px, 2 * per_px]), 0.016)

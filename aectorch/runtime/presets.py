@@ -60,13 +60,15 @@ ROLL_PERTURBATION: dict[str, Any] = {
 #: default 16 mm aperture 0.92 deg per dioptre), at most 0.2 (+-0.5 left vergence twice as far off
 #: on the choosing photographs: docs/results.md). It codes the two finest scales only: at the wide
 #: and coarse scales' 3.6 and 1.8 deg pixels a dioptre's blur is a fraction of a pixel. Its agent
-#: senses the vergence angle and the focus (``proprioception``): blur is alike either side of the
-#: object, and the vergence angle, once vergence is right, says where the object's focus lies.
+#: senses the vergence angle and the focus (``proprioception``) and not the code (``features:
+#: none``): blur is alike either side of the object, and the vergence angle, once vergence is right,
+#: says where the object's focus lies; the code's features let the policy fit the training
+#: textures, and its focus stopped short near and overshot far on photographs (docs/results.md).
 ACCOMMODATION: dict[str, Any] = {
     "env.accommodation_start_D": 0.0,
     "learner.cues.accommodation": {"efficiency": "information", "symmetry": None, "scales": ["fine", "full"],
                                    "actions_deg": [-0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2],
-                                   "proprioception": ["vergence", "focus"]},
+                                   "proprioception": ["vergence", "focus"], "features": "none"},
 }
 
 #: A pursuit velocity learned from the retinal slip (issue 53's moving object), ``+experiment=slip``:
