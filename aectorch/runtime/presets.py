@@ -57,17 +57,16 @@ ROLL_PERTURBATION: dict[str, Any] = {
 #: serves the accommodation cue (each fixation starts with both eyes focused at infinity, 0 D, as
 #: vergence starts parallel) and the learner learns it with the information reward, which prefers
 #: focus (`aectorch.coding.focus`); its actions are degrees of the blur disc's diameter (at the
-#: default 16 mm aperture 0.92 deg per dioptre), at most 0.2 (+-0.5 left vergence twice as far off
-#: on the choosing photographs: docs/results.md). It codes the two finest scales only: at the wide
-#: and coarse scales' 3.6 and 1.8 deg pixels a dioptre's blur is a fraction of a pixel. Its agent
-#: senses the vergence angle and the focus (``proprioception``) and not the code (``features:
-#: none``): blur is alike either side of the object, and the vergence angle, once vergence is right,
-#: says where the object's focus lies; the code's features let the policy fit the training
-#: textures, and its focus stopped short near and overshot far on photographs (docs/results.md).
+#: default 16 mm aperture 0.92 deg per dioptre), at most 0.1 (a faster focus left vergence farther
+#: off: docs/results.md). It codes the two finest scales only: at the wide and coarse scales' 3.6
+#: and 1.8 deg pixels a dioptre's blur is a fraction of a pixel. Its agent senses the vergence angle
+#: and the focus (``proprioception``) and not the code (``features: none``): blur is alike either
+#: side of the object, and the vergence angle, once vergence is right, says where the object's focus
+#: lies; the code's features let the policy fit the training textures (docs/results.md).
 ACCOMMODATION: dict[str, Any] = {
     "env.accommodation_start_D": 0.0,
     "learner.cues.accommodation": {"efficiency": "information", "symmetry": None, "scales": ["fine", "full"],
-                                   "actions_deg": [-0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2],
+                                   "actions_deg": [-0.1, -0.05, -0.02, 0.0, 0.02, 0.05, 0.1],
                                    "proprioception": ["vergence", "focus"], "features": "none"},
 }
 
