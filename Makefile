@@ -7,7 +7,7 @@ ARGS ?=
 PYTEST_ARGS ?=
 # LEROBOT=0 skips the LeRobot bridge's tests (they run in their own .venv-lerobot).
 LEROBOT ?= 1
-# pytest-xdist worker processes of the main suite (on 2 cores: 6 min 44 s with 2 on an idle AMD EPYC, 1,061 tests; make test 7 min 24 s with the LeRobot part).
+# pytest-xdist worker processes of the main suite (on 2 cores: 7 min 53 s with 2 on an AMD EPYC, 1,063 tests; make test 8 min 40 s with the LeRobot part).
 TEST_WORKERS ?= 2
 
 # `make bench`: the benchmark suite at full size, its results written to benchmarks/results
