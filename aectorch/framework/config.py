@@ -96,8 +96,9 @@ class CueConfig:
             it needs ``symmetry=null``.
         reward_scales: the scales whose coding efficiency the agent learns from (default, empty:
             all of ``scales``); the code of every scale is still learned and seen. The wide and
-            coarse scales' reconstruction errors barely change within a pixel of the optimum, so
-            they add noise to the fine scales' signal (docs/results.md, issue 50).
+            coarse scales' errors barely change within a pixel of the optimum, but leaving them
+            out of both cues' rewards (``[fine, full]``) made vergence worse (docs/results.md,
+            issue 50).
     """
 
     agent: AgentName = AgentName.ppo
