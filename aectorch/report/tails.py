@@ -16,7 +16,7 @@ from typing import Mapping, Sequence
 from aectorch.evaluation.summary import WITHIN_DEG
 from aectorch.runs import Run
 
-__all__ = ["FAR_FROM_M", "THRESHOLDS_DEG", "tails", "tails_lines"]
+__all__ = ["FAR_FROM_M", "THRESHOLDS_DEG", "kind", "tails", "tails_lines"]
 
 #: Fixation ends are counted beyond each of these errors (degrees, either eye).
 THRESHOLDS_DEG = (1.0, 2.0)
@@ -36,6 +36,19 @@ def _ends(rows: list[dict]) -> list[dict]:
     return out
 
 
+def kind(errors: Mapping[str, float]) -> str:
+    """What failed at a fixation end: the movement of the largest error and its sign,
+    ``"<movement>+"`` or ``"<movement>-"`` (errors are actual - optimal, so ``vergence+`` is a
+    vergence converged past the optimum and ``vergence-`` one diverged short of it).
+
+    Example:
+        >>> kind({"pursuit": 0.1, "vergence": -12.0}), kind({"pursuit": 3.0, "vergence": 0.5})
+        ('vergence-', 'pursuit+')
+    """
+    movement = max(errors, key=lambda m: abs(errors[m]))
+    return f"{movement}{'+' if errors[movement] >= 0 else '-'}"
+
+
 def _mae(ends: list[dict], movement: str) -> float:
     return statistics.fmean(abs(e["errors"][movement]) for e in ends) if ends else math.nan
 
@@ -48,6 +61,9 @@ def _run_numbers(rows: list[dict]) -> dict:
     out = {"ends": len(ends),
            "within": statistics.fmean(all(abs(v) <= WITHIN_DEG for v in e["errors"].values()) for e in ends)}
     out.update({f"beyond_{t:g}": sum(e["worst"] > t for e in ends) for t in THRESHOLDS_DEG})
+    last = THRESHOLDS_DEG[-1]  # the ends beyond the last threshold, by what failed (`kind`)
+    out.update({f"beyond_{last:g}_{k}{sign}": sum(e["worst"] > last and kind(e["errors"]) == f"{k}{sign}" for e in ends)
+                for k in movements for sign in "+-"})
     inside = [e for e in ends if e["worst"] <= THRESHOLDS_DEG[0]]
     for m in movements:
         out[f"{m}_mae_deg"] = _mae(ends, m)
@@ -72,7 +88,8 @@ def tails(groups: Mapping[str, Sequence[Run]], evaluation: str, worst: int = 10)
 
     For each group: per run and summed or averaged over its runs, the fixation ends (two per trial),
     the fraction with every eye within ``WITHIN_DEG``, the counts of ends with either eye beyond
-    each of :data:`THRESHOLDS_DEG`, each movement's MAE overall, near (before
+    each of :data:`THRESHOLDS_DEG` (those beyond the last also by `kind`: ``beyond_2_vergence+``,
+    ...), each movement's MAE overall, near (before
     :data:`FAR_FROM_M`), far and over the ends with every eye within the first threshold
     (``inside_<movement>_mae_deg``: the precision without the tails); and the ``worst`` fixation ends of all its runs (largest error of
     either eye first) with their trial's texture, distance, errors and ``view_*`` statistics.
@@ -113,6 +130,14 @@ def tails_lines(result: dict) -> list[str]:
         lines.append(f"| {name} | {a['ends']} | {a['within']:.1%} | {beyond} | {_f(a['pursuit_mae_deg'])} / "
                      f"{_f(a['vergence_mae_deg'])} | {_f(a['near_pursuit_mae_deg'])} / {_f(a['near_vergence_mae_deg'])} | "
                      f"{_f(a['far_pursuit_mae_deg'])} / {_f(a['far_vergence_mae_deg'])} | {_f(ratio, 2)}x |")
+    last, blank = f"beyond_{THRESHOLDS_DEG[-1]:g}_", [""]
+    for name, group in result.items():
+        kinds = {k[len(last):]: v for k, v in group["all"].items() if k.startswith(last) and v}
+        if kinds:
+            lines += blank
+            blank = []
+            lines.append(f"{name}: the ends beyond {THRESHOLDS_DEG[-1]:g} deg by the movement of the largest error "
+                         "(+ past the optimum, - short of it): " + ", ".join(f"{k} {v}" for k, v in kinds.items()))
     views = next((list(g["views"]["all"]) for g in result.values() if len(g["views"]["all"]) > 1), [])[1:]
     if views:
         lines += ["", "| group | trials | median " + " | median ".join(views) + " |", "|" + "---|" * (2 + len(views))]
