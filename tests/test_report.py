@@ -348,8 +348,8 @@ def test_tails_counts_the_far_ends_compares_near_and_far_and_lists_the_worst_wit
     # the one end beyond 2 deg is a vergence short of its optimum (diverged): counted by its kind
     assert result["all"]["beyond_2_vergence-"] == 1 and result["all"]["beyond_2_vergence+"] == 0
     assert result["all"]["beyond_2_pursuit+"] == result["all"]["beyond_2_pursuit-"] == 0
-    assert lines[3:5] == ["", "g: the ends beyond 2 deg by the movement of the largest error (+ past the optimum, "
-                        "- short of it): vergence- 1"]
+    assert lines[3:5] == ["", "g: the ends beyond 2 deg by the movement of the largest error and its sign (vergence + "
+                        "past the optimum, - short of it): vergence- 1"]
     # without the ends beyond 1 deg: run a's vergence is its two 0.1 deg ends
     assert [r["inside_vergence_mae_deg"] for r in result["runs"]] == pytest.approx([0.1, 0.05])
     assert "| g 0 | 3.425 | 0.100 | 2 |" in lines

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import statistics
+from collections import Counter
 from typing import Mapping, Sequence
 
 from aectorch.evaluation.summary import WITHIN_DEG
@@ -25,21 +26,22 @@ FAR_FROM_M = 1.55
 
 
 def _ends(rows: list[dict]) -> list[dict]:
-    """Every fixation end of ``rows``: its trial, fixation, each movement's error and the largest."""
+    """Every fixation end of ``rows``: its trial, fixation, each movement's error, the largest and
+    its `kind`."""
     movements = [key[: -len("_errors_deg")] for key in rows[0] if key.endswith("_errors_deg")] if rows else []
     out = []
     for row in rows:
         for fixation in range(len(row[f"{movements[0]}_errors_deg"])):
             errors = {m: row[f"{m}_errors_deg"][fixation] for m in movements}
             out.append({"row": row, "fixation": fixation, "errors": errors,
-                        "worst": max(abs(e) for e in errors.values())})
+                        "worst": max(abs(e) for e in errors.values()), "kind": kind(errors)})
     return out
 
 
 def kind(errors: Mapping[str, float]) -> str:
     """What failed at a fixation end: the movement of the largest error and its sign,
-    ``"<movement>+"`` or ``"<movement>-"`` (errors are actual - optimal, so ``vergence+`` is a
-    vergence converged past the optimum and ``vergence-`` one diverged short of it).
+    ``"<movement>+"`` or ``"<movement>-"`` (errors are actual - optimal; fixations start parallel,
+    so ``vergence+`` is a vergence converged past its optimum and ``vergence-`` one short of it).
 
     Example:
         >>> kind({"pursuit": 0.1, "vergence": -12.0}), kind({"pursuit": 3.0, "vergence": 0.5})
@@ -61,9 +63,9 @@ def _run_numbers(rows: list[dict]) -> dict:
     out = {"ends": len(ends),
            "within": statistics.fmean(all(abs(v) <= WITHIN_DEG for v in e["errors"].values()) for e in ends)}
     out.update({f"beyond_{t:g}": sum(e["worst"] > t for e in ends) for t in THRESHOLDS_DEG})
-    last = THRESHOLDS_DEG[-1]  # the ends beyond the last threshold, by what failed (`kind`)
-    out.update({f"beyond_{last:g}_{k}{sign}": sum(e["worst"] > last and kind(e["errors"]) == f"{k}{sign}" for e in ends)
-                for k in movements for sign in "+-"})
+    last = THRESHOLDS_DEG[-1]  # the ends beyond the last threshold, by what failed
+    kinds = Counter(e["kind"] for e in ends if e["worst"] > last)
+    out.update({f"beyond_{last:g}_{k}{sign}": kinds[f"{k}{sign}"] for k in movements for sign in "+-"})
     inside = [e for e in ends if e["worst"] <= THRESHOLDS_DEG[0]]
     for m in movements:
         out[f"{m}_mae_deg"] = _mae(ends, m)
@@ -130,14 +132,13 @@ def tails_lines(result: dict) -> list[str]:
         lines.append(f"| {name} | {a['ends']} | {a['within']:.1%} | {beyond} | {_f(a['pursuit_mae_deg'])} / "
                      f"{_f(a['vergence_mae_deg'])} | {_f(a['near_pursuit_mae_deg'])} / {_f(a['near_vergence_mae_deg'])} | "
                      f"{_f(a['far_pursuit_mae_deg'])} / {_f(a['far_vergence_mae_deg'])} | {_f(ratio, 2)}x |")
-    last, blank = f"beyond_{THRESHOLDS_DEG[-1]:g}_", [""]
-    for name, group in result.items():
-        kinds = {k[len(last):]: v for k, v in group["all"].items() if k.startswith(last) and v}
-        if kinds:
-            lines += blank
-            blank = []
-            lines.append(f"{name}: the ends beyond {THRESHOLDS_DEG[-1]:g} deg by the movement of the largest error "
-                         "(+ past the optimum, - short of it): " + ", ".join(f"{k} {v}" for k, v in kinds.items()))
+    last = f"beyond_{THRESHOLDS_DEG[-1]:g}_"
+    kinds = {name: {k[len(last):]: v for k, v in group["all"].items() if k.startswith(last) and v}
+             for name, group in result.items()}
+    lines += [""] * any(kinds.values()) + [
+        f"{name}: the ends beyond {THRESHOLDS_DEG[-1]:g} deg by the movement of the largest error and its sign "
+        "(vergence + past the optimum, - short of it): " + ", ".join(f"{k} {v}" for k, v in counts.items())
+        for name, counts in kinds.items() if counts]
     views = next((list(g["views"]["all"]) for g in result.values() if len(g["views"]["all"]) > 1), [])[1:]
     if views:
         lines += ["", "| group | trials | median " + " | median ".join(views) + " |", "|" + "---|" * (2 + len(views))]
