@@ -179,9 +179,27 @@ def test_ppo_lr_decays_by_the_updates_made():
     assert not torch.equal(agent.policy.weight, constant.policy.weight)  # the first update alike, then not
 
 
+def test_ppo_weight_decay_shrinks_the_policy_weights_alone():
+    decayed = PPO(3, ACTIONS, PPOConfig(lr=0.01, weight_decay=5.0, actor_init=1.0), generator=_gen())
+    plain = PPO(3, ACTIONS, PPOConfig(lr=0.01, actor_init=1.0), generator=_gen())
+    assert type(plain.optimizer) is torch.optim.Adam  # no decay: plain Adam over one group, as before
+    f = torch.randn(8, 3, generator=_gen(1))
+    for step in range(4):
+        for a in (decayed, plain):
+            act = a.act(f, uniform=torch.rand(8, generator=_gen(step)))
+            a.learn(Transitions(f, act.actions, torch.randn(8, generator=_gen(step)), f, last=True))
+    # only the policy's weight matrix decays; its bias and the value function do not
+    groups = {id(p): g["weight_decay"] for g in decayed.optimizer.param_groups for p in g["params"]}
+    assert groups == {id(decayed.policy.weight): 5.0, id(decayed.policy.bias): 0.0,
+                      id(decayed.value.weight): 0.0, id(decayed.value.bias): 0.0}
+    # the policy's weights shrink by about (1 - lr * decay) per Adam step (4 updates of 4 x 4 steps)
+    ratio = float(decayed.policy.weight.norm() / plain.policy.weight.norm())
+    assert ratio < 0.6
+
+
 def test_ppo_config_rejects_bad_values():
     for field, value in (("lr", 0), ("epochs", 0), ("discount", 1.5), ("gae_lambda", -0.1), ("hidden", -1),
-                         ("clip", -0.2), ("feature_norm", 0), ("lr_decay", 0)):
+                         ("clip", -0.2), ("feature_norm", 0), ("lr_decay", 0), ("weight_decay", -1)):
         with pytest.raises(ValueError, match=f"PPOConfig.{field} must be"):
             PPOConfig(**{field: value})
 
