@@ -611,3 +611,22 @@ def test_a_folder_of_ten_thousand_images_loads_in_bounded_memory_with_a_progress
     assert float(grown_mib) < 0.4 * float(bank_mib), done.stdout  # in RAM: 2.2x
     assert abs(float(last_mean) - float(np.asarray(Image.open(folder / "09999.png")).mean()) / 255) < 1e-6
     assert "textures: 100%" in done.stderr and "10000/10000" in done.stderr
+
+
+def test_a_larger_generated_world_begins_with_the_default_set_and_only_sizes_generated_sets(tmp_path):
+    from aectorch.runtime import ExperimentConfig, build_textures
+    from aectorch.runtime.config import EnvConfig
+
+    default = TextureBank.default("train", size=8)
+    larger = TextureBank.default("train", size=8, num=130)
+    assert len(larger) == 130 and torch.equal(larger.textures[:100], default.textures)
+    assert larger.names[:100] == default.names
+    leaves = TextureBank.from_spec("dead-leaves", size=8, num=3)
+    assert torch.equal(leaves.textures, TextureBank.from_spec("dead-leaves", size=8).textures[:3])
+    # env.num_textures sizes the training set only; the test set stays the default's 40
+    cfg = ExperimentConfig(env=EnvConfig(num_textures=105))
+    assert len(build_textures(None, "train", cfg)) == 105 and len(build_textures(None, "test", cfg)) == 40
+    with pytest.raises(ValueError, match=r"env.num_textures=5 sizes a generated texture set.*folder"):
+        EnvConfig(textures=str(tmp_path), num_textures=5)
+    with pytest.raises(ValueError, match=r"env.num_textures must be"):
+        EnvConfig(num_textures=0)

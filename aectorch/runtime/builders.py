@@ -37,12 +37,14 @@ def available_threads(processes: int = 1) -> int:
 
 
 def build_textures(folder: str | None, split: str, cfg: ExperimentConfig) -> TextureBank:
-    """``TextureBank.from_folder(folder)``, or ``TextureBank.default(split)`` when ``folder`` is None."""
+    """``TextureBank.from_folder(folder)``, or ``TextureBank.default(split)`` when ``folder`` is None
+    (of ``env.num_textures`` textures for the training split)."""
     kwargs = dict(dtype=cfg.env.torch_dtype)
+    num = cfg.env.num_textures if split == "train" else None
     if folder is None:
-        return TextureBank.default(split, **kwargs)
+        return TextureBank.default(split, num=num, **kwargs)
     if folder in PROCEDURAL_TEXTURES:
-        return TextureBank.from_spec(folder, split=split, **kwargs)
+        return TextureBank.from_spec(folder, split=split, num=num, **kwargs)
     return TextureBank.from_folder(folder, progress=None if cfg.train.progress else False, **kwargs)
 
 

@@ -24,7 +24,7 @@ from aectorch.runtime.metrics import PAPER_WINDOW, RECENT_WINDOW
 from aectorch.runtime.perturbations import Event, PerturbationEventConfig, resolve_events
 from aectorch.runtime.watchdog import WatchdogConfig
 from aectorch.sim import (
-    PAN_RANGE_DEG, VERGENCE_RANGE_DEG, check_oculomotor_range,
+    PAN_RANGE_DEG, PROCEDURAL_TEXTURES, VERGENCE_RANGE_DEG, check_oculomotor_range,
     DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, START_PURSUIT_DEG, START_VERGENCE_DEG,
 )
 
@@ -64,6 +64,10 @@ class EnvConfig:
             1/f textures standing in for the paper's photographs; ``dead-leaves`` 100
             dead-leaves textures (`TextureBank.dead_leaves`, the default set's seed): occluding
             discs of power-law sizes, with sharp edges and flat regions.
+        num_textures: ``null`` (default): the generated training set's 100 textures; N (>= 1): the
+            first N of the same seeded sequence (procedural or ``dead-leaves``; the first 100 are
+            the default set), a larger world for long training. Only for generated textures: a
+            folder's images are what it holds.
         distances_m: object distances a trial draws from uniformly, metres (paper: 1.0 to 3.0 m
             in 0.1 m steps).
         fixation_iterations: h, iterations per fixation (paper: 30).
@@ -122,6 +126,7 @@ class EnvConfig:
     num_envs: int = 32
     renderer: RendererName = DEFAULT_PROTOCOL.renderer
     textures: Optional[str] = None
+    num_textures: Optional[int] = None
     distances_m: list[float] = field(default_factory=lambda: list(DEFAULT_DISTANCES_M))
     fixation_iterations: int = DEFAULT_PROTOCOL.fixation_iterations
     shift_m: float = DEFAULT_PROTOCOL.shift_m
@@ -149,6 +154,11 @@ class EnvConfig:
         check_int(self.num_envs, f"{owner}.num_envs", 1)
         self.renderer = check_choice(self.renderer, f"{owner}.renderer", RendererName)
         _check_folder(self.textures, f"{owner}.textures")
+        if self.num_textures is not None:
+            check_int(self.num_textures, f"{owner}.num_textures", 1)
+            if self.textures is not None and self.textures not in PROCEDURAL_TEXTURES:
+                raise ValueError(f"{owner}.num_textures={self.num_textures} sizes a generated texture set, but "
+                                 f"{owner}.textures={self.textures!r} is a folder: leave {owner}.num_textures=null")
         self.distances_m = check_distances(self.distances_m, f"{owner}.distances_m")
         check_int(self.fixation_iterations, f"{owner}.fixation_iterations", 1)
         check_real(self.shift_m, f"{owner}.shift_m", minimum=0, unit="metres")
@@ -438,11 +448,26 @@ class ExperimentConfig:
         self.perturbations = [e if isinstance(e, PerturbationEventConfig) else PerturbationEventConfig(**e)
                               for e in self.perturbations]
         self.events()  # checked against the run's length: the errors name the entry's key
+        self._check_served_cues_are_learned()
         if self.env.aperture_m == 0:
             refractive = [i for i, e in enumerate(self.perturbations) if str(e.kind) == "refractive_error"]
             if refractive:
                 raise ValueError(f"perturbations[{refractive[0]}] is a refractive_error, which blurs only through an "
                                  "aperture, and env.aperture_m=0 makes the eyes pinholes; give env.aperture_m > 0")
+
+    def _check_served_cues_are_learned(self) -> None:
+        """``env.accommodation_start_D`` makes the environment serve the accommodation cue (and,
+        unyoked, the right eye's): a cue no learner config learns would be a request that does
+        nothing, and its error, never moved, would read as perfect focus."""
+        if self.env.accommodation_start_D is None:
+            return
+        served = ["accommodation"] + ([] if self.env.yoked_accommodation else ["accommodation_right"])
+        learned = self.learner.active_cues if self.learner.active_cues is not None else list(self.learner.cues)
+        missing = [cue for cue in served if cue not in learned]
+        if missing:
+            raise ValueError(f"env.accommodation_start_D={self.env.accommodation_start_D} serves the {missing[0]} cue, "
+                             f"which the learner does not learn (no learner.cues.{missing[0]}): add "
+                             "+experiment=accommodation, or leave env.accommodation_start_D out")
 
     def events(self) -> list[Event]:
         """Every perturbation event of the run, checked, in their order: ``perturbation``'s rolls,

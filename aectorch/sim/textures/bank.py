@@ -196,6 +196,7 @@ class TextureBank:
         split: str = "train",
         *,
         size: int | tuple[int, int] = (512, 512),
+        num: int | None = None,
         dtype: torch.dtype = torch.float32,
         device: torch.device | str | None = None,
     ) -> TextureBank:
@@ -211,6 +212,8 @@ class TextureBank:
         Args:
             split: ``"train"`` (100 textures) or ``"test"`` (40 held-out textures).
             size: (height, width) of each texture (an int means a square).
+            num: ``None`` (the split's 100 or 40), or the first ``num`` textures of the split's
+                seeded sequence (a larger world: its first 100 are the training set).
             dtype: floating dtype of the bank.
             device: device of the bank.
 
@@ -225,7 +228,7 @@ class TextureBank:
         if split not in DEFAULT_SEEDS:
             raise ValueError(f"split must be one of {sorted(DEFAULT_SEEDS)}, got {split!r}")
         bank = cls.procedural(
-            DEFAULT_SIZES[split], size, _DEFAULT_ALPHA, DEFAULT_SEEDS[split],
+            DEFAULT_SIZES[split] if num is None else num, size, _DEFAULT_ALPHA, DEFAULT_SEEDS[split],
             dtype=dtype, device=device,
         )
         bank.source = f"default {split} set: {bank.source}"
@@ -344,6 +347,7 @@ class TextureBank:
         *,
         split: str = "train",
         size: int | tuple[int, int] = (512, 512),
+        num: int | None = None,
         dtype: torch.dtype = torch.float32,
         device: torch.device | str | None = None,
     ) -> TextureBank:
@@ -356,6 +360,8 @@ class TextureBank:
                 used; give the training and the test set as two folders, or use `split`).
             split: ``"train"`` or ``"test"``, for the default textures.
             size: (height, width) of each texture.
+            num: of a generated set: ``None`` (the split's size) or how many of its seeded
+                sequence (`default`); a folder is read whole.
             dtype, device: of the bank.
 
         Returns:
@@ -373,11 +379,12 @@ class TextureBank:
                 f"spec must be 'default', 'procedural' or a folder path, got {type(spec).__name__}"
             )
         if isinstance(spec, str) and spec.strip().lower() in ("default", "procedural"):
-            return cls.default(split, size=size, dtype=dtype, device=device)
+            return cls.default(split, size=size, num=num, dtype=dtype, device=device)
         if isinstance(spec, str) and spec.strip().lower() in PROCEDURAL_TEXTURES:
             if split not in DEFAULT_SEEDS:
                 raise ValueError(f"split must be one of {sorted(DEFAULT_SEEDS)}, got {split!r}")
-            return cls.dead_leaves(DEFAULT_SIZES[split], size, DEFAULT_SEEDS[split], dtype=dtype, device=device)
+            return cls.dead_leaves(DEFAULT_SIZES[split] if num is None else num, size, DEFAULT_SEEDS[split],
+                                   dtype=dtype, device=device)
         folder = Path(os.fspath(spec)).expanduser()
         if not os.fspath(spec) or not folder.exists():
             raise FileNotFoundError(
