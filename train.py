@@ -1,7 +1,8 @@
 """aectorch training entry point (Hydra): the paper's experiment, `aectorch.runtime.run_experiment`.
 
 B simulated HOAP-3 heads learn, jointly, sparse codes of what their eyes see, pursuit and
-vergence eye movements (natural actor-critic) and the object's distance (an MLP); the run folder
+vergence eye movements (PPO by default; the paper's natural actor-critic with ``preset=paper``)
+and the object's distance (an MLP); the run folder
 (Hydra's, ``outputs/<date>/<time>`` by default) receives config.yaml, metrics.jsonl, tb/,
 checkpoint.pt, figures/, evaluation.json and summary.json. See docs/training.md.
 
@@ -10,6 +11,7 @@ checkpoint.pt, figures/, evaluation.json and summary.json. See docs/training.md.
     python train.py preset=paper +experiment=roll_perturbation
     python train.py train.resume=/tmp/x train.iterations=1000   # continue a run in place
     python train.py train.resume=auto hydra.run.dir=/tmp/x     # resume /tmp/x if it holds a run, else start
+                                                      # (auto needs hydra.run.dir, or hydra.sweep.dir with -m)
     python train.py -m seed=0,1,2                     # multirun sweep
     torchrun --standalone --nproc_per_node=2 train.py env.num_envs=16   # 2 processes x 16 envs
 
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -67,6 +70,15 @@ def _command_line_keys() -> set[str]:
     return keys
 
 
+def _command_line_groups() -> dict[str, str | None]:
+    """The config groups the command line names (``rearing=strabismus``, ``+experiment=...``) and
+    the option each group has in this run."""
+    from aectorch.runtime.presets import GROUPS
+
+    choices = HydraConfig.get().runtime.choices
+    return {key: choices.get(key) for key in _command_line_keys() if key in GROUPS}
+
+
 def _log_to_stderr() -> None:
     """The library's messages (the ``aectorch`` logger: resuming, interruptions, the watchdog, the
     depth calibration) go to stderr as plain lines, around the progress bars."""
@@ -90,7 +102,8 @@ def main(raw: DictConfig) -> dict:
     _log_to_stderr()
     try:
         # Validate everything before any work; on resume, the run's own config and checkpoint.
-        cfg, checkpoint = prepare_run(to_experiment_config(raw), _command_line_keys(), _run_dir())
+        cfg, checkpoint = prepare_run(to_experiment_config(raw), _command_line_keys(), _run_dir(),
+                                      groups=_command_line_groups())
     except (ValueError, OmegaConfBaseException) as err:  # a value rejected by the configs' checks
         if _debug():
             raise
@@ -128,15 +141,50 @@ def main(raw: DictConfig) -> dict:
 
 
 def _one_line(err: BaseException) -> str:
-    text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+    """Hydra's error in one line, with what it lists on the next ones (a group's options) and a hint
+    for a key that only a group adds."""
+    lines = str(err).strip().splitlines()
+    text = lines[0] if lines else type(err).__name__
     cause = err.__cause__
     if isinstance(err, HydraException) and isinstance(cause, OmegaConfBaseException):
         # e.g. "Error merging override train.iterations=abc: Value 'abc' ... could not be converted to Integer"
         text = f"{text}: {str(cause).strip().splitlines()[0]}"
+    options = re.search(r"Available options in '([^']+)':\n((?:\t.*\n?)+)", str(err))
+    if options:
+        names = [name.strip() for name in options.group(2).splitlines() if name.strip()]
+        text = f"{text}; {options.group(1)} is one of: {', '.join(names)}"
+    key = re.search(r"Could not (?:override|append to) '([\w.]+)'", text)
+    if key and "not in struct" in text:
+        text += _adding_hint(key.group(1))
     return text
 
 
+def _adding_hint(key: str) -> str:
+    """How to make ``key`` exist: the group option that adds it (``+experiment=accommodation`` for
+    ``learner.cues.accommodation.*``), else Hydra's ``+`` for a new key."""
+    from aectorch.runtime.presets import GROUPS
+
+    for group, options in GROUPS.items():
+        for option, values in options.items():
+            if any(key == set_key or key.startswith(set_key + ".") for set_key in values):
+                return f"; {key} exists with +{group}={option} (add it to the command line)"
+    return f"; no such key in train.py's config (python train.py --cfg job lists them)"
+
+
 _RUN_DIR_VAR = "AECTORCH_RUN_DIR"
+
+
+def _check_auto_has_a_folder() -> None:
+    """``train.resume=auto`` resumes the run folder's checkpoint: without a folder given, Hydra's
+    default is a new ``outputs/<date>/<time>`` (``multirun/...`` for a sweep) at every start, which
+    never holds one, so the request would do nothing."""
+    if "train.resume=auto" not in sys.argv:
+        return
+    sweep = any(a in ("-m", "--multirun") for a in sys.argv)
+    key = "hydra.sweep.dir" if sweep else "hydra.run.dir"
+    if not any(a.startswith(key + "=") for a in sys.argv):
+        _fail(f"train.resume=auto needs {key}=<folder>: without it every start makes a new folder "
+              f"(Hydra's {'multirun' if sweep else 'outputs'}/<date>/<time>), which holds no run to resume")
 
 
 def _other_ranks_write_elsewhere() -> None:
@@ -151,6 +199,7 @@ def _other_ranks_write_elsewhere() -> None:
     if world > 1 and "train.resume=auto" in sys.argv and not given:
         _fail("train.resume=auto with several processes needs hydra.run.dir=<folder>, the same on every "
               "process (torchrun restarts them with the same command, and they must find the same run)")
+    _check_auto_has_a_folder()
     if rank > 0:
         if given:
             os.environ[_RUN_DIR_VAR] = given[-1]

@@ -7,7 +7,6 @@ sits below the runtime, which runs it at the end of training.
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 from dataclasses import dataclass, field
@@ -22,7 +21,9 @@ from aectorch.evaluation.trials import TRACKING_SKIP, run_tracking, tracking_by_
 from aectorch.figures import plot_evaluation, plot_tracking
 from aectorch.runtime.builders import trial_protocol
 from aectorch.runtime.checkpoint import load_checkpoint, load_learner
-from aectorch.runtime.command import run
+from aectorch.runtime.command import check_checkpoint_file, check_output_file, run
+from aectorch.runtime.outputs import note_output, write_json
+from aectorch.runs import checkpoint_source
 from aectorch.sim import DEFAULT_DISTANCES_M, PAN_RANGE_DEG, TextureBank, check_oculomotor_range, resolve_protocol
 
 __all__ = ["EvaluateConfig", "main"]
@@ -44,17 +45,19 @@ class EvaluateConfig:
         seed: seeds the vergence test's offsets.
         figure: also draw the evaluation figure into this .png file.
         progress: show a progress bar.
-        policy: greedy (argmax actions, the protocol) or sampled (actions sampled from the
-            policies as in training, to see what greediness costs).
-        readout: argmax or mean, the greedy increment of every cue: the most probable action's, or
-            the policy's mean increment (default: the run's, learner.cues.<cue>.readout).
+        policy: greedy (each cue's greedy increment, see readout: the protocol) or sampled
+            (actions sampled from the policies as in training, to see what greediness costs).
+        readout: mean or argmax, the greedy increment of every cue: the policy's mean increment,
+            or the most probable action's (default: the run's, learner.cues.<cue>.readout, whose
+            own default is mean; preset=paper's is argmax).
         tracking: a moving object's test instead of the paper's: the object's sideways speeds,
             degrees per iteration (e.g. [0,0.5,1]); every texture x depth x speed runs one trial
             (aectorch.evaluation.run_tracking), and the result holds the tracking errors per
             speed and per trial.
         depth_speed: with tracking, the object's speed in depth, metres per iteration (negative:
-            approaching).
-        skip: with tracking, each fixation's first this many iterations are left out of the errors.
+            approaching); an error without tracking, where it would do nothing.
+        skip: with tracking, each fixation's first this many iterations are left out of the errors
+            (an error without tracking, where it would do nothing).
         vergence_range_deg: [low, high], the oculomotor vergence range of the trials (default:
             the run's, env.vergence_range_deg): e.g. a run trained without the range evaluated
             within it.
@@ -92,10 +95,17 @@ class EvaluateConfig:
                 check_real(speed, "tracking", minimum=0.0, unit="degrees per iteration")
         if self.vergence_range_deg is not None:
             self.vergence_range_deg = list(check_oculomotor_range(PAN_RANGE_DEG, self.vergence_range_deg)[1])
+        if self.tracking is None and (self.depth_speed != 0.0 or self.skip != TRACKING_SKIP):
+            given = "depth_speed" if self.depth_speed != 0.0 else "skip"
+            raise ValueError(f"{given} acts only in the tracking test: give tracking=[speeds] (e.g. "
+                             f"tracking=[0,0.5,1]) too, or leave {given} out")
         if self.textures is not None and not os.path.isdir(self.textures):
             raise ValueError(f"textures: no such folder {self.textures!r}")
-        if not os.path.isfile(self.checkpoint):
-            raise ValueError(f"checkpoint: no such file {self.checkpoint!r}")
+        check_checkpoint_file(self.checkpoint)
+        # The outputs before the trials: a path that cannot be written fails now, not after them.
+        check_output_file(self.out, "out", (".json",))
+        if self.figure is not None:
+            check_output_file(self.figure, "figure", (".png", ".pdf", ".svg"))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -126,12 +136,11 @@ def _evaluate(args: EvaluateConfig) -> int:
                       seed=args.seed, progress=args.progress, policy=args.policy)
     result.update(checkpoint=args.checkpoint, textures=textures, renderer=str(protocol.renderer),
                   pan_range_deg=list(protocol.pan_range_deg), vergence_range_deg=list(protocol.vergence_range_deg),
-                  iteration=iteration)
-    with open(args.out, "w") as f:
-        json.dump(result, f, indent=2)
-        f.write("\n")
+                  iteration=iteration, source=checkpoint_source(args.checkpoint, iteration))
+    _write(args.out, result)
     if args.figure:
         plot_evaluation(result, args.figure)
+        note_output(args.figure)
     keys = [k for k in result if k.endswith("_mae_deg")] + ["depth_mae_m"]  # every eye movement's, then depth
     rows = [f"{'distance_m':>10} " + " ".join(f"{k:>{len(k) + 1}}" for k in keys)]
     for row in result["per_distance"] + [dict(result, distance_m="all")]:
@@ -153,6 +162,13 @@ def _evaluate(args: EvaluateConfig) -> int:
     return 0
 
 
+def _write(out: str, result: dict) -> None:
+    """The result, whole or not at all; a run folder lists it as an output of its checkpoint (so
+    that ``train.overwrite`` deletes it with the run)."""
+    write_json(out, result)
+    note_output(out)
+
+
 def _tracking(args: EvaluateConfig, learner, bank: TextureBank, textures: str, protocol, iteration: int) -> int:
     """The moving object's test (``tracking=[...]``): its JSON, figure and table."""
     trials = run_tracking(learner, bank, speeds_deg=list(args.tracking), depth_speed_m=args.depth_speed,
@@ -162,12 +178,12 @@ def _tracking(args: EvaluateConfig, learner, bank: TextureBank, textures: str, p
     result = {"tracking": {"skip": args.skip, "depth_speed_m": args.depth_speed, "per_speed": per_speed,
                            "per_trial": tracking_rows(trials, bank.names)},
               "checkpoint": args.checkpoint, "textures": textures, "renderer": str(protocol.renderer),
-              "iteration": iteration, "policy": str(args.policy)}
-    with open(args.out, "w") as f:
-        json.dump(result, f, indent=2)
-        f.write("\n")
+              "iteration": iteration, "policy": str(args.policy),
+              "source": checkpoint_source(args.checkpoint, iteration)}
+    _write(args.out, result)
     if args.figure:
         plot_tracking([per_speed], args.figure)
+        note_output(args.figure)
     keys = [key for key in per_speed[0] if key.endswith("_tracking_deg")]
     rows = [f"{'speed_deg':>10} " + " ".join(f"{k:>{len(k) + 1}}" for k in keys)]
     rows += [f"{row['speed_deg']:>10.2f} " + " ".join(f"{row[k]:>{len(k) + 1}.4f}" for k in keys) for row in per_speed]

@@ -14,7 +14,7 @@ from omegaconf import MISSING
 
 from aectorch._checks import check_int
 from aectorch.choices import RendererName
-from aectorch.runtime.command import run
+from aectorch.runtime.command import check_checkpoint_file, run
 
 __all__ = ["RecordConfig", "main"]
 
@@ -51,8 +51,7 @@ class RecordConfig:
         check_int(self.trials, "trials", minimum=1)
         check_int(self.envs, "envs", minimum=1)
         check_int(self.seed, "seed", minimum=0)
-        if not os.path.isfile(self.checkpoint):
-            raise ValueError(f"checkpoint: no such file {self.checkpoint!r}")
+        check_checkpoint_file(self.checkpoint)
         if os.path.exists(self.out):
             raise ValueError(f"out: {self.out!r} exists already; give a new folder")
         if self.textures is not None and not os.path.isdir(self.textures):

@@ -28,10 +28,28 @@ import warnings
 from functools import cached_property
 from pathlib import Path
 
-__all__ = ["EVALUATION", "Run", "per_trial_rows", "read_json", "read_metrics"]
+__all__ = ["EVALUATION", "Run", "checkpoint_source", "file_sha256", "per_trial_rows", "read_json", "read_metrics"]
 
 #: The evaluation written at the end of training (``eval.enabled``).
 EVALUATION = "evaluation.json"
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """The SHA-256 of a file's bytes, in hex."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def checkpoint_source(path: str | os.PathLike, iteration: int) -> dict:
+    """What an evaluation was made from, as it records it (``"source"``): the checkpoint's file
+    name, its iteration and the SHA-256 of its bytes. `Run.evaluation` checks it against the run's
+    file of that name, so a result of an earlier checkpoint does not pass for the current one."""
+    return {"checkpoint": Path(path).name, "iteration": int(iteration), "sha256": file_sha256(path)}
 
 
 def read_json(path: str | os.PathLike) -> dict:
@@ -172,10 +190,31 @@ class Run:
         return read_json(self.path / "provenance.json")
 
     def evaluation(self, name: str = EVALUATION) -> dict:
-        """An evaluation of the run (``evaluation.json`` by default, or another file in the folder)."""
+        """An evaluation of the run (``evaluation.json`` by default, or another file in the folder).
+
+        Raises:
+            ValueError: the evaluation was made from another checkpoint than the run's file of
+                that name holds now (its ``"source"``: `checkpoint_source`), e.g. one left by an
+                earlier run in the folder.
+        """
         if name not in self._evaluations:
-            self._evaluations[name] = read_json(self.path / name)
+            evaluation = read_json(self.path / name)
+            self._check_source(evaluation, self.path / name)
+            self._evaluations[name] = evaluation
         return self._evaluations[name]
+
+    def _check_source(self, evaluation: dict, path: Path) -> None:
+        source = evaluation.get("source")
+        if source is None:
+            return  # written before evaluations recorded their checkpoint
+        if not isinstance(source, dict) or not isinstance(source.get("checkpoint"), str) \
+                or not isinstance(source.get("sha256"), str):
+            raise ValueError(f"{path}: its 'source' must be {{checkpoint, iteration, sha256}}, got {source!r}")
+        checkpoint = self.path / Path(source["checkpoint"]).name
+        if checkpoint.is_file() and file_sha256(checkpoint) != source["sha256"]:
+            raise ValueError(f"{path} was made from {source['checkpoint']} at iteration {source.get('iteration')}, "
+                             f"but the run's {checkpoint.name} is another checkpoint now (a later or new run): "
+                             f"evaluate it again (python -m aectorch.evaluate checkpoint={checkpoint} out={path} ...)")
 
     def per_trial(self, name: str = EVALUATION) -> list[dict]:
         """The ``per_trial`` rows of an evaluation: texture, distance, each movement's errors.

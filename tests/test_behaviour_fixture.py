@@ -67,10 +67,11 @@ def _without_last5(value):
     means of each fixation's last 5 iterations (``last5``, ``*_last5_deg``); with perturbations
     (issue 48, the fixture's run rolls the eyes) the events acting (``perturbations``), the short
     window (``*_recent_*``), each event's start, end, kind and eyes, the plasticity and the
-    recovery read-out (with the figures off the fixture's was empty); and the texture statistics
-    of each trial's first view in its row (``view_*``, issue 50)."""
+    recovery read-out (with the figures off the fixture's was empty); the texture statistics
+    of each trial's first view in its row (``view_*``, issue 50); and the checkpoint an evaluation
+    was made from (``source``: its file, iteration and hash)."""
     if isinstance(value, dict):
-        new = ("perturbations", "start", "end", "kind", "eyes", "plasticity", "recovery")
+        new = ("perturbations", "start", "end", "kind", "eyes", "plasticity", "recovery", "source")
         return {k: _without_last5(v) for k, v in value.items() if "last5" not in k and "_recent_" not in k
                 and k not in new and not k.startswith("view_")}
     if isinstance(value, list):

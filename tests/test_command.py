@@ -57,6 +57,7 @@ def test_arguments_are_merged_as_yaml_and_typed_by_the_config():
     (["name=x", "count=many"], "count: Value 'many' of type 'str' could not be converted to Integer"),
     (["name=x", "policy=argmax"], "policy: Invalid value 'argmax', expected one of [greedy, sampled]"),
     (["name=x", "ratios=[1,"], "ratios: cannot parse 'ratios=[1,'"),
+    (["name=x", "ratios=fast"], "ratios must be a list such as [1.0,2.0], got 'fast'"),
     (["name=x", "count=0"], "count must be >= 1, got 0"),  # the config's own check
 ])
 def test_bad_arguments_raise_one_message_naming_the_key(argv, message):

@@ -36,6 +36,13 @@ def _readout(run: Run, change: int, before: Path | None) -> dict:
         extra = before_line(before, run.config["train"]["recent_window"])
         lines = sorted([line for line in lines if line["iteration"] != extra["iteration"]] + [extra],
                        key=lambda line: line["iteration"])
+    logged = [line.get("iteration") for line in lines]
+    if not lines or not all(isinstance(i, int) and not isinstance(i, bool) for i in logged):
+        raise ValueError(f"{run.path / 'metrics.jsonl'}: every line needs an integer 'iteration'")
+    if not logged[0] <= change < logged[-1]:
+        # (outside them the read-out has no window before or after the change: a table of dashes)
+        raise ValueError(f"--change {change} is outside {run.path}'s logged iterations ({logged[0]} to "
+                         f"{logged[-1]}): give the iteration its first event acts from, within them")
     return adaptation(lines, [(change, int(lines[-1]["iteration"]), "change")])["change"]
 
 

@@ -66,7 +66,8 @@ def rearing_runs(folder: str | os.PathLike, *more: str | os.PathLike) -> dict[st
 
     Raises:
         FileNotFoundError: a folder holds no finished run.
-        ValueError: two runs of the same condition and seed.
+        ValueError: two runs of the same condition and seed; a sweep job that has not finished
+            (a run's files but no ``summary.json``), named.
     """
     groups: dict[str, list[Run]] = {}
     for folder in map(Path, (folder, *more)):
@@ -76,6 +77,12 @@ def rearing_runs(folder: str | os.PathLike, *more: str | os.PathLike) -> dict[st
             p for p in folder.iterdir() if (p / "summary.json").is_file())
         if not paths:
             raise FileNotFoundError(f"{folder} holds no finished run (no */summary.json)")
+        unfinished = sorted(p.name for p in folder.iterdir() if p.is_dir() and p not in paths
+                            and any((p / name).exists() for name in ("checkpoint.pt", "metrics.jsonl", "config.yaml")))
+        if unfinished and folder not in paths:
+            raise ValueError(f"{folder} holds unfinished runs ({', '.join(unfinished)}: no summary.json), whose "
+                             "conditions the table would miss: finish them (python train.py train.resume=<run>) "
+                             "or move them out of the sweep folder")
         for run in map(Run, paths):
             group = groups.setdefault(rearing_condition(run.config), [])
             twin = [r for r in group if r.config.get("seed", 0) == run.config.get("seed", 0)]

@@ -29,9 +29,11 @@ from aectorch.runtime.builders import build_learner
 from aectorch.runtime.config import ExperimentConfig, to_container, to_experiment_config
 from aectorch.runtime.resources import validate_resources
 from aectorch.runtime.migrations import CHECKPOINT_FORMAT, migrate
-from aectorch.runtime.outputs import atomic_write
+from aectorch.runtime.outputs import RUN_FILES, atomic_write
+from aectorch.runtime.presets import ADDED_GROUPS, GROUP_DEFAULTS, GROUPS
 
-__all__ = ["AUTO", "CHECKPOINT_FORMAT", "RESUME_KEYS", "RunExists", "check_new_run", "check_resume_overrides",
+__all__ = ["AUTO", "CHECKPOINT_FORMAT", "RESUME_KEYS", "RunExists", "check_new_run", "check_resume_groups",
+           "check_resume_overrides", "check_started_groups", "started_groups",
            "checkpoint_config", "checkpoint_envs", "load_checkpoint", "load_learner", "prepare_run", "resolve_resume",
            "restore", "resume_config", "save_checkpoint"]
 
@@ -74,15 +76,33 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
                              f"{refused.group(1)}); an aectorch checkpoint holds only tensors, numbers, strings "
                              f"and plain containers, and loading one never runs code") from None
         raise ValueError(f"cannot read the checkpoint {str(path)!r}: not a torch checkpoint file") from None
-    except Exception as err:
-        raise ValueError(f"cannot read the checkpoint {str(path)!r}: {type(err).__name__}: "
-                         f"{str(err).splitlines()[0] if str(err) else ''}") from err
+    except Exception as err:  # a truncated, damaged or foreign file: torch's reader fails in many ways
+        reason = f"{type(err).__name__}: {str(err).splitlines()[0]}" if str(err).strip() else type(err).__name__
+        raise ValueError(f"cannot read the checkpoint {str(path)!r}: it is damaged (truncated?) or not a torch "
+                         f"checkpoint file ({reason})") from err
     if not isinstance(payload, dict) or "format" not in payload or "config" not in payload:
-        raise ValueError(f"{str(path)!r} is not an aectorch checkpoint")
+        raise ValueError(f"{str(path)!r} is not an aectorch checkpoint (no format and config entries)")
     try:
-        return migrate(payload)
-    except (ValueError, KeyError, TypeError) as err:
-        raise ValueError(f"{str(path)!r} is not an aectorch checkpoint this version reads: {err}") from err
+        payload = migrate(payload)
+    except (ValueError, KeyError, TypeError, AttributeError, IndexError) as err:
+        raise ValueError(f"{str(path)!r} is not an aectorch checkpoint this version reads: "
+                         f"{type(err).__name__}: {err}") from err
+    _check_layout(payload, path)
+    return payload
+
+
+def _check_layout(payload: dict, path: Path) -> None:
+    """The entries every reader of a checkpoint takes for granted, of the right types: a damaged
+    or hand-edited file is named here, not met as a ``KeyError`` deep in a resume or evaluation."""
+    for key, kind in (("config", dict), ("iteration", int), ("learner", dict), ("env", (dict, list))):
+        value = payload.get(key)
+        if not isinstance(value, kind) or isinstance(value, bool):
+            raise ValueError(f"{str(path)!r} is not an aectorch checkpoint this version reads: its {key!r} entry "
+                             f"is {type(value).__name__}, not {getattr(kind, '__name__', 'dict or list')}")
+    train = payload["config"].get("train")
+    if not isinstance(train, dict):
+        raise ValueError(f"{str(path)!r} is not an aectorch checkpoint this version reads: its config has no train "
+                         "section")
 
 
 def checkpoint_config(payload: dict, path: str | os.PathLike) -> ExperimentConfig:
@@ -140,7 +160,7 @@ def check_resume_overrides(cfg: ExperimentConfig, stored: ExperimentConfig, give
     mine, theirs = OmegaConf.create(to_container(cfg)), OmegaConf.create(to_container(stored))
     for key in sorted(given):
         if key.startswith(("hydra.", "watchdog", "record")) or key in {f"train.{k}" for k in RESUME_KEYS} \
-                or key in ("preset", "experiment", "env.num_envs"):
+                or key in GROUPS or key == "env.num_envs":  # (the groups: `check_resume_groups`)
             continue
         ours, run = OmegaConf.select(mine, key), OmegaConf.select(theirs, key)
         if ours != run:
@@ -150,26 +170,97 @@ def check_resume_overrides(cfg: ExperimentConfig, stored: ExperimentConfig, give
                 "watchdog.* and record.* may be given); start a new run to change it")
 
 
+def started_groups(folder: str | os.PathLike) -> dict[str, str | None] | None:
+    """The config groups' options a ``train.py`` run was started with, from its Hydra record
+    (``.hydra/overrides.yaml``, which a resume leaves as it is: `aectorch.runtime.launch`);
+    ``None`` when the folder has none (a run of `run_experiment`)."""
+    path = Path(folder) / ".hydra" / "overrides.yaml"
+    try:
+        from omegaconf import OmegaConf
+
+        overrides = OmegaConf.to_container(OmegaConf.load(path))
+    except Exception:  # noqa: BLE001 - missing or not Hydra's: the options are unknown
+        return None
+    if not isinstance(overrides, list):
+        return None
+    chosen = dict(GROUP_DEFAULTS)
+    for item in overrides:
+        key, _, value = str(item).partition("=")
+        group = key.lstrip("+~")
+        if group in GROUPS:
+            chosen[group] = None if key.startswith("~") or value in ("", "null") else value
+    return chosen
+
+
+def _show(value) -> str:
+    from omegaconf import OmegaConf
+
+    return str(OmegaConf.to_container(value) if OmegaConf.is_config(value) else value)
+
+
+def check_started_groups(groups: dict[str, str | None], started: dict[str, str | None] | None, where) -> None:
+    """``ValueError`` when a config group given to a resume (``groups``) names another option than
+    the run ``where`` was started with (``started``, `started_groups`; ``None``: unknown)."""
+    for group, option in sorted(groups.items()):
+        if started is not None and started.get(group) != option:
+            given = f"{'+' if group in ADDED_GROUPS else ''}{group}={option}"
+            was = f"{group}={started[group]}" if started.get(group) is not None else f"no {group}"
+            raise ValueError(f"{given} contradicts the resumed run, started with {was}: train.resume continues "
+                             f"{where} with its own config, groups included; start a new run to change it")
+
+
+def check_resume_groups(cfg: ExperimentConfig, stored: ExperimentConfig, groups: dict[str, str | None],
+                        started: dict[str, str | None] | None = None) -> None:
+    """A resume is the stored run, its config groups included: a group given on the command line
+    (``groups``: group -> option, e.g. ``{"rearing": "strabismus"}``) that names another option
+    than the run was started with (``started``, `started_groups`), or whose keys contradict the
+    stored config, is a ``ValueError`` naming it (only ``train.iterations`` may differ)."""
+    from omegaconf import OmegaConf
+
+    mine, theirs = OmegaConf.create(to_container(cfg)), OmegaConf.create(to_container(stored))
+    where = cfg.train.resume
+    check_started_groups(groups, started, where)
+    for group, option in sorted(groups.items()):
+        given = f"{'+' if group in ADDED_GROUPS else ''}{group}={option}"
+        for key in sorted(GROUPS[group].get(option, {})):
+            if key in {f"train.{k}" for k in RESUME_KEYS}:
+                continue
+            ours, run = OmegaConf.select(mine, key), OmegaConf.select(theirs, key)
+            if ours != run:
+                raise ValueError(f"{given} sets {key}={_show(ours)}, but the resumed run has {key}={_show(run)}: "
+                                 f"train.resume continues {where} with its own config, groups included; start a "
+                                 "new run to change it")
+
+
 class RunExists(ValueError):
     """A new run into a folder that holds a run's ``checkpoint.pt`` (``train.overwrite`` is off)."""
 
 
-def check_new_run(folder: str | os.PathLike, overwrite: bool = False) -> None:
-    """Refuse to start a new run in ``folder`` when it holds a run's ``checkpoint.pt``, unless
-    ``overwrite``: `RunExists`, one line naming the folder, the iteration it holds and the ways on.
+def check_new_run(folder: str | os.PathLike, overwrite: bool = False, *, elsewhere: str = "hydra.run.dir=...") -> None:
+    """Refuse to start a new run in ``folder`` when it holds a run's ``checkpoint.pt``, or any other
+    file a run writes (`aectorch.runtime.outputs.RUN_FILES`: a user's ``config.yaml`` or
+    ``summary.json``, a crashed start's files), unless ``overwrite``: `RunExists`, one line naming
+    the folder, what it holds and the ways on (``elsewhere``: the key that gives another folder).
     A rerun of a finished command, a re-launched sweep or a requeued job would otherwise erase the
     run (``train.py`` calls this before anything is written)."""
     path = Path(folder) / "checkpoint.pt"
-    if overwrite or not path.is_file():
+    if overwrite:
+        return
+    if not path.is_file():
+        found = [name for name in RUN_FILES if (Path(folder) / name).exists()]
+        if found:
+            raise RunExists(f"{str(folder)!r} holds {', '.join(found)} but no checkpoint.pt, which a new run would "
+                            f"overwrite; nothing was written. Give another folder ({elsewhere}), or "
+                            "train.overwrite=true to delete them and start afresh")
         return
     try:
         payload = load_checkpoint(path)
         held = f"iteration {payload['iteration']} of {payload['config']['train']['iterations']}"
-    except ValueError as err:
-        held = f"a checkpoint this aectorch cannot read ({err})"
+    except (ValueError, KeyError, TypeError) as err:
+        held = f"a checkpoint this aectorch cannot read ({str(err).splitlines()[0]})"
     raise RunExists(f"{str(folder)!r} holds a run (checkpoint.pt at {held}); nothing was written. Continue it with "
                     f"train.resume={folder} (train.resume=auto does so whenever its folder holds a checkpoint), or "
-                    "give another folder (hydra.run.dir=...); train.overwrite=true deletes it and starts afresh")
+                    f"give another folder ({elsewhere}); train.overwrite=true deletes it and starts afresh")
 
 
 def resolve_resume(cfg: ExperimentConfig, run_dir: str | os.PathLike | None) -> ExperimentConfig:
@@ -209,7 +300,8 @@ def _resume_num_envs(cfg: ExperimentConfig, checkpoint: dict, given: set[str] | 
 
 
 def prepare_run(cfg: ExperimentConfig, given: set[str] | None = None,
-                run_dir: str | os.PathLike | None = None) -> tuple[ExperimentConfig, dict | None]:
+                run_dir: str | os.PathLike | None = None,
+                groups: dict[str, str | None] | None = None) -> tuple[ExperimentConfig, dict | None]:
     """The config a run uses and the checkpoint it resumes (``None`` for a new run).
 
     Validates the resources (`validate_resources`) once. ``train.resume=auto`` resumes ``run_dir``
@@ -220,7 +312,9 @@ def prepare_run(cfg: ExperimentConfig, given: set[str] | None = None,
     whole batch must stay the checkpoint's). ``given``: the keys
     set on the command line (``train.py``); then ``train.iterations`` and ``train.progress`` are
     the run's own unless given, and a given key that contradicts the stored config is an error
-    (:func:`check_resume_overrides`). ``ValueError`` naming the key or the file for anything wrong.
+    (:func:`check_resume_overrides`); ``groups``: the config groups the command line gives and
+    their options, which must be the run's (:func:`check_resume_groups`). ``ValueError`` naming the
+    key or the file for anything wrong.
     """
     cfg = resolve_resume(cfg, run_dir)
     if cfg.train.resume is None:
@@ -238,6 +332,7 @@ def prepare_run(cfg: ExperimentConfig, given: set[str] | None = None,
             if f"train.{key}" not in given:
                 setattr(cfg.train, key, getattr(stored.train, key))
         check_resume_overrides(cfg, stored, given)
+        check_resume_groups(cfg, stored, groups or {}, started_groups(cfg.train.resume))
     _resume_num_envs(cfg, checkpoint, given, path)
     cfg = resume_config(cfg, checkpoint)
     validate_resources(cfg)

@@ -16,9 +16,10 @@ import inspect
 import os
 import sys
 import textwrap
+from enum import Enum
 from typing import Callable, Sequence, TypeVar
 
-__all__ = ["parse", "run", "usage"]
+__all__ = ["check_checkpoint_file", "check_output_file", "parse", "run", "usage"]
 
 C = TypeVar("C")
 
@@ -77,6 +78,49 @@ def _show(value) -> str:
     return str(value)
 
 
+def check_checkpoint_file(value: str, key: str = "checkpoint") -> None:
+    """``ValueError`` naming ``key`` when ``value`` is not a file: a run folder is answered with its
+    ``checkpoint.pt``. (What the file holds is `aectorch.runtime.checkpoint.load_checkpoint`'s check.)"""
+    if os.path.isdir(value):
+        inside = os.path.join(value, "checkpoint.pt")
+        hint = f"; give its checkpoint, {key}={inside}" if os.path.isfile(inside) else \
+            "; give a checkpoint file (a run folder's checkpoint.pt)"
+        raise ValueError(f"{key}: {value!r} is a folder, not a checkpoint file{hint}")
+    if not os.path.isfile(value):
+        raise ValueError(f"{key}: no such file {value!r}")
+
+
+def check_output_file(value: str, key: str = "out", suffixes: Sequence[str] = ()) -> None:
+    """``ValueError`` naming ``key`` unless ``value`` is a file this command can write, checked
+    before any work: its folder exists and is writable, it is not a folder, and it ends in one of
+    ``suffixes`` (when given)."""
+    if os.path.isdir(value):
+        raise ValueError(f"{key}: {value!r} is a folder; give a file in it")
+    if suffixes and not value.lower().endswith(tuple(suffixes)):
+        raise ValueError(f"{key} must end in {' or '.join(suffixes)}, got {value!r}")
+    folder = os.path.dirname(value) or "."
+    if not os.path.isdir(folder):
+        raise ValueError(f"{key}: no such folder {folder!r} (make it first, or give another {key})")
+    if not os.access(folder, os.W_OK | os.X_OK) or os.path.exists(value) and not os.access(value, os.W_OK):
+        raise ValueError(f"{key}: cannot write {value!r} (permission denied or a read-only file system); "
+                         f"give another {key}")
+
+
+def _expected(cls, key: str) -> str:
+    """What the field ``key`` of ``cls`` takes, for a value OmegaConf could not convert."""
+    import typing
+
+    hints = typing.get_type_hints(cls)
+    kind = hints.get(key)
+    if typing.get_origin(kind) is typing.Union:  # Optional[X]
+        kind = next(a for a in typing.get_args(kind) if a is not type(None))
+    if typing.get_origin(kind) in (list, tuple):
+        return "a list such as [1.0,2.0]"
+    if isinstance(kind, type) and issubclass(kind, Enum):
+        return "one of " + ", ".join(m.name for m in kind)
+    return {int: "an int", float: "a number", bool: "true or false", str: "a string"}.get(kind, str(kind))
+
+
 def parse(cls: type[C], argv: Sequence[str]) -> C:
     """The config ``cls`` with the ``key=value`` arguments ``argv`` merged in and checked.
 
@@ -107,7 +151,11 @@ def parse(cls: type[C], argv: Sequence[str]) -> C:
     except ConfigKeyError as err:  # (the keys are checked above; kept for nested configs)
         raise ValueError(f"unknown key {err.full_key!r}; keys are {', '.join(names)}") from err
     except OmegaConfBaseException as err:
-        raise ValueError(f"{err.full_key}: {str(err.msg).splitlines()[0]}") from err
+        message = str(err.msg).splitlines()[0]
+        if "is not a ListConfig" in message:  # (OmegaConf's own words name its node type, not the key's)
+            given = dict(item.partition("=")[::2] for item in argv).get(err.full_key)
+            raise ValueError(f"{err.full_key} must be {_expected(cls, err.full_key)}, got {given!r}") from err
+        raise ValueError(f"{err.full_key}: {message}") from err
 
 
 def run(argv: Sequence[str] | None, cls: type[C], command: str, body: Callable[[C], int]) -> int:

@@ -208,13 +208,22 @@ class TrainConfig:
             ``train.progress`` and ``train.resume`` from the command line (and ``env.num_envs``,
             which may change with the number of processes while the whole batch stays the
             same; without it, the checkpoint's whole batch is split evenly over the processes).
+            A config group given with it (``rearing=...``, ``+experiment=...``, ``preset=...``,
+            ``plasticity=...``) must be the one the run was started with (its ``.hydra/``, which
+            a resume leaves as it is, writing Hydra's record into ``.hydra/resumed/``) and must
+            set what the run holds: another is refused with one line naming it.
             ``auto``: resume the run folder's own checkpoint if it holds one, else start a new
             run there: the setting for jobs that are started again with the same command
-            (``torchrun --max-restarts``, Slurm's ``--requeue``, re-launched Hydra sweeps).
-        overwrite: a new run into a folder that holds a run's ``checkpoint.pt`` deletes that
-            run's files (:data:`aectorch.runtime.outputs.RUN_FILES`) and starts afresh. Off
-            (default), such a run stops before it writes anything, naming the iteration the
-            folder holds and the ways on (``train.resume``, another folder).
+            (``torchrun --max-restarts``, Slurm's ``--requeue``, re-launched Hydra sweeps). It
+            needs the folder given (``hydra.run.dir``; ``hydra.sweep.dir`` for a sweep): Hydra's
+            default folder is new at every start.
+        overwrite: a new run into a folder that holds a run's files deletes them and starts
+            afresh: exactly the files aectorch wrote (:data:`aectorch.runtime.outputs.RUN_FILES`,
+            the run's figures and TensorBoard events, and the evaluations that
+            ``python -m aectorch.evaluate`` wrote into the folder), never a file of the user's.
+            Off (default), a new run into a folder that holds ``checkpoint.pt`` or any other of
+            those files stops before it writes anything, naming what the folder holds and the
+            ways on (``train.resume``, another folder).
         log_every: append a line to ``metrics.jsonl`` and TensorBoard every this many
             iterations (>= 1).
         checkpoint_every: write ``checkpoint.pt`` every this many iterations (>= 1), and always

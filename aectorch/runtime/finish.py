@@ -20,7 +20,7 @@ from aectorch.runtime.checkpoint import load_checkpoint, restore, save_checkpoin
 from aectorch.runtime.config import ExperimentConfig
 from aectorch.runtime.loop import _interrupt_on_sigterm
 from aectorch.runtime.outputs import CODE_AT_ENDS, RunFolder, json_value
-from aectorch.runs import read_metrics
+from aectorch.runs import checkpoint_source, read_metrics
 from aectorch.sim import TextureBank
 
 __all__ = ["calibrate_depth", "calibration_conditions", "finish"]
@@ -168,6 +168,8 @@ def _evaluate(cfg: ExperimentConfig, folder: RunFolder, learner: JointLearner, t
     bank = build_textures(cfg.eval.textures, "test", cfg)
     result = evaluate(learner, bank, distances_m=cfg.eval.distances_m, progress=cfg.train.progress,
                       **trial_options(cfg))
+    # What it was made from: a report reading it after the folder's checkpoint changed says so.
+    result["source"] = checkpoint_source(folder / evaluated, load_checkpoint(folder / evaluated)["iteration"])
     folder.write_json("evaluation.json", result)
     if figures is not None:
         figures.plot_evaluation(result, folder / "figures" / "evaluation.png")

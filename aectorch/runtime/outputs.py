@@ -9,8 +9,8 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["CODE_AT_ENDS", "LOCK_NAME", "RUN_FILES", "RunFolder", "RunFolderBusy", "WriteFailed", "atomic_write", "format_summary", "json_value",
-           "write_json"]
+__all__ = ["CODE_AT_ENDS", "FIGURE_FILES", "LOCK_NAME", "OUTPUTS_LIST", "RUN_FILES", "RunFolder", "RunFolderBusy", "WriteFailed", "atomic_write", "format_summary", "json_value",
+           "note_output", "write_json"]
 
 #: The file in a run folder whose lock (``flock``) the training process holds.
 LOCK_NAME = ".lock"
@@ -19,10 +19,43 @@ LOCK_NAME = ".lock"
 #: which ``summary.json`` reports.
 CODE_AT_ENDS = "code_at_event_ends.json"
 
-#: What a run writes into its folder; ``train.overwrite=true`` deletes these (and nothing else:
-#: Hydra's ``.hydra/`` and ``train.log`` are Hydra's, rewritten and appended by each start).
+#: The figures a run draws into its ``figures/`` folder (`aectorch.runtime.finish`).
+FIGURE_FILES = ("dictionaries.png", "training.png", "code.png", "perturbation.png", "evaluation.png")
+
+#: The file in a run folder that lists what the commands beside ``train.py`` wrote into it (an
+#: evaluation's JSON and figure: `note_output`), so that ``train.overwrite`` deletes them too.
+OUTPUTS_LIST = ".aectorch_outputs.json"
+
+#: What a run writes into its folder. ``train.overwrite=true`` deletes these, the figures of
+#: :data:`FIGURE_FILES` in ``figures/``, TensorBoard's event files in ``tb/`` (each folder when
+#: nothing else is left in it) and what :data:`OUTPUTS_LIST` names, and nothing else: a user's own
+#: file stays, and Hydra's ``.hydra/`` and ``train.log`` are Hydra's.
 RUN_FILES = ("checkpoint.pt", "best.pt", "calibrated.pt", "metrics.jsonl", "provenance.json", "config.yaml",
              "summary.json", "evaluation.json", "tb", "figures", CODE_AT_ENDS)
+
+#: The folders among :data:`RUN_FILES` and the files in them that a run writes.
+_RUN_FOLDERS = {"figures": lambda name: name in FIGURE_FILES, "tb": lambda name: name.startswith("events.out.tfevents.")}
+
+
+def note_output(path: str | os.PathLike) -> None:
+    """Record that an aectorch command wrote ``path``, when it lies in a run folder (beside a
+    ``checkpoint.pt``): a later ``train.overwrite=true`` there deletes it with the run's files."""
+    path = Path(path)
+    folder = path.resolve().parent
+    if not (folder / "checkpoint.pt").is_file() or path.name in RUN_FILES:
+        return
+    listed = _outputs_listed(folder)
+    if path.name not in listed:
+        write_json(folder / OUTPUTS_LIST, {"files": listed + [path.name]})
+
+
+def _outputs_listed(folder: Path) -> list[str]:
+    try:
+        files = json.loads((folder / OUTPUTS_LIST).read_text())["files"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return []
+    # Plain names only: the list never reaches outside its folder.
+    return [name for name in files if isinstance(name, str) and name and "/" not in name and name not in (".", "..")]
 
 
 class RunFolderBusy(ValueError):
@@ -152,22 +185,24 @@ class RunFolder:
         self._lock = lock
 
     def clear(self) -> list[str]:
-        """Delete the files of the run this folder holds (:data:`RUN_FILES`), under the folder's
-        lock (``train.overwrite``); returns the names deleted."""
-        import shutil
-
+        """Delete the files of the run this folder holds, under the folder's lock
+        (``train.overwrite``): :data:`RUN_FILES`, the run's own files in ``figures/`` and ``tb/``,
+        and the outputs listed in :data:`OUTPUTS_LIST`; nothing else. Returns the names deleted."""
         if self._lock is None:
             raise RuntimeError("RunFolder.clear needs the folder's lock (the main process's RunFolder)")
         deleted = []
-        for name in RUN_FILES:
+        for name in (*RUN_FILES, *_outputs_listed(self.path), OUTPUTS_LIST):
             path = self.path / name
-            if path.is_dir() and not path.is_symlink():
-                shutil.rmtree(path)
-            elif path.exists() or path.is_symlink():
+            if name in _RUN_FOLDERS and path.is_dir() and not path.is_symlink():
+                ours = [p for p in path.iterdir() if _RUN_FOLDERS[name](p.name) and (p.is_file() or p.is_symlink())]
+                for p in ours:
+                    p.unlink()
+                deleted += [f"{name}/{p.name}" for p in ours]
+                if not any(path.iterdir()):
+                    path.rmdir()
+            elif path.is_file() or path.is_symlink():
                 path.unlink()
-            else:
-                continue
-            deleted.append(name)
+                deleted.append(name)
         return deleted
 
     def release(self) -> None:

@@ -20,7 +20,7 @@ from typing import Any
 
 from aectorch.framework import PAPER_ACTIONS_DEG, default_cues
 
-__all__ = ["ACCOMMODATION", "PAPER_PRESET", "PLASTICITY", "REARING", "REARING_SETTINGS", "ROLL_PERTURBATION", "SLIP"]
+__all__ = ["ACCOMMODATION", "ADDED_GROUPS", "GROUPS", "GROUP_DEFAULTS", "PAPER_PRESET", "PLASTICITY", "REARING", "REARING_SETTINGS", "ROLL_PERTURBATION", "SLIP"]
 
 #: The paper's values (Wong et al. 2017) where they differ from the defaults, applied by
 #: ``preset=paper``: dotted key -> value. What the paper states and the defaults change: its
@@ -130,3 +130,23 @@ REARING: dict[str, list[dict[str, Any]]] = {
     "vertical": [{"kind": "orientation_rearing", "start": 0, "params": {"orientation": "vertical"}}],
     "horizontal": [{"kind": "orientation_rearing", "start": 0, "params": {"orientation": "horizontal"}}],
 }
+
+
+#: Every config group of ``train.py`` (`aectorch.runtime.store.register_configs` registers them):
+#: group -> option -> the dotted keys it sets. A resume compares a group given on its command line
+#: with the run's (`aectorch.runtime.checkpoint.check_resume_groups`).
+GROUPS: dict[str, dict[str, dict[str, Any]]] = {
+    "preset": {"default": {}, "paper": PAPER_PRESET},
+    "experiment": {"roll_perturbation": ROLL_PERTURBATION, "accommodation": ACCOMMODATION, "slip": SLIP},
+    "plasticity": PLASTICITY,
+    # "normal" adds no events: a run's own perturbations stay.
+    "rearing": {name: {**REARING_SETTINGS, **({"perturbations": events} if events else {})}
+                for name, events in REARING.items()},
+}
+
+#: Each group's option when the command line names none (``None``: the group is not applied).
+GROUP_DEFAULTS: dict[str, str | None] = {"preset": "default", "experiment": None, "plasticity": "decay",
+                                         "rearing": None}
+
+#: The groups that ``train.py``'s defaults list does not name: added with ``+`` (``+experiment=slip``).
+ADDED_GROUPS = ("experiment",)

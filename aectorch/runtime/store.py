@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from aectorch.runtime.config import ExperimentConfig
-from aectorch.runtime.presets import ACCOMMODATION, PAPER_PRESET, PLASTICITY, REARING, REARING_SETTINGS, ROLL_PERTURBATION, SLIP
+from aectorch.runtime.presets import GROUPS
 
 __all__ = ["register_configs"]
 
@@ -32,27 +32,17 @@ class _TrainNode(ExperimentConfig):
 
 def register_configs() -> None:
     """Register the configs with Hydra's ConfigStore: ``train`` and the groups ``preset``
-    (``default``, ``paper``), ``experiment`` (``roll_perturbation``), ``plasticity``
-    (:data:`PLASTICITY`), ``rearing`` (:data:`REARING`) and ``guard`` (``default``: Hydra's
+    (``default``, ``paper``), ``experiment`` (``roll_perturbation``, ``accommodation``, ``slip``),
+    ``plasticity`` (:data:`PLASTICITY`), ``rearing`` (:data:`REARING`), all from
+    `aectorch.runtime.presets.GROUPS`, and ``guard`` (``default``: Hydra's
     callback `aectorch.runtime.launch.RunFolderGuard`, which refuses a new run over an existing
     one before Hydra writes into its folder)."""
     from hydra.core.config_store import ConfigStore
 
     store = ConfigStore.instance()
     store.store(name="train", node=_TrainNode)
-    store.store(group="preset", name="default", node={}, package="_global_")
-    store.store(group="preset", name="paper", node=_nested(PAPER_PRESET), package="_global_")
     store.store(group="guard", name="default", package="_global_",
                 node={"hydra": {"callbacks": {"run_folder_guard": {"_target_": "aectorch.runtime.launch.RunFolderGuard"}}}})
-    store.store(group="experiment", name="roll_perturbation", node=_nested(ROLL_PERTURBATION),
-                package="_global_")
-    store.store(group="experiment", name="accommodation", node=_nested(ACCOMMODATION), package="_global_")
-    store.store(group="experiment", name="slip", node=_nested(SLIP), package="_global_")
-    for name, values in PLASTICITY.items():
-        store.store(group="plasticity", name=name, node=_nested(values), package="_global_")
-    for name, events in REARING.items():
-        # "normal" adds no events: a run's own perturbations stay.
-        node = _nested(REARING_SETTINGS)
-        if events:
-            node["perturbations"] = events
-        store.store(group="rearing", name=name, node=node, package="_global_")
+    for group, options in GROUPS.items():
+        for name, values in options.items():
+            store.store(group=group, name=name, node=_nested(values), package="_global_")

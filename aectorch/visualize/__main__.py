@@ -14,7 +14,7 @@ from omegaconf import MISSING
 
 from aectorch._checks import check_int, check_real
 from aectorch.choices import Policy, RendererName
-from aectorch.runtime.command import run
+from aectorch.runtime.command import check_checkpoint_file, run
 
 __all__ = ["VisualizeConfig", "main"]
 
@@ -62,8 +62,7 @@ class VisualizeConfig:
             check_output(self.out)
         except ValueError as err:
             raise ValueError(str(err) if str(err).startswith("out") else f"out: {err}") from err
-        if not os.path.isfile(self.checkpoint):
-            raise ValueError(f"checkpoint: no such file {self.checkpoint!r}")
+        check_checkpoint_file(self.checkpoint)
 
 
 def _texture(texture):
