@@ -28,7 +28,8 @@ import warnings
 from functools import cached_property
 from pathlib import Path
 
-__all__ = ["EVALUATION", "Run", "checkpoint_source", "file_sha256", "per_trial_rows", "read_json", "read_metrics"]
+__all__ = ["EVALUATION", "Run", "checkpoint_source", "file_sha256", "files_read", "forget_files_read", "per_trial_rows",
+           "read_json", "read_metrics"]
 
 #: The evaluation written at the end of training (``eval.enabled``).
 EVALUATION = "evaluation.json"
@@ -52,6 +53,32 @@ def checkpoint_source(path: str | os.PathLike, iteration: int) -> dict:
     return {"checkpoint": Path(path).name, "iteration": int(iteration), "sha256": file_sha256(path)}
 
 
+#: The run files read since `forget_files_read` (``python -m aectorch.report`` names them when a
+#: value in one of them is not what aectorch writes).
+_FILES_READ: list[Path] = []
+
+
+def files_read() -> list[Path]:
+    """The run files read (`read_json`, `read_metrics`, `Run.config`) since `forget_files_read`."""
+    return list(dict.fromkeys(_FILES_READ))
+
+
+def forget_files_read() -> None:
+    _FILES_READ.clear()
+
+
+def _read_text(path: Path) -> str:
+    _FILES_READ.append(path)
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:  # a flipped bit, another file's bytes
+        raise ValueError(f"{path} is not UTF-8 text (byte {exc.start}: damaged?)") from None
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
 def read_json(path: str | os.PathLike) -> dict:
     """One JSON file of a run, as a dict.
 
@@ -63,7 +90,7 @@ def read_json(path: str | os.PathLike) -> dict:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(_read_text(path))
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path} is not valid JSON ({exc.msg}, line {exc.lineno})") from exc
     if not isinstance(data, dict):
@@ -92,7 +119,7 @@ def read_metrics(path: str | os.PathLike) -> list[dict]:
         [{'iteration': 1, 'pursuit_mae_deg': 2.5}]
     """
     path = Path(path)
-    lines = [(number, line.strip()) for number, line in enumerate(path.read_text().splitlines(), start=1)]
+    lines = [(number, line.strip()) for number, line in enumerate(_read_text(path).splitlines(), start=1)]
     lines = [(number, line) for number, line in lines if line]
     records: list[dict] = []
     for position, (number, line) in enumerate(lines):
@@ -105,6 +132,13 @@ def read_metrics(path: str | os.PathLike) -> list[dict]:
             raise ValueError(f"{path}: line {number} is not valid JSON ({exc.msg})") from exc
         if not isinstance(record, dict):
             raise ValueError(f"{path}: line {number} must be a JSON object, got {type(record).__name__}")
+        if not _is_int(record.get("iteration")):
+            raise ValueError(f"{path}: line {number} needs an integer 'iteration', got {record.get('iteration')!r}")
+        # (a line holds numbers, null for an undefined one, and lists of names: the events acting)
+        bad = [k for k, v in record.items() if not (v is None or isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                    or isinstance(v, list) and all(isinstance(x, str) for x in v))]
+        if bad:
+            raise ValueError(f"{path}: line {number}'s {bad[0]!r} must be a number, got {record[bad[0]]!r}")
         records.append(record)
     return records
 
@@ -145,7 +179,13 @@ class Run:
         path = self.path / "config.yaml"
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no such file")
-        return OmegaConf.to_container(OmegaConf.load(path), resolve=False)
+        try:
+            config = OmegaConf.to_container(OmegaConf.create(_read_text(path)), resolve=False)
+        except Exception as exc:  # noqa: BLE001 - YAML's and OmegaConf's parse errors
+            raise ValueError(f"{path} is not a config aectorch wrote ({type(exc).__name__})") from exc
+        if not isinstance(config, dict):
+            raise ValueError(f"{path} must hold a mapping, got {type(config).__name__}")
+        return config
 
     @cached_property
     def metrics(self) -> list[dict]:

@@ -23,7 +23,7 @@ from omegaconf import OmegaConf
 
 from aectorch.evaluate import main as evaluate
 from aectorch.report.__main__ import main as report
-from aectorch.runs import Run, file_sha256
+from aectorch.runs import Run
 from aectorch.runtime import RunExists, load_checkpoint, run_experiment
 from aectorch.runtime.presets import REARING
 from test_distributed import _single
@@ -105,6 +105,8 @@ def test_a_relaunched_sweep_is_told_to_give_another_sweep_folder(tmp_path, capsy
 
 
 def test_overwrite_deletes_what_aectorch_wrote_evaluations_included_and_nothing_else(tmp_path, textures):
+    from aectorch.runs import file_sha256
+
     run = tmp_path / "run"
     run_experiment(_cfg(textures, "train.iterations=2"), run)
     assert evaluate([f"checkpoint={run / 'checkpoint.pt'}", f"textures={textures}", f"out={run / 'tracking.json'}",
@@ -212,7 +214,7 @@ def test_a_damaged_checkpoint_is_named_as_damaged(checkpoint, tmp_path, capsys):
         path.write_bytes(damaged)
         assert evaluate([f"checkpoint={path}", f"out={tmp_path / 'e.json'}", "progress=false"]) == 2
         line = _error_line(capsys.readouterr().err)
-        assert f"cannot read the checkpoint '{path}'" in line and ("damaged" in line or "not a torch" in line), line
+        assert f"cannot read the checkpoint '{path}': it is damaged (truncated?) or not a torch checkpoint" in line, line
 
 
 # --- options that do nothing; one-line errors keep choices and hints ---------------------------
@@ -261,3 +263,12 @@ def test_report_adaptation_refuses_a_change_outside_the_run(tmp_path, capsys, ch
     assert report(["adaptation", str(run), "--change", change]) == 2
     line = _error_line(capsys.readouterr().err)
     assert f"--change {change} is outside {run}'s logged iterations (10 to 100)" in line, line
+
+
+def test_report_checks_its_outputs_before_any_work(tmp_path, capsys):
+    (tmp_path / "a_file").write_text("x")
+    for given, message in ((tmp_path / "a_file" / "t.json", "is a file, so"), (tmp_path, "is a folder")):
+        # (the run folder is missing too: the output is checked first)
+        assert report(["ablation", "x=missing_run", "--json", str(given)]) == 2
+        line = _error_line(capsys.readouterr().err)
+        assert line.startswith("error: --json: ") and message in line, line

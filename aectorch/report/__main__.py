@@ -15,7 +15,8 @@ from aectorch.report.adaptation import adaptation_table
 from aectorch.report.tracking import tracking_table
 from aectorch.report.rearing import plot_rearing, rearing_runs, rearing_table
 from aectorch.report.tails import tails, tails_lines
-from aectorch.runs import EVALUATION, Run
+from aectorch.runs import EVALUATION, Run, files_read, forget_files_read
+from aectorch.runtime.command import check_output_file
 from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL
 
 __all__ = ["main"]
@@ -354,13 +355,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run one command; a missing file, a bad file or a bad argument prints one ``error:`` line
     and exits with status 2 (``AECTORCH_DEBUG=1`` shows the traceback)."""
     args = _parser().parse_args(argv)
+    forget_files_read()
     try:
+        for key in ("json", "plot", "out", "cache"):  # the outputs, before any work
+            if getattr(args, key, None) is not None:
+                check_output_file(getattr(args, key), f"--{key}", makes_folder=True)
         lines = args.run(args)
-    except (OSError, KeyError, ValueError) as err:
+    except (OSError, KeyError, ValueError, TypeError, AttributeError, IndexError, ArithmeticError) as err:
         if os.environ.get("AECTORCH_DEBUG", "") not in ("", "0"):
             raise
-        message = err.args[0] if isinstance(err, KeyError) and err.args else err
-        print(f"error: {message}", file=sys.stderr)
+        message = str(err.args[0] if isinstance(err, KeyError) and err.args else err).strip()
+        message = message.splitlines()[0] if message else ""
+        read = [str(path) for path in files_read()]
+        if read and not any(path in message for path in read):
+            # A value not of the shape aectorch writes (a hand-edited or damaged file): name the files.
+            message = (f"cannot use {', '.join(read)}: {type(err).__name__}: {message} (a value of another "
+                       "type or a missing entry: is a file damaged or hand-edited?)")
+        print(f"error: {message} (AECTORCH_DEBUG=1 for the traceback)", file=sys.stderr)
         return 2
     print("\n".join(lines))
     return 0

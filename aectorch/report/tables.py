@@ -67,7 +67,7 @@ def results_row(run: Run, evaluation: str = EVALUATION) -> dict:
     summary, result = run.summary, run.evaluation(evaluation)
     final = summary["final"]
     seed = run.config.get("seed", "?")
-    return {
+    row = {
         "seed": "null" if seed is None else str(seed),
         "iterations": summary["iterations"],
         "best": summary["best"]["iteration"] if summary.get("best") else "last",
@@ -87,6 +87,21 @@ def results_row(run: Run, evaluation: str = EVALUATION) -> dict:
         **_near(result.get("per_trial", [])),
         "trials": result["trials"],
     }
+    _check_numbers(row, run.path / "summary.json", run.path / evaluation)
+    return row
+
+
+#: The cells of `results_row` that come from ``summary.json`` (the others: the evaluation's).
+_FROM_SUMMARY = ("iterations", "train_min", "window_pursuit", "window_vergence", "window_depth")
+
+
+def _check_numbers(row: dict, summary: Path, evaluation: Path) -> None:
+    """Every cell but the seed's and the evaluated state's is a number (or null, shown n/a): a
+    value of another type is a damaged or hand-edited file, named, not a cell of the table."""
+    for key, value in row.items():
+        if key in ("seed", "best") or value is None or isinstance(value, (int, float)) and not isinstance(value, bool):
+            continue
+        raise ValueError(f"{summary if key in _FROM_SUMMARY else evaluation}: {key} must be a number, got {value!r}")
 
 
 def _fmt(value) -> str:

@@ -45,6 +45,14 @@ def tracking_table(runs: Sequence[Run], evaluation: str, plot: Path | None = Non
         raise ValueError(f"{evaluation} holds no tracking test (python -m aectorch.evaluate ... tracking=[...]) in "
                          f"{missing[0]}")
     per_run = [result["tracking"]["per_speed"] for result in results]
+    for run, result, rows in zip(runs, results, per_run):
+        # Every row holds every movement's error: a row without one would drop its column unseen.
+        held = {key for row in rows + result["tracking"].get("per_trial", []) for key in row
+                if key.endswith("_tracking_deg")}
+        lacking = sorted(held - set(key for row in rows for key in row) | {key for row in rows for key in held - set(row)})
+        if not rows or lacking:
+            raise ValueError(f"{run.path / evaluation}: its tracking.per_speed rows "
+                             + (f"lack {lacking[0]}" if lacking else "are empty"))
     keys = [key for key in per_run[0][0] if key.endswith("_tracking_deg")]
     speeds = [row["speed_deg"] for row in per_run[0]]
     if any([row["speed_deg"] for row in rows] != speeds for rows in per_run):

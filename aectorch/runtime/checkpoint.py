@@ -67,6 +67,7 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"no checkpoint at {str(path)!r}")
+    _check_crcs(path)
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as err:
@@ -75,7 +76,8 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
             raise ValueError(f"refusing to load {str(path)!r}: it holds objects that are not data (GLOBAL "
                              f"{refused.group(1)}); an aectorch checkpoint holds only tensors, numbers, strings "
                              f"and plain containers, and loading one never runs code") from None
-        raise ValueError(f"cannot read the checkpoint {str(path)!r}: not a torch checkpoint file") from None
+        raise ValueError(f"cannot read the checkpoint {str(path)!r}: it is damaged (truncated?) or not a torch "
+                         "checkpoint file") from None
     except Exception as err:  # a truncated, damaged or foreign file: torch's reader fails in many ways
         reason = f"{type(err).__name__}: {str(err).splitlines()[0]}" if str(err).strip() else type(err).__name__
         raise ValueError(f"cannot read the checkpoint {str(path)!r}: it is damaged (truncated?) or not a torch "
@@ -89,6 +91,24 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
                          f"{type(err).__name__}: {err}") from err
     _check_layout(payload, path)
     return payload
+
+
+def _check_crcs(path: Path) -> None:
+    """A checkpoint is a zip archive whose entries carry CRC-32s, which ``torch.load`` does not
+    check: a flipped bit in a tensor would load as another number. ``ValueError`` naming ``path``
+    for an entry whose bytes do not match its CRC (a file that is no zip is left to ``torch.load``)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            bad = archive.testzip()
+    except zipfile.BadZipFile:
+        return  # not a zip, or its directory damaged: torch.load names it
+    except Exception as err:  # noqa: BLE001 - a damaged header: zipfile fails in several ways
+        raise ValueError(f"cannot read the checkpoint {str(path)!r}: it is damaged (truncated?) or not a torch "
+                         f"checkpoint file ({type(err).__name__}: {err})") from None
+    if bad is not None:
+        raise ValueError(f"cannot read the checkpoint {str(path)!r}: it is damaged ({bad} does not match its CRC-32)")
 
 
 def _check_layout(payload: dict, path: Path) -> None:

@@ -90,15 +90,22 @@ def check_checkpoint_file(value: str, key: str = "checkpoint") -> None:
         raise ValueError(f"{key}: no such file {value!r}")
 
 
-def check_output_file(value: str, key: str = "out", suffixes: Sequence[str] = ()) -> None:
+def check_output_file(value: str | os.PathLike, key: str = "out", suffixes: Sequence[str] = (), *,
+                      makes_folder: bool = False) -> None:
     """``ValueError`` naming ``key`` unless ``value`` is a file this command can write, checked
-    before any work: its folder exists and is writable, it is not a folder, and it ends in one of
-    ``suffixes`` (when given)."""
+    before any work: its folder exists (or, ``makes_folder``, can be made) and is writable, it is
+    not a folder, and it ends in one of ``suffixes`` (when given)."""
+    value = os.fspath(value)
     if os.path.isdir(value):
         raise ValueError(f"{key}: {value!r} is a folder; give a file in it")
     if suffixes and not value.lower().endswith(tuple(suffixes)):
         raise ValueError(f"{key} must end in {' or '.join(suffixes)}, got {value!r}")
     folder = os.path.dirname(value) or "."
+    if makes_folder:
+        while not os.path.exists(folder) and os.path.dirname(folder) not in ("", folder):
+            folder = os.path.dirname(folder)
+        if os.path.exists(folder) and not os.path.isdir(folder):
+            raise ValueError(f"{key}: {folder!r} is a file, so {value!r} cannot be made")
     if not os.path.isdir(folder):
         raise ValueError(f"{key}: no such folder {folder!r} (make it first, or give another {key})")
     if not os.access(folder, os.W_OK | os.X_OK) or os.path.exists(value) and not os.access(value, os.W_OK):
