@@ -241,8 +241,8 @@ def test_the_improvement_rewards_are_the_coding_rewards_change_within_each_episo
     assert not torch.allclose(torch.stack(improvements), torch.zeros(len(improvements), 3))
 
 
-def test_the_default_reward_is_the_improvement():
-    assert envs.TaskConfig().reward == "improvement"
+def test_the_default_reward_is_the_scaled_improvement_the_documented_agents_learn_from():
+    assert envs.TaskConfig().reward == "scaled"
     with pytest.raises(ValueError, match="reward"):
         envs.TaskConfig(reward="bonus")
 

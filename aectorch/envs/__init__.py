@@ -14,9 +14,9 @@ Importing ``aectorch.envs`` registers four Gymnasium ids (docs/rl-environments.m
 
 Options (keyword arguments of ``gymnasium.make``, `TaskConfig`): ``observation="features"`` (the
 pooled sparse code of an internal, online-learning `BinocularEncoder`, eq. 5) or ``"images"``
-(each scale's binocular pair), ``reward="improvement"`` (the change of that encoder's coding
-reward, the default), ``"coding"`` (the reward itself), ``"scaled"`` (the improvement over a running
-scale) or ``"error"`` (minus the absolute angle error), ``actions_deg``, ``textures``, ``distances_m``, ``device``,
+(each scale's binocular pair), ``reward="scaled"`` (the change of that encoder's coding reward over
+a running scale, the default), ``"improvement"`` (the change itself), ``"coding"`` (the reward
+itself) or ``"error"`` (minus the absolute angle error), ``actions_deg``, ``textures``, ``distances_m``, ``device``,
 ``object_speed_deg`` and ``object_depth_speed_m`` (a moving target: the ranges of its speeds), ...
 ``info`` carries ``distance_m``, ``pursuit_error_deg``, ``vergence_error_deg`` and the eye angles.
 
