@@ -272,3 +272,22 @@ def test_report_checks_its_outputs_before_any_work(tmp_path, capsys):
         assert report(["ablation", "x=missing_run", "--json", str(given)]) == 2
         line = _error_line(capsys.readouterr().err)
         assert line.startswith("error: --json: ") and message in line, line
+
+
+# --- the text says what the code does ----------------------------------------------------------
+
+
+def test_the_help_texts_and_the_readme_say_the_defaults():
+    import re
+
+    from aectorch.envs import IDS
+    from aectorch.evaluate import EvaluateConfig
+    from aectorch.runtime.command import usage
+
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text()
+    assert all(name.split("/")[-1] in readme for name in IDS), [n for n in IDS if n.split("/")[-1] not in readme]
+    doc = (root / "train.py").read_text().split('"""')[1]
+    assert "PPO by default" in doc and not re.search(r"eye movements \(natural actor-critic\)", doc)
+    text = " ".join(usage(EvaluateConfig, "aectorch.evaluate").split())
+    assert "greedy (argmax actions" not in text and "whose own default is mean" in text
