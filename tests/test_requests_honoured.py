@@ -291,3 +291,12 @@ def test_the_help_texts_and_the_readme_say_the_defaults():
     assert "PPO by default" in doc and not re.search(r"eye movements \(natural actor-critic\)", doc)
     text = " ".join(usage(EvaluateConfig, "aectorch.evaluate").split())
     assert "greedy (argmax actions" not in text and "whose own default is mean" in text
+
+
+def test_a_start_killed_before_its_first_checkpoint_starts_again(tmp_path, textures):
+    """Its own start record (provenance.json) without a checkpoint: a requeued job starts afresh."""
+    run = tmp_path / "run"
+    run_experiment(_cfg(textures, "train.iterations=2"), run)
+    (run / "checkpoint.pt").unlink()  # as a kill -9 before the first checkpoint leaves it
+    run_experiment(_cfg(textures, "train.iterations=2", "train.resume=auto"), run)
+    assert load_checkpoint(run / "checkpoint.pt")["iteration"] == 2

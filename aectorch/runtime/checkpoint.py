@@ -257,9 +257,10 @@ class RunExists(ValueError):
 
 
 def check_new_run(folder: str | os.PathLike, overwrite: bool = False, *, elsewhere: str = "hydra.run.dir=...") -> None:
-    """Refuse to start a new run in ``folder`` when it holds a run's ``checkpoint.pt``, or any other
-    file a run writes (`aectorch.runtime.outputs.RUN_FILES`: a user's ``config.yaml`` or
-    ``summary.json``, a crashed start's files), unless ``overwrite``: `RunExists`, one line naming
+    """Refuse to start a new run in ``folder`` when it holds a run's ``checkpoint.pt``, or, without
+    the ``provenance.json`` a run writes when it starts, any other file a run writes
+    (`aectorch.runtime.outputs.RUN_FILES`: a user's ``config.yaml`` or ``summary.json``), unless
+    ``overwrite``: `RunExists`, one line naming
     the folder, what it holds and the ways on (``elsewhere``: the key that gives another folder).
     A rerun of a finished command, a re-launched sweep or a requeued job would otherwise erase the
     run (``train.py`` calls this before anything is written)."""
@@ -268,7 +269,9 @@ def check_new_run(folder: str | os.PathLike, overwrite: bool = False, *, elsewhe
         return
     if not path.is_file():
         found = [name for name in RUN_FILES if (Path(folder) / name).exists()]
-        if found:
+        # A run's own start record without a checkpoint: a start killed before its first one
+        # (nothing trained is kept), which a requeued job (train.resume=auto) starts again.
+        if found and "provenance.json" not in found:
             raise RunExists(f"{str(folder)!r} holds {', '.join(found)} but no checkpoint.pt, which a new run would "
                             f"overwrite; nothing was written. Give another folder ({elsewhere}), or "
                             "train.overwrite=true to delete them and start afresh")

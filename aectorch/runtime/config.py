@@ -223,7 +223,8 @@ class TrainConfig:
             ``python -m aectorch.evaluate`` wrote into the folder), never a file of the user's.
             Off (default), a new run into a folder that holds ``checkpoint.pt`` or any other of
             those files stops before it writes anything, naming what the folder holds and the
-            ways on (``train.resume``, another folder).
+            ways on (``train.resume``, another folder); only a start killed before its first
+            checkpoint (its ``provenance.json`` and no ``checkpoint.pt``) starts again there.
         log_every: append a line to ``metrics.jsonl`` and TensorBoard every this many
             iterations (>= 1).
         checkpoint_every: write ``checkpoint.pt`` every this many iterations (>= 1), and always
