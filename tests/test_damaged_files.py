@@ -210,7 +210,7 @@ def test_a_damaged_checkpoint_is_named_or_reads_as_the_same_payload(run, tmp_pat
     check()
 
 
-@pytest.mark.parametrize("entry", [("learner",), ("iteration",), ("config",), ("config", "learner"), ("env",),
+@pytest.mark.parametrize("entry", [("learner",), ("iteration",), ("config",), ("config", "learner"),
                                    ("learner", "cues.stereo.encoder.dictionary.scale_dicts.fine")])
 @pytest.mark.parametrize("change", ["missing", "wrong type"])
 def test_a_checkpoint_with_an_entry_missing_or_of_another_type_is_named(run, tmp_path, capsys, entry, change):
@@ -233,3 +233,22 @@ def test_a_checkpoint_with_an_entry_missing_or_of_another_type_is_named(run, tmp
     assert evaluate([f"checkpoint={path}", f"out={tmp_path / 'e.json'}", "progress=false"]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert len(err) == 1 and err[0].startswith("error: ") and str(path) in err[0], err
+
+
+@pytest.mark.parametrize("change", ["missing", "wrong type"])
+def test_a_resume_from_a_checkpoint_without_its_environments_names_it(run, tmp_path, change):
+    """The environments' state is a resume's alone (an evaluation does not read it)."""
+    from aectorch.runtime import prepare_run
+
+    folder = tmp_path / "run"
+    folder.mkdir()
+    payload = torch.load(run / "checkpoint.pt", weights_only=True)
+    if change == "missing":
+        del payload["env"]
+    else:
+        payload["env"] = "x"
+    torch.save(payload, folder / "checkpoint.pt")
+    cfg = copy.deepcopy(load_learner(run / "checkpoint.pt")[0])
+    cfg.train.resume = str(folder)
+    with pytest.raises(ValueError, match=r"checkpoint\.pt' is not an aectorch checkpoint this version reads: its 'env'"):
+        prepare_run(cfg, {"train.resume"})

@@ -89,7 +89,6 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
     except (ValueError, KeyError, TypeError, AttributeError, IndexError) as err:
         raise ValueError(f"{str(path)!r} is not an aectorch checkpoint this version reads: "
                          f"{type(err).__name__}: {err}") from err
-    _check_layout(payload, path)
     return payload
 
 
@@ -111,10 +110,16 @@ def _check_crcs(path: Path) -> None:
         raise ValueError(f"cannot read the checkpoint {str(path)!r}: it is damaged ({bad} does not match its CRC-32)")
 
 
-def _check_layout(payload: dict, path: Path) -> None:
-    """The entries every reader of a checkpoint takes for granted, of the right types: a damaged
-    or hand-edited file is named here, not met as a ``KeyError`` deep in a resume or evaluation."""
-    for key, kind in (("config", dict), ("iteration", int), ("learner", dict), ("env", (dict, list))):
+#: The entries of a run's checkpoint that a resume (all) and an evaluation (the first three) read.
+_LAYOUT = (("config", dict), ("iteration", int), ("learner", dict), ("env", (dict, list)))
+
+
+def _check_layout(payload: dict, path: str | os.PathLike, entries: int = len(_LAYOUT)) -> None:
+    """The entries a reader of a run's checkpoint takes for granted (the first ``entries`` of
+    :data:`_LAYOUT`), of the right types: a damaged or hand-edited file is named here, not met as a
+    ``KeyError`` deep in a resume or an evaluation."""
+    path = Path(path)
+    for key, kind in _LAYOUT[:entries]:
         value = payload.get(key)
         if not isinstance(value, kind) or isinstance(value, bool):
             raise ValueError(f"{str(path)!r} is not an aectorch checkpoint this version reads: its {key!r} entry "
@@ -153,6 +158,7 @@ def load_learner(checkpoint_path: str | os.PathLike, device=None, *,
     """The config and the trained learner of a checkpoint (on ``device``, default the run's);
     ``payload``: the checkpoint, when it was read already."""
     payload = load_checkpoint(checkpoint_path) if payload is None else payload
+    _check_layout(payload, checkpoint_path, entries=3)
     cfg = checkpoint_config(payload, checkpoint_path)
     learner = build_learner(cfg, device=device)
     restore(learner, payload["learner"], checkpoint_path, "learner")
@@ -349,6 +355,7 @@ def prepare_run(cfg: ExperimentConfig, given: set[str] | None = None,
     if not path.is_file():
         raise ValueError(f"train.resume: no checkpoint at {str(path)!r}")
     checkpoint = load_checkpoint(path)
+    _check_layout(checkpoint, path)
     if given is not None:
         stored = checkpoint_config(checkpoint, path)
         for key in _RUN_OWN_UNLESS_GIVEN:
