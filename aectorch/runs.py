@@ -245,8 +245,9 @@ class Run:
 
     def _check_source(self, evaluation: dict, path: Path) -> None:
         source = evaluation.get("source")
-        if source is None:
-            return  # written before evaluations recorded their checkpoint
+        if source is None:  # written before evaluations recorded their checkpoint's hash
+            self._check_iteration(evaluation, path)
+            return
         if not isinstance(source, dict) or not isinstance(source.get("checkpoint"), str) \
                 or not isinstance(source.get("sha256"), str):
             raise ValueError(f"{path}: its 'source' must be {{checkpoint, iteration, sha256}}, got {source!r}")
@@ -255,6 +256,26 @@ class Run:
             raise ValueError(f"{path} was made from {source['checkpoint']} at iteration {source.get('iteration')}, "
                              f"but the run's {checkpoint.name} is another checkpoint now (a later or new run): "
                              f"evaluate it again (python -m aectorch.evaluate checkpoint={checkpoint} out={path} ...)")
+
+    def _check_iteration(self, evaluation: dict, path: Path) -> None:
+        """An evaluation of ``python -m aectorch.evaluate`` from before the hash was recorded names
+        its checkpoint and iteration: one of another iteration than the run's file is refused."""
+        name, iteration = evaluation.get("checkpoint"), evaluation.get("iteration")
+        if not isinstance(name, str) or not _is_int(iteration):
+            return
+        checkpoint = self.path / Path(name).name
+        if not checkpoint.is_file():
+            return
+        import torch
+
+        try:
+            held = torch.load(checkpoint, map_location="cpu", weights_only=True).get("iteration")
+        except Exception:  # noqa: BLE001 - an unreadable checkpoint is its readers' to name
+            return
+        if _is_int(held) and held != iteration:
+            raise ValueError(f"{path} was made from {checkpoint.name} at iteration {iteration}, but the run's "
+                             f"{checkpoint.name} holds iteration {held} (a later or new run): evaluate it again "
+                             f"(python -m aectorch.evaluate checkpoint={checkpoint} out={path} ...)")
 
     def per_trial(self, name: str = EVALUATION) -> list[dict]:
         """The ``per_trial`` rows of an evaluation: texture, distance, each movement's errors.

@@ -300,3 +300,17 @@ def test_a_start_killed_before_its_first_checkpoint_starts_again(tmp_path, textu
     (run / "checkpoint.pt").unlink()  # as a kill -9 before the first checkpoint leaves it
     run_experiment(_cfg(textures, "train.iterations=2", "train.resume=auto"), run)
     assert load_checkpoint(run / "checkpoint.pt")["iteration"] == 2
+
+
+def test_an_evaluation_written_before_the_hash_is_checked_by_its_iteration(tmp_path, textures):
+    """An evaluation from an earlier aectorch (a ``checkpoint`` and an ``iteration``, no ``source``)
+    left by the run that a later run in the folder replaced."""
+    run = tmp_path / "run"
+    run_experiment(_cfg(textures, "train.iterations=4"), run)
+    (run / "tracking.json").write_text(json.dumps({"checkpoint": str(run / "checkpoint.pt"), "iteration": 2,
+                                                   "tracking": {}}))
+    with pytest.raises(ValueError, match=r"tracking.json was made from checkpoint.pt at iteration 2, but the run's "
+                                         r"checkpoint.pt holds iteration 4"):
+        Run(run).evaluation("tracking.json")
+    (run / "tracking.json").write_text(json.dumps({"checkpoint": str(run / "checkpoint.pt"), "iteration": 4}))
+    assert Run(run).evaluation("tracking.json")["iteration"] == 4
