@@ -314,3 +314,13 @@ def test_an_evaluation_written_before_the_hash_is_checked_by_its_iteration(tmp_p
         Run(run).evaluation("tracking.json")
     (run / "tracking.json").write_text(json.dumps({"checkpoint": str(run / "checkpoint.pt"), "iteration": 4}))
     assert Run(run).evaluation("tracking.json")["iteration"] == 4
+
+
+def test_every_figure_a_run_draws_is_one_that_overwrite_deletes():
+    import re
+
+    from aectorch.runtime.outputs import FIGURE_FILES
+
+    source = (Path(__file__).resolve().parents[1] / "aectorch" / "runtime" / "finish.py").read_text()
+    drawn = set(re.findall(r'"(\w+\.png)"', source))
+    assert drawn and drawn <= set(FIGURE_FILES), drawn - set(FIGURE_FILES)

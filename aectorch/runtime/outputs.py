@@ -9,8 +9,8 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["CODE_AT_ENDS", "FIGURE_FILES", "LOCK_NAME", "OUTPUTS_LIST", "RUN_FILES", "RunFolder", "RunFolderBusy", "WriteFailed", "atomic_write", "format_summary", "json_value",
-           "note_output", "write_json"]
+__all__ = ["CODE_AT_ENDS", "FIGURE_FILES", "LOCK_NAME", "OUTPUTS_LIST", "RUN_FILES", "RunFolder", "RunFolderBusy",
+           "WriteFailed", "atomic_write", "format_summary", "json_value", "note_output", "write_json"]
 
 #: The file in a run folder whose lock (``flock``) the training process holds.
 LOCK_NAME = ".lock"
