@@ -161,14 +161,15 @@ def _one_line(err: BaseException) -> str:
 
 def _adding_hint(key: str) -> str:
     """How to make ``key`` exist: the group option that adds it (``+experiment=accommodation`` for
-    ``learner.cues.accommodation.*``), else Hydra's ``+`` for a new key."""
-    from aectorch.runtime.presets import GROUPS
+    ``learner.cues.accommodation.*``), else where the keys are listed."""
+    from aectorch.runtime.presets import ADDED_GROUPS, GROUPS
 
     for group, options in GROUPS.items():
         for option, values in options.items():
             if any(key == set_key or key.startswith(set_key + ".") for set_key in values):
-                return f"; {key} exists with +{group}={option} (add it to the command line)"
-    return f"; no such key in train.py's config (python train.py --cfg job lists them)"
+                plus = "+" if group in ADDED_GROUPS else ""
+                return f"; {key} exists with {plus}{group}={option} (add it to the command line)"
+    return "; no such key in train.py's config (python train.py --cfg job lists them)"
 
 
 _RUN_DIR_VAR = "AECTORCH_RUN_DIR"

@@ -266,8 +266,8 @@ def check_new_run(folder: str | os.PathLike, overwrite: bool = False, *, elsewhe
     """Refuse to start a new run in ``folder`` when it holds a run's ``checkpoint.pt``, or, without
     the ``provenance.json`` a run writes when it starts, any other file a run writes
     (`aectorch.runtime.outputs.RUN_FILES`: a user's ``config.yaml`` or ``summary.json``), unless
-    ``overwrite``: `RunExists`, one line naming
-    the folder, what it holds and the ways on (``elsewhere``: the key that gives another folder).
+    ``overwrite``: `RunExists`, one line naming the folder, what it holds and the ways on
+    (``elsewhere``: the key that gives another folder).
     A rerun of a finished command, a re-launched sweep or a requeued job would otherwise erase the
     run (``train.py`` calls this before anything is written)."""
     path = Path(folder) / "checkpoint.pt"
