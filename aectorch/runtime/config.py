@@ -211,7 +211,8 @@ class TrainConfig:
             A config group given with it (``rearing=...``, ``+experiment=...``, ``preset=...``,
             ``plasticity=...``) must be the one the run was started with (its ``.hydra/``, which
             a resume leaves as it is, writing Hydra's record into ``.hydra/resumed/``) and must
-            set what the run holds: another is refused with one line naming it.
+            set what the run holds: another is refused with one line naming it. (A sweep's job
+            is checked by the keys alone: Hydra rewrites a job's ``.hydra/`` at every launch.)
             ``auto``: resume the run folder's own checkpoint if it holds one, else start a new
             run there: the setting for jobs that are started again with the same command
             (``torchrun --max-restarts``, Slurm's ``--requeue``, re-launched Hydra sweeps). It
