@@ -79,6 +79,14 @@ def _command_line_groups() -> dict[str, str | None]:
     return {key: choices.get(key) for key in _command_line_keys() if key in GROUPS}
 
 
+def _groups() -> dict[str, str | None]:
+    """Every config group's option in this run (``provenance.json`` records them)."""
+    from aectorch.runtime.presets import GROUPS
+
+    choices = HydraConfig.get().runtime.choices
+    return {group: choices.get(group) for group in GROUPS}
+
+
 def _log_to_stderr() -> None:
     """The library's messages (the ``aectorch`` logger: resuming, interruptions, the watchdog, the
     depth calibration) go to stderr as plain lines, around the progress bars."""
@@ -112,7 +120,8 @@ def main(raw: DictConfig) -> dict:
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     try:
         with logging_redirect_tqdm(loggers=[logging.getLogger("aectorch")]):
-            summary = run_experiment(cfg, run_dir, checkpoint=checkpoint)
+            summary = run_experiment(cfg, run_dir, checkpoint=checkpoint,
+                                     groups=_groups() if checkpoint is None else None)  # (a new run's)
         if summary:
             print(format_summary(summary, Path(cfg.train.resume) if checkpoint is not None else run_dir))
         return summary

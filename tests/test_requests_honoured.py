@@ -329,3 +329,23 @@ def test_every_figure_a_run_draws_is_one_that_overwrite_deletes():
     source = (Path(__file__).resolve().parents[1] / "aectorch" / "runtime" / "finish.py").read_text()
     drawn = set(re.findall(r'"(\w+\.png)"', source))
     assert drawn and drawn <= set(FIGURE_FILES), drawn - set(FIGURE_FILES)
+
+
+def test_the_groups_a_run_started_with_are_kept_in_its_provenance_for_resumes_of_sweep_jobs(tmp_path, textures):
+    """A sweep's job has no ``.hydra/`` of its start after a relaunch (Hydra rewrites it): the
+    groups come from ``provenance.json``'s first session."""
+    from aectorch.runtime import prepare_run
+    from aectorch.runtime.config import to_container, to_experiment_config
+
+    run = tmp_path / "run"
+    node = to_container(_cfg(textures, "train.iterations=2"))
+    node["perturbations"] = REARING["monocular"]
+    started = {"preset": "default", "experiment": None, "plasticity": "decay", "rearing": "monocular"}
+    run_experiment(to_experiment_config(node), run, groups=started)
+    assert Run(run).provenance["sessions"][0]["groups"] == started
+    node = to_container(_cfg(textures, "train.iterations=4", f"train.resume={run}"))
+    node["perturbations"] = REARING["monocular"]  # as rearing=monocular composes it
+    resume = to_experiment_config(node)
+    with pytest.raises(ValueError, match=r"plasticity=floor contradicts the resumed run, started with plasticity=decay"):
+        prepare_run(resume, {"train.resume", "train.iterations", "plasticity"}, groups={"plasticity": "floor"})
+    prepare_run(resume, {"train.resume", "train.iterations", "rearing"}, groups={"rearing": "monocular"})

@@ -109,6 +109,7 @@ def run_experiment(
     *,
     callback: Callable[[int, IterationRecord], None] | None = None,
     checkpoint: dict | None = _NOT_PREPARED,  # type: ignore[assignment]
+    groups: dict[str, str | None] | None = None,
 ) -> dict:
     """Train, log, checkpoint, draw and evaluate; returns the final summary (``summary.json``).
 
@@ -125,6 +126,10 @@ def run_experiment(
         checkpoint: with ``cfg`` from `prepare_run`: the checkpoint it returned (``None`` for a
             new run); ``cfg`` is then used as it is, and nothing is read or validated again. Not
             given: `run_experiment` calls `prepare_run` itself.
+        groups: the config groups' options ``cfg`` was composed with (``train.py`` gives Hydra's,
+            e.g. ``{"rearing": "monocular", ...}``); ``provenance.json`` records them with the
+            session, and a later resume given another option of a group is refused
+            (`aectorch.runtime.checkpoint.started_groups`).
     """
     if checkpoint is _NOT_PREPARED:
         cfg, checkpoint = prepare_run(cfg, run_dir=run_dir)
@@ -142,7 +147,7 @@ def run_experiment(
         folder = RunFolder(cfg.train.resume if checkpoint is not None else run_dir, main=shard.is_main)
         try:
             _agree_on_start(shard, folder, cfg, checkpoint)
-            run = TrainingRun(cfg, folder, shard, checkpoint, default_callbacks(cfg, folder.main, callback))
+            run = TrainingRun(cfg, folder, shard, checkpoint, default_callbacks(cfg, folder.main, callback), groups)
             try:
                 run.run()
             finally:

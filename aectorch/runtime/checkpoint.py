@@ -17,6 +17,7 @@ contradicts the stored config, and validates the resources once.
 from __future__ import annotations
 
 import copy
+import json
 import os
 import pickle
 import re
@@ -197,9 +198,18 @@ def check_resume_overrides(cfg: ExperimentConfig, stored: ExperimentConfig, give
 
 
 def started_groups(folder: str | os.PathLike) -> dict[str, str | None] | None:
-    """The config groups' options a ``train.py`` run was started with, from its Hydra record
-    (``.hydra/overrides.yaml``, which a resume leaves as it is: `aectorch.runtime.launch`);
-    ``None`` when the folder has none (a run of `run_experiment`)."""
+    """The config groups' options a ``train.py`` run was started with: those its first session
+    recorded in ``provenance.json`` (`aectorch.runtime.run_experiment`'s ``groups``), else its
+    Hydra record (``.hydra/overrides.yaml``, which a resume leaves as it is:
+    `aectorch.runtime.launch`); ``None`` when the folder has neither (a run of `run_experiment`
+    without ``groups``)."""
+    try:
+        first = json.loads((Path(folder) / "provenance.json").read_text())["sessions"][0]
+        recorded = first["groups"]
+    except (OSError, ValueError, KeyError, IndexError, TypeError):
+        recorded = None
+    if isinstance(recorded, dict):
+        return {group: recorded.get(group, GROUP_DEFAULTS[group]) for group in GROUPS}
     path = Path(folder) / ".hydra" / "overrides.yaml"
     try:
         from omegaconf import OmegaConf

@@ -209,10 +209,10 @@ class TrainConfig:
             which may change with the number of processes while the whole batch stays the
             same; without it, the checkpoint's whole batch is split evenly over the processes).
             A config group given with it (``rearing=...``, ``+experiment=...``, ``preset=...``,
-            ``plasticity=...``) must be the one the run was started with (its ``.hydra/``, which
-            a resume leaves as it is, writing Hydra's record into ``.hydra/resumed/``) and must
-            set what the run holds: another is refused with one line naming it. (A sweep's job
-            is checked by the keys alone: Hydra rewrites a job's ``.hydra/`` at every launch.)
+            ``plasticity=...``) must be the one the run was started with (which
+            ``provenance.json``'s first session records; Hydra's ``.hydra/`` of the start stays
+            too, a resume's record going to ``.hydra/resumed/``) and must set what the run holds:
+            another is refused with one line naming it.
             ``auto``: resume the run folder's own checkpoint if it holds one, else start a new
             run there: the setting for jobs that are started again with the same command
             (``torchrun --max-restarts``, Slurm's ``--requeue``, re-launched Hydra sweeps). It

@@ -336,6 +336,8 @@ class TrainingRun:
         shard: this process's slice of the environments (`Shard.single` for one process).
         checkpoint: the state to resume from, or ``None``.
         callbacks: the loop's extras (default: :func:`default_callbacks`).
+        groups: the config groups' options the config was composed with (``train.py``'s), which
+            ``provenance.json`` records with this session (a resume compares them).
 
     Attributes:
         env, learner, metrics, watchdog: the run's parts.
@@ -347,7 +349,7 @@ class TrainingRun:
     """
 
     def __init__(self, cfg: ExperimentConfig, folder: RunFolder, shard: Shard, checkpoint: dict | None,
-                 callbacks: Sequence[Callback] | None = None) -> None:
+                 callbacks: Sequence[Callback] | None = None, groups: dict[str, str | None] | None = None) -> None:
         self.cfg, self.folder, self.shard = cfg, folder, shard
         self.callbacks = list(default_callbacks(cfg, folder.main) if callbacks is None else callbacks)
         self.total = cfg.train.iterations
@@ -369,7 +371,8 @@ class TrainingRun:
         else:
             self.initial = dictionaries(self.learner)
         self.config_dict = to_container(cfg)
-        self.session = {**provenance(cfg.env.device), "start_iteration": self.start, "world_size": shard.world_size}
+        self.session = {**provenance(cfg.env.device), "start_iteration": self.start, "world_size": shard.world_size,
+                        **({} if groups is None else {"groups": dict(groups)})}
         folder.start(self.config_dict, self.session, resumed_at=self.start if checkpoint is not None else None,
                      tensorboard=cfg.train.tensorboard)
         self.train_seconds = 0.0
