@@ -19,6 +19,23 @@ import sys
 from pathlib import Path
 
 
+def _parse(overrides: list[str]):
+    """The overrides in ``train.py``'s grammar (Hydra's: ``perturbations=[{kind:roll,start:8}]`` as
+    the docs write it), as one config."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+    from omegaconf import OmegaConf
+
+    config = OmegaConf.create()
+    for item in overrides:
+        try:
+            (override,) = OverridesParser.create().parse_overrides([item])
+        except HydraException as err:
+            raise ValueError(f"override {item!r} cannot be parsed: {str(err).splitlines()[0]}") from err
+        OmegaConf.update(config, override.key_or_group, override.value(), merge=False)
+    return config
+
+
 def fork(checkpoint: Path, folder: Path, overrides: list[str], iterations: int) -> None:
     """Write the fork's folder (``ValueError`` before writing anything when an argument is bad)."""
     from omegaconf import OmegaConf
@@ -37,7 +54,7 @@ def fork(checkpoint: Path, folder: Path, overrides: list[str], iterations: int) 
     # The fork runs until ``iterations``: its config says so (perturbation events are checked
     # against the run's length).
     merged = OmegaConf.merge(OmegaConf.create(payload["config"]), {"train": {"iterations": iterations}},
-                             OmegaConf.from_dotlist(overrides))
+                             _parse(overrides))
     payload["config"] = OmegaConf.to_container(merged)
     checkpoint_config(payload, checkpoint)  # names the field of a bad override
     payload.pop("best", None)
@@ -55,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("overrides", nargs="*", help="key=value settings to change")
     parser.add_argument("--iterations", type=int, required=True, help="continue until this iteration")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    args = parser.parse_args(argv)
+    args = parser.parse_intermixed_args(argv)
 
     from aectorch.runtime.config import to_experiment_config
     from aectorch.runtime import run_experiment
