@@ -15,7 +15,7 @@ import torch
 from omegaconf import OmegaConf
 
 from aectorch.runtime.config import ExperimentConfig, to_experiment_config
-from aectorch.runtime.presets import PAPER_PRESET, ROLL_PERTURBATION
+from aectorch.runtime.presets import LIFELONG, PAPER_PRESET, ROLL_PERTURBATION
 from aectorch.runtime.resources import validate_resources
 from aectorch.runtime import CHECKPOINT_FORMAT, load_checkpoint, load_learner, run_experiment, save_checkpoint
 from aectorch.runs import Run
@@ -251,6 +251,7 @@ def test_checkpoint_errors_name_the_path(tmp_path):
     ("perturbation.first_fraction=0.9", None),  # valid without a roll
     ("+experiment=roll_perturbation", None),
     ("+experiment=slip", None),
+    ("+experiment=lifelong", None),
     ("env.velocity_memory=true", "env.velocity_memory"),
 ])
 def test_config_errors_name_the_field(override, field, textures):
@@ -300,6 +301,10 @@ def test_preset_paper_and_perturbation_fractions():
         default = to_experiment_config(compose(config_name="train"))
         paper = to_experiment_config(compose(config_name="train", overrides=["preset=paper", "learner.cues.parallax.encoder.num_atoms=32", "learner.cues.stereo.encoder.num_atoms=32"]))
         roll = to_experiment_config(compose(config_name="train", overrides=["+experiment=roll_perturbation"]))
+        lifelong = to_experiment_config(compose(config_name="train", overrides=["+experiment=lifelong"]))
+    # the lifelong preset too lists only what differs, and sets it
+    assert all(_value(default, key) != value for key, value in LIFELONG.items()), LIFELONG
+    assert all(_value(lifelong, key) == value for key, value in LIFELONG.items()), LIFELONG
     for name, cue in paper.learner.cues.items():
         assert list(cue.actions_deg) == PAPER_PRESET[f"learner.cues.{name}.actions_deg"] == list(PAPER_ACTIONS_DEG)
         assert cue.encoder.num_atoms == 32  # the command line wins
@@ -497,12 +502,13 @@ def test_fork_continues_a_run_with_changed_settings(tmp_path, textures, capsys, 
     assert not torch.equal(before["learner"][actor], after["learner"][actor])
     assert load_checkpoint(source / "checkpoint.pt")["iteration"] == 8  # the source is untouched
     # A perturbation experiment forked from an unperturbed run: its events may start at the fork.
-    assert fork_run.main([str(source / "checkpoint.pt"), str(tmp_path / "rolled"),
-                          "perturbations=[{kind: roll, start: 8, eye: right, params: {deg: 5}}]",
-                          "--iterations", "10", "--no-progress"]) == 0
+    # (in train.py's grammar, as docs/results.md writes it, and the options before or after it)
+    assert fork_run.main([str(source / "checkpoint.pt"), str(tmp_path / "rolled"), "--iterations", "10",
+                          "perturbations=[{kind:roll,start:8,eye:right,params:{deg:5}}]", "--no-progress"]) == 0
     assert load_checkpoint(tmp_path / "rolled" / "checkpoint.pt")["env"]["roll_deg"][0].tolist() == [0.0, 5.0]
     # Bad arguments stop before anything is written, naming what is wrong.
     for args, message in [(["learner.cues.stereo.encoder.lr=-1"], "learner.cues.stereo.encoder.lr"), (["nosuch.key=1"], "nosuch"),
+                          (["perturbations=[{kind:roll"], "cannot be parsed"),
                           (["--iterations", "8"], "above the checkpoint's iteration 8")]:
         target = tmp_path / "bad"
         argv = [str(source / "checkpoint.pt"), str(target), *args]
