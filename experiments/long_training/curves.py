@@ -1,7 +1,7 @@
 """The learning curves of groups of staged runs (``stages.py``): errors against iterations, per set.
 
     .venv/bin/python experiments/long_training/curves.py defaults=runs/long_s0,runs/long_s1,runs/long_s2 \
-        lifelong=runs/ll_s0,runs/ll_s1,runs/ll_s2 --sets choose report [--json out.json] [--plot curves.png]
+        robust=runs/ll_s0,runs/ll_s1,runs/ll_s2 --sets choose report [--json out.json] [--plot curves.png]
 
 For every set (the NAME of ``stages.py --eval NAME=...``) and every stage that all runs of a group
 reached, one markdown row: the mean over the group's runs (standard deviation in brackets) of the
