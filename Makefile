@@ -7,7 +7,7 @@ ARGS ?=
 PYTEST_ARGS ?=
 # LEROBOT=0 skips the LeRobot bridge's tests (they run in their own .venv-lerobot).
 LEROBOT ?= 1
-# pytest-xdist worker processes of the main suite (on 2 cores: 7 min 53 s with 2 on an AMD EPYC, 1,063 tests; make test 8 min 40 s with the LeRobot part).
+# pytest-xdist worker processes of the main suite (on 2 cores: 8 min 36 s with 2 on an idle AMD EPYC, 1,117 tests; the LeRobot part 1 min 14 s more, measured while training ran beside it).
 TEST_WORKERS ?= 2
 
 # `make bench`: the benchmark suite at full size, its results written to benchmarks/results
