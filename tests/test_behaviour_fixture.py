@@ -68,7 +68,7 @@ def _without_last5(value):
     (issue 48, the fixture's run rolls the eyes) the events acting (``perturbations``), the short
     window (``*_recent_*``), each event's start, end, kind and eyes, the plasticity and the
     recovery read-out (with the figures off the fixture's was empty); the texture statistics
-    of each trial's first view in its row (``view_*``, issue 50); and the checkpoint an evaluation
+    of each trial's first view in its row (``view_*``); and the checkpoint an evaluation
     was made from (``source``: its file, iteration and hash)."""
     if isinstance(value, dict):
         new = ("perturbations", "start", "end", "kind", "eyes", "plasticity", "recovery", "source")

@@ -224,14 +224,14 @@ class PPO(nn.Module):
             # The same update without functional parameter copies or the explained-variance log,
             # which nothing reads.
             functional=False, log_explained_variance=False)
-        # One group per decay: the policy's weight matrices decay (AdamW's decoupled decay), its
-        # biases and the value function do not; with no decay, one group, as plain Adam's.
-        decayed = [p for p in self.policy.parameters() if p.ndim > 1] if cfg.weight_decay else []
-        rest = [p for p in list(self.policy.parameters()) + list(self.value.parameters())
-                if all(p is not q for q in decayed)]
-        groups = [{"params": rest, "weight_decay": 0.0}] + ([{"params": decayed, "weight_decay": cfg.weight_decay}]
-                                                            if decayed else [])
-        self.__dict__["optimizer"] = torch.optim.AdamW(groups, lr=cfg.lr) if decayed else torch.optim.Adam(rest, lr=cfg.lr)
+        parameters = list(self.policy.parameters()) + list(self.value.parameters())
+        if cfg.weight_decay:  # AdamW's decoupled decay of the policy's weight matrices alone
+            decayed = {id(p) for p in self.policy.parameters() if p.ndim > 1}
+            self.__dict__["optimizer"] = torch.optim.AdamW(
+                [{"params": [p for p in parameters if id(p) not in decayed], "weight_decay": 0.0},
+                 {"params": [p for p in parameters if id(p) in decayed], "weight_decay": cfg.weight_decay}], lr=cfg.lr)
+        else:
+            self.__dict__["optimizer"] = torch.optim.Adam(parameters, lr=cfg.lr)
         self._rollout: list[Transitions] = []
         self.fixations_seen = 0
         # The update's large tensors' memory, kept from one update to the next (see _update).
