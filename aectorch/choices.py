@@ -144,7 +144,7 @@ class WatchdogMode(Choice):
 
 class PerturbationKind(Choice):
     """The perturbations of `aectorch.sim.perturbations` (`PERTURBATIONS`): of one eye's mounting
-    (``roll``, ``strabismus``, ``camera_shift``), of one eye's image (``anisometropia``,
+    (``roll``, ``strabismus``, ``camera_shift``, ``vertical_misalignment``), of one eye's image (``anisometropia``,
     ``monocular_deprivation``, ``aniseikonia``), of one eye's focus (``refractive_error``) or of the
     world's textures (``orientation_rearing``)."""
 
@@ -156,3 +156,4 @@ class PerturbationKind(Choice):
     aniseikonia = "aniseikonia"
     orientation_rearing = "orientation_rearing"
     camera_shift = "camera_shift"
+    vertical_misalignment = "vertical_misalignment"

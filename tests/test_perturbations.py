@@ -201,6 +201,34 @@ def test_camera_shift_moves_one_camera(textures, renderer):
     env.close()
 
 
+@pytest.mark.parametrize("renderer", RENDERERS)
+def test_vertical_misalignment_turns_one_eye_up_and_no_command_undoes_it(textures, renderer):
+    env = _env(textures, renderer)
+    base = env.stereo_observation(SCALES, window=True)
+    optimum = env.optimal_right_pan_deg()
+    # Up by 4 pixels' worth: the right image moves down by 4 rows, the left stays.
+    deg = math.degrees(math.atan(4.0 / env.camera.focal_px))
+    obs = _perturbed(env, "vertical_misalignment", {"deg": deg})
+    _unchanged_left(base, obs, renderer)
+    right, neutral = obs["window"][:, 1], base["window"][:, 1]
+    inner = (slice(None), slice(8, -8), slice(8, -8))
+    moved = right[:, 4:][inner]
+    assert _corr(moved, neutral[:, :-4][inner]) > 0.995 > _corr(right[inner], neutral[inner]) + 0.05
+    assert (right[:, 4:] - neutral[:, :-4])[inner].abs().mean() <= 5e-3 + TOLERANCE[renderer]
+    # The horizontal ground truth is the unperturbed robot's; down is the opposite turn.
+    torch.testing.assert_close(env.optimal_right_pan_deg(), optimum)
+    down = _perturbed(env, "vertical_misalignment", {"deg": -deg})["window"][:, 1]
+    assert _corr(down[:, :-4][inner], neutral[:, 4:][inner]) > 0.995
+    both = make_perturbation("vertical_misalignment", {"deg": 1.0})
+    assert both.apply(both.apply(NEUTRAL, 1), 0).elevation_offset_deg == (1.0, 1.0)
+    assert both.describe() == "vertical misalignment 1 deg up"
+    assert not both.apply(NEUTRAL, 1).mounting_neutral
+    # A checkpoint's optics from before the field existed read as no offset.
+    old = {k: v for k, v in NEUTRAL.to_dict().items() if k != "elevation_offset_deg"}
+    assert Optics.from_dict(old) == NEUTRAL
+    env.close()
+
+
 def replace_eye(head, eye, dy):
     """A copy of ``head`` with eye ``eye``'s centre ``dy`` metres further left."""
     import copy
@@ -259,7 +287,7 @@ def test_the_image_functions():
 def test_kinds_are_registered_by_name_and_compose():
     assert sorted(PERTURBATIONS) == sorted(["roll", "strabismus", "anisometropia", "refractive_error",
                                             "monocular_deprivation", "aniseikonia", "orientation_rearing",
-                                            "camera_shift"])
+                                            "camera_shift", "vertical_misalignment"])
     events = resolve_events([
         {"kind": "roll", "start": 10, "eye": "right", "params": {"deg": 3}},
         {"kind": "roll", "start": 20, "end": 40, "eye": "both", "params": {"deg": 2}},

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import Any, Optional
 
 from aectorch._checks import is_int, is_real
+from aectorch.choices import PerturbationKind
 from aectorch.sim.perturbations import EYES, NEUTRAL, Optics, Perturbation, make_perturbation
 
 __all__ = ["Event", "PerturbationEventConfig", "Schedule", "resolve_events"]
@@ -37,7 +38,7 @@ class PerturbationEventConfig:
     Attributes:
         kind: the perturbation (`aectorch.sim.perturbations.PERTURBATIONS`): ``roll``,
             ``strabismus``, ``anisometropia``, ``refractive_error``, ``monocular_deprivation``,
-            ``aniseikonia``, ``orientation_rearing``, ``camera_shift``.
+            ``aniseikonia``, ``orientation_rearing``, ``camera_shift``, ``vertical_misalignment``.
         start: when it starts: an integer is a learner iteration (0-based: it acts from that
             iteration on), a number with a decimal point in [0, 1] a fraction of
             ``train.iterations`` (rounded down). Before the run's end.
@@ -50,7 +51,7 @@ class PerturbationEventConfig:
             diameter), ``refractive_error: {dioptres}`` (the eye's focus offset, positive myopic;
             needs ``env.aperture_m > 0``), ``monocular_deprivation: {contrast}``, ``aniseikonia: {percent}``,
             ``orientation_rearing: {orientation, bandwidth_deg}``, ``camera_shift: {x_m, y_m,
-            z_m}``).
+            z_m}``, ``vertical_misalignment: {deg}`` (positive up)).
         label: the event's name in logs, the summary and the figures (default: eye and kind).
     """
 
@@ -122,9 +123,8 @@ def resolve_events(entries, iterations: int, owner: str = "perturbations") -> li
         where = f"{owner}[{i}]"
         kind = _field(entry, "kind")
         if not kind:
-            raise ValueError(f"{where}.kind is missing: give one of the perturbation kinds (roll, strabismus, "
-                             "anisometropia, refractive_error, monocular_deprivation, aniseikonia, orientation_rearing, "
-                             "camera_shift)")
+            raise ValueError(f"{where}.kind is missing: give one of the perturbation kinds "
+                             f"({', '.join(PerturbationKind.values())})")
         try:
             perturbation = make_perturbation(kind, dict(_field(entry, "params") or {}))
         except ValueError as err:

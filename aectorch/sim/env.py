@@ -236,6 +236,17 @@ def _defocus(images: Tensor, radius_px) -> Tensor:
     return defocus_each(images, radius_px) if isinstance(radius_px, Tensor) else defocus(images, radius_px)
 
 
+def _elevated(poses: Tensor, elevation_deg: tuple[float, float]) -> Tensor:
+    """OpenGL camera-to-world ``poses`` ``[B, 2, 4, 4]`` with each eye turned up by its
+    ``elevation_deg`` about the camera's own x axis (x right, y up, looking along -z):
+    a vertical misalignment."""
+    angle = torch.deg2rad(torch.tensor(elevation_deg, dtype=poses.dtype, device=poses.device))
+    c, s = torch.cos(angle), torch.sin(angle)
+    turn = torch.eye(4, dtype=poses.dtype, device=poses.device).repeat(2, 1, 1)
+    turn[:, 1, 1], turn[:, 1, 2], turn[:, 2, 1], turn[:, 2, 2] = c, -s, s, c
+    return poses @ turn
+
+
 def _sideways(plane_y_m: Tensor | None) -> dict:
     """The renderers' ``plane_y_m`` argument where the object moved sideways (none otherwise: a
     renderer of the still object is called as it always was)."""
@@ -903,6 +914,8 @@ class ActiveDepthEnv:
         if optics.pan_offset_deg != NEUTRAL.pan_offset_deg:
             pans = pans + torch.tensor(optics.pan_offset_deg, dtype=pans.dtype, device=pans.device)
         poses = self.head.camera_poses(shift_m, pans, roll, convention="opengl")
+        if optics.elevation_offset_deg != NEUTRAL.elevation_offset_deg:
+            poses = _elevated(poses, optics.elevation_offset_deg)
         if optics.shift_m != NEUTRAL.shift_m:  # the robot's frame is the world's moved by the body shift
             poses = poses.clone()
             poses[..., :3, 3] += torch.tensor(optics.shift_m, dtype=poses.dtype, device=poses.device)

@@ -12,6 +12,7 @@ kind                        acts on parameters
 ==========================  ======  ============================================================
 ``roll``                    an eye  ``deg``: rotation about the optical axis (the paper's)
 ``strabismus``              an eye  ``deg``: a fixed pan offset, positive inward (esotropia)
+``vertical_misalignment``   an eye  ``deg``: a fixed elevation offset, positive up (hypertropia)
 ``anisometropia``           an eye  ``arcmin``: diameter of the defocus blur disc
 ``refractive_error``        an eye  ``dioptres``: the eye's focus offset (the world's defocus)
 ``monocular_deprivation``   an eye  ``contrast``: the image's contrast scaled to c (0 = grey)
@@ -21,9 +22,9 @@ kind                        acts on parameters
 ==========================  ======  ============================================================
 
 Perturbations compose: each applies to the :class:`Optics` the ones before it made (rolls, pan
-offsets, blur diameters, refractive errors and shifts add; contrasts and magnifications multiply;
-orientation bands all filter). The geometric kinds act on the camera poses (roll, pan offset,
-translation) or the camera's focal length (magnification), the image kinds on the rendered images
+offsets, elevation offsets, blur diameters, refractive errors and shifts add; contrasts and
+magnifications multiply; orientation bands all filter). The geometric kinds act on the camera poses
+(roll, pan offset, elevation offset, translation) or the camera's focal length (magnification), the image kinds on the rendered images
 (blur, contrast), the refractive error on the eye's focus (the world's defocus, whose blur disc
 follows the object's distance and the eye's accommodation) and the world kind on the textures, so
 the torch and the pyrender renderer see the same thing.
@@ -67,6 +68,9 @@ class Optics:
         roll_deg: rotation of each eye about its optical axis, degrees.
         pan_offset_deg: added to each eye's commanded pan, degrees (positive toward the robot's
             left, as pans are): where the eye points is the command plus this offset.
+        elevation_offset_deg: each eye's elevation offset, degrees (positive up): the camera turned
+            about its own horizontal axis after its pan and roll. The eyes have no tilt joint, so no
+            command undoes it; the ground truth (the horizontal pans that fixate) is unchanged.
         shift_m: each camera's translation ``(x, y, z)`` in metres in the robot's frame (x forward,
             y left, z up).
         blur_arcmin: diameter of each eye's defocus blur disc, minutes of arc (0 = sharp).
@@ -82,6 +86,7 @@ class Optics:
 
     roll_deg: Pair = (0.0, 0.0)
     pan_offset_deg: Pair = (0.0, 0.0)
+    elevation_offset_deg: Pair = (0.0, 0.0)
     shift_m: tuple[Vector, Vector] = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     blur_arcmin: Pair = (0.0, 0.0)
     refraction_D: Pair = (0.0, 0.0)
@@ -91,7 +96,7 @@ class Optics:
 
     def __post_init__(self) -> None:
         pairs = {name: tuple(float(v) for v in getattr(self, name))
-                 for name in ("roll_deg", "pan_offset_deg", "blur_arcmin", "refraction_D", "contrast",
+                 for name in ("roll_deg", "pan_offset_deg", "elevation_offset_deg", "blur_arcmin", "refraction_D", "contrast",
                               "magnification")}
         for name, value in pairs.items():
             if len(value) != 2 or not all(math.isfinite(v) for v in value):
@@ -116,8 +121,9 @@ class Optics:
     # -- what is perturbed --------------------------------------------------------------------
     @property
     def mounting_neutral(self) -> bool:
-        """No pan offset and no camera translation (the roll is the environment's ``roll_deg``)."""
-        return self.pan_offset_deg == NEUTRAL.pan_offset_deg and self.shift_m == NEUTRAL.shift_m
+        """No pan or elevation offset and no camera translation (the roll is the environment's ``roll_deg``)."""
+        return (self.pan_offset_deg == NEUTRAL.pan_offset_deg and self.shift_m == NEUTRAL.shift_m
+                and self.elevation_offset_deg == NEUTRAL.elevation_offset_deg)
 
     def images_neutral(self, eyes=(0, 1)) -> bool:
         """The eyes ``eyes`` (indices) render as they would unperturbed: no blur, contrast or magnification."""
@@ -211,6 +217,29 @@ class Strabismus:
 
     def describe(self) -> str:
         return f"strabismus {self.deg:g} deg {'inward' if self.deg >= 0 else 'outward'}"
+
+
+@dataclass(frozen=True)
+class VerticalMisalignment:
+    """A vertical squint: the eye turned ``deg`` up (hypertropia; negative down, hypotropia) from
+    where it is commanded, about the camera's own horizontal axis. The HOAP-3's eyes pan and
+    roll but have no tilt joint, so no eye movement undoes it: the two eyes' images keep a
+    vertical disparity of ``deg`` that only the stereo code can learn to live with (a change of
+    the plant for self-calibration). The fixating pans are unchanged."""
+
+    deg: float
+    kind: ClassVar[str] = "vertical_misalignment"
+    acts_on: ClassVar[str] = "eye"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "deg", _real(self.deg, "deg", unit="degrees"))
+
+    def apply(self, optics: Optics, eye: int | None) -> Optics:
+        offsets = optics.elevation_offset_deg
+        return replace(optics, elevation_offset_deg=_set_eye(offsets, eye, offsets[eye] + self.deg))
+
+    def describe(self) -> str:
+        return f"vertical misalignment {self.deg:g} deg {'up' if self.deg >= 0 else 'down'}"
 
 
 @dataclass(frozen=True)
@@ -370,6 +399,7 @@ PERTURBATIONS: dict[PerturbationKind, type] = {
     PerturbationKind.aniseikonia: Aniseikonia,
     PerturbationKind.orientation_rearing: OrientationRearing,
     PerturbationKind.camera_shift: CameraShift,
+    PerturbationKind.vertical_misalignment: VerticalMisalignment,
 }
 
 
@@ -386,7 +416,8 @@ def make_perturbation(kind: str, params: dict | None = None) -> Perturbation:
         Traceback (most recent call last):
         ...
         ValueError: kind must be one of 'roll', 'strabismus', 'anisometropia', 'refractive_error', \
-'monocular_deprivation', 'aniseikonia', 'orientation_rearing', 'camera_shift', got 'rol'
+'monocular_deprivation', 'aniseikonia', 'orientation_rearing', 'camera_shift', 'vertical_misalignment', \
+got 'rol'
     """
     try:
         member = PerturbationKind(str(kind))
