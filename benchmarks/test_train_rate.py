@@ -16,7 +16,7 @@ from benchmarks import harness
 SCALES = "[wide,coarse,fine]"
 VARIANTS = {
     "defaults": [],
-    # the learner issue 21 set its targets against, on today's code
+    # the earlier defaults' learner, which the speed targets were set against, on today's code
     "NAC, three scales": ["learner.cues.parallax.agent=nac", "learner.cues.stereo.agent=nac",
                           f"learner.cues.parallax.scales={SCALES}", f"learner.cues.stereo.scales={SCALES}"],
 }

@@ -1,4 +1,4 @@
-"""The coding efficiency of an image pair as a reward that prefers focus (issue 53).
+"""The coding efficiency of an image pair as a reward that prefers focus.
 
 Eckmann et al. 2020 (PNAS) reward the eyes with the mutual information between the retinal
 input R and its code C, ``I(R;C) = H(R) - H(R|C)``. The code is a function of the input, so

@@ -63,7 +63,7 @@ class PPOConfig:
             about 2 at ``lr = 0.003``: the vergence policy of ``learner.cues.stereo.agent=ppo``
             learned to 0.33 deg by iteration 1700 and then broke down to 2.0 deg by 2400
             (seed 0); with the norm scaled to 3 it ended at 0.147 deg, with 1 at 0.187 deg
-            (CHANGELOG.md, issue 28).
+            (CHANGELOG.md, the entry on PPO's z-scored features scaled to norm 3).
         normalize_eps: added to the variance of the z-scoring (> 0).
         actor_init: the policy's output weights start uniform in ``[-actor_init, actor_init]``
             (>= 0; biases at 0), a near-uniform policy.

@@ -22,8 +22,8 @@ exception, the damping factors (see below):
   mu_inc = 1``, so ``mu`` only takes the values ``1e-3 * 10**k``: once the
   error creeps along a flat, curved valley, each epoch tries ``mu / 10``,
   fails, and steps with ``mu``, over-damped, and the error falls very slowly.
-  Issue 21 (the depth network, 1,000 samples, validation off,
-  1,000 epochs): the training MSE ended about 7 % above MINPACK's in 2 of 3 seeds
+  On the depth network (1,000 samples, validation off,
+  1,000 epochs) the training MSE ended about 7 % above MINPACK's in 2 of 3 seeds
   with ``stop_reason="max_epochs"`` (no stopping rule ended it early; ``mu``
   1e-5 to 1e-4, gradient 5e-5, both far from their limits), and on seed 0,
   688 of the 1,000 steps were taken at ``mu = 1e-3`` after ``1e-4`` had failed.
@@ -255,7 +255,7 @@ def fit_levenberg_marquardt(
     within the epoch until the error decreases or ``mu > mu_max = 1e10``; 1000
     epochs, goal 0, ``min_grad = 1e-7``, and a random 15 % validation split with
     ``max_fail = 6``. See the module docstring for the algorithm, the stop
-    reasons and why the factors differ from trainlm's (issue 21).
+    reasons and why the factors differ from trainlm's.
 
     Before training, if ``normalise`` and the model has a ``set_normalisation``
     method (`DepthMLP` has), it is called with all `inputs` and `targets`, the

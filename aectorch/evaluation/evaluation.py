@@ -108,7 +108,7 @@ def accommodation_report(errors_deg: Tensor, aperture_m: float) -> dict:
     """The accommodation error at the fixation ends ``errors_deg`` (the blur disc's signed
     diameter, degrees) in dioptres (``aperture_m``'s degrees per dioptre) and in pixels of the
     finest scale (the camera's, 0.22 deg): the mean |error| in each, and the fractions of fixation
-    ends whose blur is within 0.25 and 0.5 px (issue 53's targets)."""
+    ends whose blur is within 0.25 and 0.5 px (the accommodation targets: docs/results.md)."""
     e = errors_deg.detach().double().reshape(-1).cpu().abs()
     e = e[torch.isfinite(e)]
     px = e / PinholeCamera().degrees_per_pixel

@@ -1,7 +1,7 @@
 """The tails of groups of runs (``python -m aectorch.report tails``): how many fixations end far
 off, near against far, and the worst fixation ends with what their eyes saw at the trial's start.
 
-A mean error is made by its tails (issue 50): one trial 16 degrees off moves a 399-trial MAE by
+A mean error is made by its tails: one trial 16 degrees off moves a 399-trial MAE by
 0.02 degrees. This counts the fixation ends beyond each threshold (either eye), compares the near
 trials with the far ones, and lists the worst ends with their texture statistics (the per-trial
 rows' ``view_*``, `aectorch.evaluation.views`), so a failure can be told from its view.

@@ -111,7 +111,7 @@ class EnvConfig:
             pan, positive converging), degrees; it must hold 0 (parallel, where fixations start).
             Default ``[-2, 40]``: human eyes diverge only a few degrees past parallel and converge
             to a near point of about 8 cm; without a floor, a learner whose reward is flat on a
-            view of little texture can drift its eyes apart (issue 50). ``[-90, 90]`` leaves only
+            view of little texture can drift its eyes apart. ``[-90, 90]`` leaves only
             the pan limits (what runs did before the range existed).
         pursuit_velocity: the eyes keep a pursuit velocity that moves them on between iterations,
             and the environment serves the ``slip`` cue (``learner.cues.slip``,

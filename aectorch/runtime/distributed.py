@@ -108,7 +108,7 @@ def _attempt_store(world: int):
     torch's ``env://`` initialisation uses the agent's store without such a prefix, so after a
     restart a process could read an address that a process of the group before had left there
     and fail on "Connection refused" (in 1 of 3 restarts of a two-process gloo group here; with the
-    prefix, none in 4; pytorch issue 167288). ``tests/test_restarts.py`` restarts a group."""
+    prefix, none in 4; pytorch/pytorch#167288). ``tests/test_restarts.py`` restarts a group."""
     import datetime
 
     import torch.distributed as dist

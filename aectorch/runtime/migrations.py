@@ -20,11 +20,11 @@ Format 3 (this version): each cue's config has ``motor_cost``, ``readout`` and
 ``encoder.start``, and ``env`` has ``q_iterations``; a format 2 file gets the values that
 reproduce what it did (:data:`_ADDED_2`: no motor cost, the argmax read-out, a random start, q
 of the last iteration), whatever today's defaults are. Later versions of format 3 added to the
-environment's state its perturbations' ``optics`` and ``first_optics`` (issue 48); a file
+environment's state its perturbations' ``optics`` and ``first_optics``; a file
 without them gets ``None``, which the environment reads as what it was: no perturbation but the
 roll its ``roll_deg`` holds; and to each cue's config the rates' floors ``encoder.floor`` and
 ``nac.actor_floor``, ``None`` (no floor) where absent (:data:`_ADDED_3`); and to ``env`` the
-oculomotor range (issue 50), where absent the eye pan limits alone (``pan_range_deg [-45, 45]``,
+oculomotor range, where absent the eye pan limits alone (``pan_range_deg [-45, 45]``,
 ``vergence_range_deg [-90, 90]``), what such a run did. The config's new
 sections (``perturbations``, ``plasticity``, ``train.recent_window``) get their defaults, which
 change nothing for a run without events.
@@ -161,9 +161,10 @@ def _from_2(payload: dict) -> dict:
 
 #: Fields that versions of format 3 added, with what a file without them did: the environment's
 #: optics (``None``: the roll of ``roll_deg`` and nothing else), the cues' reconstruction efficiency
-#: and no proprioception (issue 53), a reward of all their scales (issue 50), their rates without a floor,
-#: and the oculomotor range of the config's ``env`` (issue 50): the eye pan limits alone, no
-#: vergence range but theirs.
+#: and no proprioception (``efficiency``, ``proprioception``), a reward of all their scales (``reward_scales``
+#: empty), their rates without a floor (``encoder.floor``, ``nac.actor_floor``), and the oculomotor range of
+#: the config's ``env`` (``pan_range_deg``, ``vergence_range_deg``): the eye pan limits alone, no vergence
+#: range but theirs.
 _ADDED_3 = {"env": {"optics": None, "first_optics": None}, "cue": {"efficiency": "reconstruction", "proprioception": [], "reward_scales": []},
             "encoder": {"floor": None}, "nac": {"actor_floor": None},
             "config_env": {"pan_range_deg": [-45.0, 45.0], "vergence_range_deg": [-90.0, 90.0]}}

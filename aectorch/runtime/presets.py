@@ -55,7 +55,7 @@ ROLL_PERTURBATION: dict[str, Any] = {
     "train.iterations": 3000,
 }
 
-#: Accommodation learned with vergence (issue 53), ``+experiment=accommodation``: the environment
+#: Accommodation learned with vergence, ``+experiment=accommodation``: the environment
 #: serves the accommodation cue (each fixation starts with both eyes focused at infinity, 0 D, as
 #: vergence starts parallel) and the learner learns it with the information reward, which prefers
 #: focus (`aectorch.coding.focus`); its actions are degrees of the blur disc's diameter (at the
@@ -72,7 +72,7 @@ ACCOMMODATION: dict[str, Any] = {
                                    "proprioception": ["vergence", "focus"], "features": "none"},
 }
 
-#: A pursuit velocity learned from the retinal slip (issue 53's moving object), ``+experiment=slip``:
+#: A pursuit velocity learned from the retinal slip, to follow a moving object, ``+experiment=slip``:
 #: the eyes keep a velocity that moves them on between iterations, and the ``slip`` cue (the left
 #: eye's previous frame against its current one; its actions change the velocity, degrees per
 #: iteration) learns it beside pursuit's position steps and vergence. Mirroring the world mirrors
@@ -137,7 +137,7 @@ REARING: dict[str, list[dict[str, Any]]] = {
                              "params": {"arcmin": 120.0}, "label": "right eye blurred, corrected early"}],
     "anisometropia_late": [{"kind": "anisometropia", "start": 0, "end": 0.75, "eye": "right",
                             "params": {"arcmin": 120.0}, "label": "right eye blurred, corrected late"}],
-    # Refractive anisometropia (issue 53): the right eye 2 D myopic, blurred through the world's
+    # Refractive anisometropia: the right eye 2 D myopic, blurred through the world's
     # defocus (a 110 arcmin disc at the 16 mm aperture), never corrected or corrected early / late.
     "refractive": [{"kind": "refractive_error", "start": 0, "eye": "right", "params": {"dioptres": 2.0},
                     "label": "right eye 2 D myopic"}],

@@ -5,7 +5,7 @@ two axes could diverge by up to 90 degrees. Human eyes cannot: they converge to 
 about 8-10 cm and diverge only a few degrees past parallel (fusional divergence at distance,
 about 4-8 prism dioptres, 2-4 degrees). A learner whose coding reward is flat (a view with little
 texture) can otherwise drift its eyes apart without bound: one trial of the default learner ended
-with the eyes 12 degrees past parallel (issue 50).
+with the eyes 12 degrees past parallel.
 
 :class:`ActiveDepthEnv` keeps the eyes within an **oculomotor range**: each eye's pan within
 ``pan_range_deg`` and the vergence (right pan minus left pan; positive converging) within

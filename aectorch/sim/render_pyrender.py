@@ -263,8 +263,8 @@ class PyrenderRenderer:
         # context, so a second OffscreenRenderer would not see them. Windows of another size
         # resize its framebuffer (EGL); OSMesa has no framebuffer objects, so its context is
         # made as large as the largest window so far and smaller windows are drawn into its
-        # corner (`_draw`): a new context would upload every texture again (issue 21: rendering
-        # the scales' three window sizes through pyrender's own resizing ran at 0.8 iterations/s).
+        # corner (`_draw`): a new context would upload every texture again (rendering the
+        # scales' three window sizes through pyrender's own resizing ran at 0.8 iterations/s).
         renderer = self._gl_renderer
         if renderer is None:
             try:
