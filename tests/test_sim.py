@@ -497,6 +497,26 @@ def test_env_start_states_and_limits(bank):
     assert env.left_pan_deg.max() <= 45.0  # the URDF's eye pan limit
 
 
+def test_env_pursuit_start_error_starts_the_eyes_off_their_target_on_either_side(bank):
+    env = ActiveDepthEnv(16, textures=bank, distances_m=[1.0, 2.0], seed=3, vergence_start_deg=(-1.0, 1.0),
+                         pursuit_start_error_deg=2.0)
+    on_target = ActiveDepthEnv(16, textures=bank, distances_m=[1.0, 2.0], seed=3, vergence_start_deg=(-1.0, 1.0))
+    error = env.left_pan_deg - on_target.left_pan_deg
+    assert error.abs().max() <= 2.0 and (error > 0.2).any() and (error < -0.2).any()
+    # the same start without the error: the target, the first image's view, the vergence; the
+    # pursuit error is the other's plus the drawn one
+    torch.testing.assert_close(env.target_m, on_target.target_m)
+    torch.testing.assert_close(env.vergence_deg, on_target.vergence_deg)
+    torch.testing.assert_close(env.optimal_left_pan_deg(), on_target.optimal_left_pan_deg())
+    first = env.parallax_observation(window=True)["window"][:, 0]
+    torch.testing.assert_close(first, on_target.parallax_observation(window=True)["window"][:, 0])
+    # pursuit that undoes the error leaves the eye where the on-target start is
+    env.apply_pursuit(-error)
+    torch.testing.assert_close(env.left_pan_deg, on_target.left_pan_deg, atol=1e-4, rtol=0)
+    with pytest.raises(ValueError, match="pursuit_start_error_deg"):
+        ActiveDepthEnv(2, textures=bank, pursuit_start_error_deg=-1.0)
+
+
 def test_env_roll_changes_what_the_eye_sees(bank):
     env = small_env(bank)
     before = env.stereo_observation()["window"]

@@ -82,6 +82,7 @@ def build_env(cfg: ExperimentConfig, shard: Shard | None = None) -> ActiveDepthE
         **trial_protocol(cfg).env_kwargs(),
         pursuit_start_deg=_start(e.pursuit_start_deg, e.pursuit_start_spread_deg),
         vergence_start_deg=_start(e.vergence_start_deg, e.vergence_start_spread_deg),
+        pursuit_start_error_deg=e.pursuit_start_error_deg,
         seed=cfg.seed,
         device=e.device,
         dtype=e.torch_dtype,

@@ -86,6 +86,11 @@ class EnvConfig:
             paper, starts every fixation at ``pursuit_start_deg``). The evaluation always starts
             from the standard state (0, 0).
         vergence_start_spread_deg: the same for the vergence at each fixation's start (>= 0).
+        pursuit_start_error_deg: while training, each fixation's eyes start turned off their
+            target by an angle drawn uniformly from ``+-pursuit_start_error_deg`` (both eyes, the
+            vergence kept); the target and the parallax pair's first image are where the start
+            pans point, so pursuit starts off its optimum on either side (>= 0; 0, the paper:
+            every fixation starts on its target). The evaluation always starts on target.
         object_speed_deg: a moving object: ``[low, high]``, the range of its sideways speed,
             degrees per iteration, drawn uniformly per environment and fixation (positive: toward
             the robot's left; ``[-1, 1]`` draws both directions); it starts each fixation straight
@@ -137,6 +142,7 @@ class EnvConfig:
     vergence_start_deg: float = START_VERGENCE_DEG
     pursuit_start_spread_deg: float = 0.0
     vergence_start_spread_deg: float = 0.0
+    pursuit_start_error_deg: float = 0.0
     object_speed_deg: list[float] = field(default_factory=lambda: list(DEFAULT_PROTOCOL.object_speed_deg))
     object_depth_speed_m: list[float] = field(default_factory=lambda: list(DEFAULT_PROTOCOL.object_depth_speed_m))
     aperture_m: float = DEFAULT_PROTOCOL.aperture_m
@@ -167,7 +173,7 @@ class EnvConfig:
         check_int(self.q_iterations, f"{owner}.q_iterations", 1)
         for name in ("pursuit_start_deg", "vergence_start_deg"):
             check_real(getattr(self, name), f"{owner}.{name}", unit="degrees")
-        for name in ("pursuit_start_spread_deg", "vergence_start_spread_deg"):
+        for name in ("pursuit_start_spread_deg", "vergence_start_spread_deg", "pursuit_start_error_deg"):
             check_real(getattr(self, name), f"{owner}.{name}", minimum=0, unit="degrees")
         self.object_speed_deg = list(check_range(self.object_speed_deg, f"{owner}.object_speed_deg",
                                                  unit="degrees per iteration"))

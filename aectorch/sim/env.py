@@ -50,7 +50,7 @@ from typing import NamedTuple, Sequence
 import torch
 from torch import Tensor
 
-from aectorch._checks import check_choice, check_distances, check_int, is_real
+from aectorch._checks import check_choice, check_distances, check_int, check_real, is_real
 from aectorch.choices import Proprioception, RendererName
 from aectorch.ops.backend import fused_kernels_apply
 from aectorch.sim.camera import PinholeCamera, PixelWindow
@@ -332,6 +332,12 @@ class ActiveDepthEnv:
             range drawn uniformly per environment and fixation.
         vergence_start_deg: right pan minus left pan at each fixation's start (0 = parallel),
             a number or a range.
+        pursuit_start_error_deg: each fixation's eyes start turned off their target by an angle
+            drawn uniformly from ``+-pursuit_start_error_deg`` (both eyes alike, the vergence
+            kept), while the target and the parallax pair's first image are where the start pans
+            above point: pursuit starts off its optimum on either side, as a fixation does after
+            a saccade's error (>= 0; 0, the default and the paper's: every fixation starts on its
+            target).
         window: ``"crops"`` renders only the central 128 x 128 pixels the coder uses (its
             central 80 x 80 is the fine scale's crop), ``"full"`` the whole frame, or a
             :class:`PixelWindow`.
@@ -391,6 +397,7 @@ class ActiveDepthEnv:
         vergence_range_deg: tuple[float, float] = DEFAULT_PROTOCOL.vergence_range_deg,
         pursuit_start_deg=START_PURSUIT_DEG,
         vergence_start_deg=START_VERGENCE_DEG,
+        pursuit_start_error_deg: float = 0.0,
         window: str | PixelWindow = "crops",
         camera: PinholeCamera | None = None,
         head: HOAP3Head | None = None,
@@ -423,6 +430,8 @@ class ActiveDepthEnv:
         self.yoked_pursuit, self.q_iterations = yoked_pursuit, min(q_iterations, fixation_iterations)
         self.pursuit_start_deg = _range_or_value(pursuit_start_deg, "pursuit_start_deg")
         self.vergence_start_deg = _range_or_value(vergence_start_deg, "vergence_start_deg")
+        self.pursuit_start_error_deg = float(check_real(pursuit_start_error_deg, "pursuit_start_error_deg", minimum=0,
+                                                        unit="degrees"))
         self.camera = camera or PinholeCamera()
         self.window = _window(self.camera, window)
         self.head = (head or HOAP3Head()).to(device=self.device, dtype=dtype)
@@ -554,6 +563,9 @@ class ActiveDepthEnv:
             self.object_speed = self.plane_y_m = None
         self.target_m = self._fixation_target(self.eye_pan_deg[:, 0], self.plane_x_m)
         self._start_pans = self.pan_deg
+        if self.pursuit_start_error_deg > 0:  # the eyes off the target and the first image's view
+            error = self._uniform((-self.pursuit_start_error_deg, self.pursuit_start_error_deg))
+            self.pan_deg = self.clamp_pan_deg(self.pan_deg + error[:, None])
         self._first_image: dict = {}
         self._first_roll: Tensor | None = None
         self._first_optics: Optics | None = None
