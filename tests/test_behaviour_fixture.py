@@ -1,5 +1,5 @@
-"""No behaviour change: a fixed-seed short run matches the fixture recorded before issue 22's
-restructure (tests/fixtures/short_run/record.py, from commit 8680a64).
+"""No behaviour change: a fixed-seed short run matches the fixture recorded before the restructure
+into layers (tests/fixtures/short_run/record.py, from commit 8680a64).
 
 The fixture holds format 1 checkpoints (the cues written out); the test reads it through
 `aectorch.runtime.migrations.migrate`, as an old checkpoint is read, so the comparison is of the
@@ -65,7 +65,7 @@ def _numbers(tensors: dict) -> dict:
 def _without_last5(value):
     """The logs and results without what they have reported since the fixture was recorded: the
     means of each fixation's last 5 iterations (``last5``, ``*_last5_deg``); with perturbations
-    (issue 48, the fixture's run rolls the eyes) the events acting (``perturbations``), the short
+    (perturbations as data; the fixture's run rolls the eyes) the events acting (``perturbations``), the short
     window (``*_recent_*``), each event's start, end, kind and eyes, the plasticity and the
     recovery read-out (with the figures off the fixture's was empty); the texture statistics
     of each trial's first view in its row (``view_*``); and the checkpoint an evaluation
@@ -80,7 +80,7 @@ def _without_last5(value):
 
 
 #: What ``summary.json`` has reported since the fixture was recorded, beside the results: the
-#: read-outs of the learned code (issue 48), computed from the final and initial dictionaries, whose
+#: read-outs of the learned code, computed from the final and initial dictionaries, whose
 #: tensors `test_the_checkpoints_hold_the_fixtures_tensors` compares.
 NEW_IN_SUMMARY = ("code", "code_initial")
 
@@ -143,8 +143,8 @@ def test_the_checkpoints_hold_the_fixtures_tensors(fingerprint, name):
     # The fixture's format 1 checkpoint read as today's (the migration's renames), against the new
     # run's: the same tensors under today's names, the same config once validated.
     old = _unflatten(json.loads(record.FIXTURE.read_text())["checkpoints"][name])
-    # The environment's running sum of q (env.q_iterations, format 3) and its optics (issue 48,
-    # perturbations as data: the roll is the state's roll_deg, as before) are newer than the fixture.
+    # The environment's running sum of q (env.q_iterations, format 3) and its optics
+    # (perturbations as data: the roll is the state's roll_deg, as before) are newer than the fixture.
     new = _unflatten({k: v for k, v in fingerprint["checkpoints"][name].items() if k != "/env/q_sum_deg"
                       and not k.startswith(("/env/optics/", "/env/first_optics"))})
     migrated = migrate(old)

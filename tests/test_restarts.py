@@ -1,4 +1,4 @@
-"""Nothing lost when a run is started twice, a process dies, or the job moves (issue 47).
+"""Nothing lost when a run is started twice, a process dies, or the job moves.
 
 - A new run into a folder that holds a run's ``checkpoint.pt`` stops before any write (status 2,
   one line); ``train.resume=auto`` continues it, ``train.overwrite=true`` starts afresh.

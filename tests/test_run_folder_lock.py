@@ -1,4 +1,4 @@
-"""Two runs into one run folder: exactly one trains (issue 32).
+"""Two runs into one run folder: exactly one trains.
 
 A second ``train.py`` into the folder of a running one (a new run with the same
 ``hydra.run.dir``, or ``train.resume``) exits at once, with status 2 and one ``error:`` line naming

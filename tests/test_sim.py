@@ -917,7 +917,7 @@ def test_pyramid_blur_kernel_gives_the_torch_codes_bits_on_any_number_of_threads
 
 
 def test_both_renderers_satisfy_the_renderer_protocol_and_close_closes_both(bank):
-    """Issue 22: the renderers' shared interface is stated (`aectorch.sim.Renderer`), and
+    """The renderers' shared interface is stated (`aectorch.sim.Renderer`), and
     `ActiveDepthEnv.close()` frees the crops' renderer and the foveal scales' renderer."""
     from aectorch.coding.patches import as_scale
     from aectorch.sim import Renderer

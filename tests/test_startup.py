@@ -1,4 +1,4 @@
-"""Start-up that nothing a user does can wedge (issue 23): kernel builds killed or raced, caches
+"""Start-up that nothing a user does can wedge: kernel builds killed or raced, caches
 shared between checkouts, no PYOPENGL_PLATFORM, and kill -9 during training.
 
 Each test runs real processes (train.py, or a kernel load) against its own kernel cache

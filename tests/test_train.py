@@ -529,7 +529,7 @@ def test_threads_zero_uses_every_core_shared_among_processes():
 
 
 def test_a_resume_reads_its_checkpoint_and_validates_its_resources_once(tmp_path, textures, monkeypatch):
-    """Issue 22: the resume's rules live in `prepare_run`, which reads the checkpoint and checks the
+    """The resume's rules live in `prepare_run`, which reads the checkpoint and checks the
     resources once; `run_experiment` given its result does neither again."""
     import aectorch.runtime.checkpoint as checkpoint_module
     from aectorch.runtime import prepare_run
