@@ -1,4 +1,4 @@
-"""Perturbations as data (issue 48): each kind changes the images or the geometry as specified, in
+"""Perturbations as data: each kind changes the images or the geometry as specified, in
 both renderers; events compose, are checked with errors that name the key, survive a resume
 bit-identically and are logged; the recovery read-out; plasticity's floor and raise."""
 
