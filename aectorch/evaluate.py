@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 import sys
 from dataclasses import dataclass, field
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
 
 from omegaconf import MISSING
 
@@ -119,7 +119,7 @@ def _evaluate(args: EvaluateConfig) -> int:
     iteration = int(payload["iteration"])
     if args.readout is not None:
         for cue in learner.cues.values():
-            cue.config.readout = Readout(args.readout)
+            cue.config.readout = Readout(args.readout)  # type: ignore[union-attr]  # a CueLearner
     if args.textures is None:
         bank, textures = TextureBank.default("test"), "default test bank"
     else:
@@ -156,7 +156,9 @@ def _evaluate(args: EvaluateConfig) -> int:
                 + f"; every eye movement within {WITHIN_DEG} deg: {last['fractions']['both']['within']:.1%}")
     if "vergence_test" in result:
         deg = result["vergence_test"]["degrees"]
-        rows.append(f"vergence test: RMSE {deg['rmse']:.4f} deg, median {deg['median']:.4f} deg, n {deg['n']}")
+        test = result["vergence_test"]
+        rows.append(f"vergence test: RMSE {deg['rmse']:.4f} deg, median {deg['median']:.4f} deg, n {deg['n']}, "
+                    f"largest end {test['max_abs_deg']:.3f} deg, {test['beyond_1deg']:.1%} beyond 1 deg")
     rows.append(f"{result['trials']} trials, checkpoint iteration {iteration}; written to {args.out}")
     print("\n".join(rows))
     return 0
@@ -171,15 +173,17 @@ def _write(out: str, result: dict) -> None:
 
 def _tracking(args: EvaluateConfig, learner, bank: TextureBank, textures: str, protocol, iteration: int) -> int:
     """The moving object's test (``tracking=[...]``): its JSON, figure and table."""
-    trials = run_tracking(learner, bank, speeds_deg=list(args.tracking), depth_speed_m=args.depth_speed,
+    trials = run_tracking(learner, bank, speeds_deg=list(args.tracking),  # type: ignore[arg-type]  # set here
+                          depth_speed_m=args.depth_speed,
                           distances_m=list(args.depths), protocol=protocol, skip=args.skip, batch_size=args.batch_size,
                           seed=args.seed, policy=args.policy, progress=args.progress)
     per_speed = tracking_by_speed(trials)
-    result = {"tracking": {"skip": args.skip, "depth_speed_m": args.depth_speed, "per_speed": per_speed,
-                           "per_trial": tracking_rows(trials, bank.names)},
-              "checkpoint": args.checkpoint, "textures": textures, "renderer": str(protocol.renderer),
-              "iteration": iteration, "policy": str(args.policy),
-              "source": checkpoint_source(args.checkpoint, iteration)}
+    result: dict[str, Any] = {
+        "tracking": {"skip": args.skip, "depth_speed_m": args.depth_speed, "per_speed": per_speed,
+                     "per_trial": tracking_rows(trials, bank.names)},
+        "checkpoint": args.checkpoint, "textures": textures, "renderer": str(protocol.renderer),
+        "iteration": iteration, "policy": str(args.policy),
+        "source": checkpoint_source(args.checkpoint, iteration)}
     _write(args.out, result)
     if args.figure:
         plot_tracking([per_speed], args.figure)

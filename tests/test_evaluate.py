@@ -48,6 +48,8 @@ def test_evaluate_runs_every_texture_at_every_distance_frozen():
     test = result["vergence_test"]
     assert test["degrees"]["n"] == 6
     assert test["pixels"]["rmse"] == pytest.approx(test["degrees"]["rmse"] / env.camera.degrees_per_pixel)
+    assert test["max_abs_deg"] >= test["degrees"]["mae"] and 0 <= test["beyond_1deg"] <= 1
+    assert (test["beyond_1deg"] > 0) == (test["max_abs_deg"] > 1.0)
     after = learner.state_dict()
     for key, value in before.items():
         if isinstance(value, torch.Tensor):

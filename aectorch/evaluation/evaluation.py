@@ -94,11 +94,14 @@ def evaluate(
             final, per_pixel = _vergence_test(learner, index, distance, env_for, batch_size, offset_deg, steps,
                                               seed, greedy, bar)
             deg = summarise(final)
+            ends = final.detach().double().reshape(-1).abs()
             result["vergence_test"] = {
                 "offset_deg": offset_deg,
                 "steps": steps,
                 "degrees": deg,
                 "pixels": {k: (v / per_pixel if k != "n" else v) for k, v in deg.items()},
+                "max_abs_deg": float(ends.max()) if ends.numel() else math.nan,
+                "beyond_1deg": float((ends > 1.0).double().mean()) if ends.numel() else math.nan,
             }
     result["policy"] = str(policy)
     return result

@@ -6,7 +6,8 @@
 For every set (the NAME of ``stages.py --eval NAME=...``) and every stage that all runs of a group
 reached, one markdown row: the mean over the group's runs (standard deviation in brackets) of the
 final-state errors (pursuit and vergence MAE, depth MAE, both eyes within 1 px, either beyond
-2 deg) and of the earlier models' vergence test (MAE, RMSE; starts +-2 deg around the optimum).
+2 deg) and of the earlier models' vergence test (MAE, RMSE, the largest end; starts +-2 deg around
+the optimum).
 ``--plot`` draws pursuit and vergence MAE against iterations, a panel per set and measure.
 """
 
@@ -27,6 +28,8 @@ MEASURES = {  # name: (label, read from an evaluation JSON)
     "beyond_2deg": ("either beyond 2 deg (%)", lambda d: 100 * d["fractions"]["both"]["beyond"]),
     "vtest_mae": ("vergence test MAE (deg)", lambda d: d["vergence_test"]["degrees"]["mae"]),
     "vtest_rmse": ("vergence test RMSE (deg)", lambda d: d["vergence_test"]["degrees"]["rmse"]),
+    # (evaluations written before the test kept its largest end read as nan)
+    "vtest_max": ("vergence test largest end (deg)", lambda d: d["vergence_test"].get("max_abs_deg", math.nan)),
 }
 
 
