@@ -32,7 +32,6 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
-import torch
 from torch import Tensor
 
 from aectorch._checks import is_int
@@ -259,6 +258,7 @@ def plot_dictionaries(initial: Mapping[str, Tensor], trained: Mapping[str, Tenso
 
     Example:
         >>> import tempfile
+        >>> import torch
         >>> d = {"stereo/coarse": torch.randn(20, 30)}
         >>> out = plot_dictionaries(d, d, Path(tempfile.mkdtemp()) / "fig2.png")
         >>> out.name, out.stat().st_size > 0
@@ -742,6 +742,7 @@ def plot_code(code: Mapping[str, Mapping], path: str | os.PathLike, *,
 
     Example:
         >>> import tempfile
+        >>> import torch
         >>> from aectorch.coding.readouts import code_summary
         >>> code = {"stereo/fine": code_summary(torch.randn(200, 64))}
         >>> plot_code(code, Path(tempfile.mkdtemp()) / "code.png").exists()
@@ -799,6 +800,7 @@ def plot_code_comparison(groups: Mapping[str, Sequence[Mapping[str, Mapping]]], 
 
     Example:
         >>> import tempfile
+        >>> import torch
         >>> from aectorch.coding.readouts import code_summary
         >>> def run(seed):
         ...     atoms = torch.randn(200, 32, generator=torch.Generator().manual_seed(seed))

@@ -534,8 +534,9 @@ def _one_update(agent, seed=0, batch=1):
 
 
 def test_batch_reference_scales_a_small_batch_to_per_transition_steps():
-    make = lambda **kw: paper_nac(6, dtype=torch.float64, generator=torch.Generator().manual_seed(0),
-                                           alpha_v=0.1, alpha_theta=0.5, **kw)
+    def make(**kw):
+        return paper_nac(6, dtype=torch.float64, generator=torch.Generator().manual_seed(0),
+                         alpha_v=0.1, alpha_theta=0.5, **kw)
     full, quarter = _one_update(make()), _one_update(make(batch_reference=4))
     for key in ("critic_weight", "advantage_weight"):
         torch.testing.assert_close(quarter[key], full[key] / 4)
@@ -550,8 +551,9 @@ def test_batch_reference_scales_a_small_batch_to_per_transition_steps():
 
 @pytest.mark.parametrize("power", [1.0, 2.0])
 def test_actor_decay_slows_only_the_actor(power):
-    make = lambda **kw: paper_nac(6, dtype=torch.float64, generator=torch.Generator().manual_seed(0),
-                                           **{"alpha_v": 0.1, "alpha_theta": 0.5, **kw})
+    def make(**kw):
+        return paper_nac(6, dtype=torch.float64, generator=torch.Generator().manual_seed(0),
+                         **{"alpha_v": 0.1, "alpha_theta": 0.5, **kw})
     decayed = make(actor_decay=2.0, actor_decay_power=power)
     for _ in range(3):
         _one_update(decayed)

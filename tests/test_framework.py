@@ -386,7 +386,9 @@ def test_a_cues_agent_sees_its_proprioception_after_its_code():
     acc, stereo = learner.accommodation, learner.stereo
     assert acc.agent.num_features == acc.encoder.num_features + 2
     sensed = []
-    watch = lambda cue, _: sensed.append(env.proprioception(["vergence", "focus"])) if cue == "accommodation" else None
+    def watch(cue, _):
+        if cue == "accommodation":
+            sensed.append(env.proprioception(["vergence", "focus"]))
     for _ in range(3):  # one fixation: PPO learns from its first two steps at its end
         learner.iteration(env, watch=watch)
     assert torch.equal(sensed[0][:, 1], torch.full((2,), 0.5)) and sensed[1][:, 0].abs().min() > 0

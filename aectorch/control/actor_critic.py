@@ -53,8 +53,7 @@ from torch import nn
 from aectorch._checks import check_bool, check_finite, check_int, is_int, is_real
 from aectorch.control.features import merge_moments, scale_to_norm, standardize
 from aectorch.control.agent import (
-    DEFAULT_ACTIONS_DEG, PAPER_ACTIONS_DEG, ActOutput, LearnOutput, Reduce, Transitions, draw_uniform, entropy,
-    sample_actions,
+    DEFAULT_ACTIONS_DEG, ActOutput, LearnOutput, Reduce, Transitions, draw_uniform, entropy, sample_actions,
 )
 
 __all__ = ["ActOutput", "ActorCriticConfig", "NaturalActorCritic", "UpdateOutput"]

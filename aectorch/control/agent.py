@@ -16,7 +16,7 @@ batch of several processes, say) fixes the actions.
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple, Protocol, Sequence, runtime_checkable
+from typing import Callable, NamedTuple, Protocol, runtime_checkable
 
 import torch
 from torch import Tensor

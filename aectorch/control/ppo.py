@@ -33,7 +33,7 @@ from torch import Tensor, nn
 from aectorch._checks import check_bool, check_int, check_real
 from aectorch.control.agent import (DEFAULT_ACTIONS_DEG, ActOutput, LearnOutput, Reduce, Transitions, draw_uniform,
                                     entropy, sample_actions)
-from aectorch.control.features import merge_moments, scale_to_norm, standardize
+from aectorch.control.features import merge_moments, standardize
 
 __all__ = ["PPO", "PPOConfig"]
 

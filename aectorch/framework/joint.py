@@ -35,7 +35,7 @@ from torch import Tensor, nn
 
 from aectorch.depth.learner import DepthLearner
 from aectorch.framework.config import LearnerConfig
-from aectorch.framework.cue import CueLearner, CueRecord
+from aectorch.framework.cue import CueLearner
 from aectorch.framework.shard import Shard
 from aectorch.profiling import stage
 

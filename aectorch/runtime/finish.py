@@ -7,7 +7,6 @@ import copy
 import json
 import logging
 import signal
-from pathlib import Path
 
 import torch
 from torch import Tensor

@@ -31,7 +31,6 @@ import logging
 import signal
 import threading
 import time
-from pathlib import Path
 from typing import Callable, Sequence
 
 import torch
