@@ -102,7 +102,7 @@ def check_range(value, name: str, *, unit: str = "") -> tuple[float, float]:
         (-1.0, 1.0)
     """
     try:
-        low, high = value  # type: ignore[misc]
+        low, high = value
         ok = is_real(low) and is_real(high) and low <= high
     except (TypeError, ValueError):
         ok = False
@@ -115,7 +115,7 @@ def check_range(value, name: str, *, unit: str = "") -> tuple[float, float]:
 def check_distances(value: Sequence[float], name: str) -> list[float]:
     """A non-empty list of finite distances > 0 (metres), as floats, else ``ValueError`` naming ``name``."""
     try:
-        distances = [float(d) for d in value]  # type: ignore[union-attr]
+        distances = [float(d) for d in value]
     except (TypeError, ValueError):
         distances = []
     if not distances or any(not math.isfinite(d) or d <= 0 for d in distances) \

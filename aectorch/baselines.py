@@ -114,6 +114,8 @@ class Matcher(nn.Module):
         dtype, device: of its buffers.
     """
 
+    actions_deg: Tensor  # a buffer
+
     def __init__(self, actions_deg: Sequence[float] | None = DEFAULT_ACTIONS_DEG,
                  scales: Sequence[str] = DEFAULT_SCALES, *, cues: Sequence[str] = ("parallax", "stereo"),
                  camera: PinholeCamera | None = None, dtype: torch.dtype = torch.float32,
@@ -135,7 +137,7 @@ class Matcher(nn.Module):
 
     def displacement_deg(self, observation: dict[str, Tensor]) -> Tensor:
         """The second image's displacement against the first ``[B]``, degrees, coarse to fine."""
-        estimate_deg = None
+        estimate_deg: Tensor | None = None
         for scale in self.scales:
             pair = observation[scale.name]
             deg_per_px = self.degrees_per_pixel * scale.downsample
@@ -143,7 +145,7 @@ class Matcher(nn.Module):
             px = ncc_displacement_px(pair[:, 0], pair[:, 1], center_px=center,
                                      subpixel=scale is self.scales[-1])
             estimate_deg = px * deg_per_px
-        return estimate_deg
+        return estimate_deg  # type: ignore[return-value]  # not None: there is at least one scale
 
     def increment_deg(self, observation: dict[str, Tensor]) -> Tensor:
         """The increment that cancels the pair's displacement, or the action nearest it."""

@@ -275,7 +275,7 @@ def plot_dictionaries(initial: Mapping[str, Tensor], trained: Mapping[str, Tenso
     for key in trained:
         if key not in initial:
             raise ValueError(f"initial is missing key {key!r} (trained has {sorted(trained)})")
-    pcs = {}
+    pcs: dict = {}  # (key, "initial" | "trained") -> NumPy scores and ratio, the atoms' shape
     for key in initial:
         for name, mapping in (("initial", initial), ("trained", trained)):
             atoms = check_atoms(mapping[key], f"{name}[{key!r}]")
@@ -432,7 +432,7 @@ def plot_perturbation(records: Sequence[Mapping], path: str | os.PathLike, *,
     else:
         fig = _new_figure((8.0, 8.2))
         axes = list(fig.subplots(3, 1, sharex=True))
-        _recent_panels(*axes, x[keep], window, readout or {})
+        _recent_panels(*axes, x[keep], window, readout or {})  # type: ignore[call-arg]  # three axes
     _draw_events(axes, checked_events)
     axes[-1].set_xlim(low, high)
     axes[-1].set_xlabel("learner iteration")

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import time
 from collections import defaultdict
+from typing import Literal
 
 import torch
 
@@ -50,7 +51,7 @@ class StageTimer:
         self._previous, _active = _active, self
         return self
 
-    def __exit__(self, *exc) -> bool:
+    def __exit__(self, *exc) -> Literal[False]:
         global _active
         _active = self._previous
         return False
@@ -89,7 +90,7 @@ class stage:
 
     def __init__(self, name: str) -> None:
         self.name = name
-        self.timer = None
+        self.timer: StageTimer | None = None
 
     def __enter__(self) -> "stage":
         self.timer = _active
@@ -97,7 +98,7 @@ class stage:
             self.timer._push(self.name)
         return self
 
-    def __exit__(self, *exc) -> bool:
+    def __exit__(self, *exc) -> Literal[False]:
         if self.timer is not None:
             self.timer._pop(self.name)
         return False

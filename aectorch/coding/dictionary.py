@@ -171,7 +171,7 @@ class SparseDictionary(nn.Module):
         mirror, Pi the pairing); afterwards atom ``partner[j]`` is atom ``j`` mirrored. Does
         nothing without `mirror`. The norms of the two atoms of a pair become equal."""
         if self.mirror is not None:
-            self.atoms.copy_((self.atoms + self.atoms[self.mirror][:, self.partner]) * 0.5)
+            self.atoms.copy_((self.atoms + self.atoms[self.mirror][:, self.partner]) * 0.5)  # type: ignore[index]
         return self
 
     @torch.no_grad()

@@ -19,6 +19,8 @@ measures each term against defocus (docs/results.md, "Accommodation").
 
 from __future__ import annotations
 
+from typing import Sequence
+
 import torch
 from torch import Tensor
 
@@ -53,7 +55,8 @@ def input_energy(pair: Tensor, scale: Scale | str) -> Tensor:
     return patches.var(dim=-1, unbiased=False).mean(dim=1).flatten(1)
 
 
-def focus_reward(energy: Tensor, error: Tensor, *, floor: float = FOCUS_ENERGY_FLOOR) -> Tensor:
+def focus_reward(energy: Tensor | Sequence[Tensor], error: Tensor | Sequence[Tensor], *,
+                 floor: float = FOCUS_ENERGY_FLOOR) -> Tensor:
     """The information a code keeps of its input, ``1/2 log(E (1 - e))``, per patch, averaged over
     patches and summed over scales: ``energy`` and ``error`` ``[B, n_scales, n_patches]`` or lists
     of ``[B, n_patches_j]`` per scale (E from :func:`input_energy`, e the coder's per-patch error
@@ -65,7 +68,7 @@ def focus_reward(energy: Tensor, error: Tensor, *, floor: float = FOCUS_ENERGY_F
         (-2.414, True)
     """
     if isinstance(energy, Tensor):
-        energy, error = energy.unbind(1), error.unbind(1)
+        energy, error = energy.unbind(1), error.unbind(1)  # type: ignore[union-attr]  # both or neither
     if len(energy) != len(error) or any(E.shape != e.shape for E, e in zip(energy, error)):
         raise ValueError(f"energy and error must have one [B, n_patches] tensor per scale of the same shapes, got "
                          f"{[tuple(E.shape) for E in energy]} and {[tuple(e.shape) for e in error]}")

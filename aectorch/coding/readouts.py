@@ -330,8 +330,9 @@ def _plane_waves(p: int, orientations: int, frequencies: tuple[float, ...], dtyp
         y, x = torch.meshgrid(torch.arange(p, dtype=torch.float64), torch.arange(p, dtype=torch.float64),
                               indexing="ij")
         phase = 2 * math.pi * frequency * (x.reshape(-1, 1) * torch.cos(wave) - y.reshape(-1, 1) * torch.sin(wave))
-        bank = _BANKS[key] = tuple(t.to(dtype=dtype, device=device) for t in (
+        waves, stripes, frequency = (t.to(dtype=dtype, device=device) for t in (
             torch.cat([torch.cos(phase), torch.sin(phase)], dim=1), stripes, frequency))
+        bank = _BANKS[key] = (waves, stripes, frequency)
     return bank
 
 

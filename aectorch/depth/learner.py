@@ -45,6 +45,10 @@ class DepthLearner(nn.Module):
         (True, True)
     """
 
+    inputs: Tensor  # buffers
+    targets: Tensor
+    trained: Tensor
+
     def __init__(self, hidden: int = 10, *, every_trials: int = 256, max_samples: int = 20000,
                  max_epochs: int = 200, generator: torch.Generator | None = None,
                  device: torch.device | str | None = None, dtype: torch.dtype = torch.float32) -> None:

@@ -335,7 +335,8 @@ def fit_levenberg_marquardt(
     if targets.shape != out_shape and not (targets.ndim == 1 and out_shape == (n, 1)):
         raise ValueError(f"targets must have the shape of model(inputs), {out_shape}, got {tuple(targets.shape)}")
     if normalise and callable(getattr(model, "set_normalisation", None)):
-        model.set_normalisation(inputs.to(device=device, dtype=first.dtype), targets.to(device=device, dtype=first.dtype))
+        model.set_normalisation(  # type: ignore[operator]  # callable: checked above
+            inputs.to(device=device, dtype=first.dtype), targets.to(device=device, dtype=first.dtype))
     if init == "nguyen-widrow":
         nguyen_widrow_(model, generator)
 
@@ -431,8 +432,9 @@ def _train(
     epoch, reason = 0, "max_epochs"
     try:
         for epoch in range(max_epochs + 1):
-            reason = _stop_reason(epoch, perf, gradient, mu, val_fail if validate else None, max_epochs=max_epochs,
-                                  goal=goal, min_grad=min_grad, mu_max=mu_max, max_fail=max_fail)
+            reason = _stop_reason(  # type: ignore[assignment]  # a str at the last epoch
+                epoch, perf, gradient, mu, val_fail if validate else None, max_epochs=max_epochs,
+                goal=goal, min_grad=min_grad, mu_max=mu_max, max_fail=max_fail)
             if reason is not None:
                 break
             theta, mu, accepted = _damped_step(problem, theta, jtj, jte, sse, mu, eye, x_train, t_train,

@@ -61,7 +61,8 @@ def make_torchrl_env(env_id: str, num_envs: int = 1, *, device=None, seed: int |
 
     if device is not None:
         options["device"] = str(device)
-    return EyeTorchRLEnv(EyeTask(num_envs, TaskConfig(task=_task(env_id), **options)), seed=seed)
+    return EyeTorchRLEnv(EyeTask(num_envs, TaskConfig(task=_task(env_id), **options)),  # type: ignore[arg-type]
+                         seed=seed)  # (TaskConfig takes a task's name)
 
 
 def make_sb3_vec_env(env_id: str, num_envs: int = 1, *, seed: int | None = None, **options):
@@ -69,7 +70,8 @@ def make_sb3_vec_env(env_id: str, num_envs: int = 1, *, seed: int | None = None,
     (`aectorch.envs.sb3`)."""
     from aectorch.envs.sb3 import EyeSB3VecEnv
 
-    return EyeSB3VecEnv(EyeTask(num_envs, TaskConfig(task=_task(env_id), **options)), seed=seed)
+    return EyeSB3VecEnv(EyeTask(num_envs, TaskConfig(task=_task(env_id), **options)),  # type: ignore[arg-type]
+                        seed=seed)  # (TaskConfig takes a task's name)
 
 
 register()

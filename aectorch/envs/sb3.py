@@ -30,6 +30,7 @@ class EyeSB3VecEnv(VecEnv):
     """
 
     render_mode = None
+    _actions: np.ndarray | None
 
     def __init__(self, task: EyeTask, *, seed: int | None = None) -> None:
         self.task = task

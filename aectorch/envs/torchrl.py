@@ -38,6 +38,8 @@ class EyeTorchRLEnv(EnvBase):
         seed: the first reset's seed (``None``: the task's own).
     """
 
+    _next_first: tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]] | None
+
     def __init__(self, task: EyeTask, *, seed: int | None = None) -> None:
         super().__init__(device=task.device, batch_size=torch.Size([task.num_envs]))
         self.task, self._seed_value, self._next_first = task, seed, None
@@ -89,7 +91,8 @@ class EyeTorchRLEnv(EnvBase):
             observation = out.final_observation
         else:
             observation = out.observation
-        return TensorDict({**self._observation(observation, out.info), "reward": out.reward.to(torch.float32)[:, None],
+        return TensorDict({**self._observation(observation, out.info),  # type: ignore[arg-type]  # set when truncated
+                           "reward": out.reward.to(torch.float32)[:, None],
                            "done": truncated, "terminated": torch.zeros_like(truncated), "truncated": truncated.clone()},
                           batch_size=self.batch_size, device=self.device)
 

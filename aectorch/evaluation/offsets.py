@@ -96,7 +96,7 @@ def offset_sweep(
             stop = min(start + batch_size, index.numel())
             env = env_for(stop - start, protocol.fixation_iterations, instant=True)
             movement = env.cue(cue).movement
-            rows = {key: [] for key in out}
+            rows: dict[str, list[Tensor]] = {key: [] for key in out}
             for offset in offsets.tolist():
                 env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
                 shifted = torch.full((stop - start,), offset, dtype=dtype, device=device)

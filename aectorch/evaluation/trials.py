@@ -252,6 +252,7 @@ def _tracking_trials(learner, index: Tensor, distance: Tensor, speed: Tensor, en
         env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
         direction = rows[:, 0].sign()
         sums: dict[str, list[Tensor]] = {}
+        previous: dict[str, Tensor]
         step, previous = 0, {}
         for record in frozen_iterations(learner, env, greedy=greedy):
             for movement, error in record.errors_deg.items():

@@ -137,7 +137,7 @@ class LeRobotRecorder:
         self._trial_of = list(range(envs))  # each recorded environment's current trial number
         self._next_trial = envs
         self.episodes = 0
-        self._seen = None  # what the camera cue observed this iteration
+        self._seen: dict | None = None  # what the camera cue observed this iteration
 
     def watch(self, cue: str, observation: dict) -> None:
         """`JointLearner.iteration`'s ``watch``: keeps the camera cue's images and the state then."""

@@ -9,7 +9,7 @@ import json
 import os
 import statistics
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import torch
 
@@ -137,9 +137,10 @@ def focus_curve(photos: str | os.PathLike, out: str | os.PathLike, steps: int = 
 
     encoder = train_focus_coder(steps, spread, aperture_m, batch, seed)
     grid = [round(-1.0 + 0.1 * i, 1) for i in range(21)]
-    result = {"aperture_m": aperture_m, "steps": steps, "spread_D": spread, "seed": seed,
-              "textures": _curve(encoder, TextureBank.default("test"), grid, aperture_m),
-              "photographs": _curve(encoder, TextureBank.from_folder(photos, progress=False), grid, aperture_m)}
+    result: dict[str, Any] = {
+        "aperture_m": aperture_m, "steps": steps, "spread_D": spread, "seed": seed,
+        "textures": _curve(encoder, TextureBank.default("test"), grid, aperture_m),
+        "photographs": _curve(encoder, TextureBank.from_folder(photos, progress=False), grid, aperture_m)}
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(result, indent=1))

@@ -36,7 +36,7 @@ def _readout(run: Run, change: int, before: Path | None) -> dict:
         extra = before_line(before, run.config["train"]["recent_window"])
         lines = sorted([line for line in lines if line["iteration"] != extra["iteration"]] + [extra],
                        key=lambda line: line["iteration"])
-    logged = [line.get("iteration") for line in lines]
+    logged: list = [line.get("iteration") for line in lines]  # integers, checked next
     if not lines or not all(isinstance(i, int) and not isinstance(i, bool) for i in logged):
         raise ValueError(f"{run.path / 'metrics.jsonl'}: every line needs an integer 'iteration'")
     if not logged[0] <= change < logged[-1]:

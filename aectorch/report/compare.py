@@ -8,7 +8,7 @@ from __future__ import annotations
 import os
 import statistics
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 from aectorch.evaluation.summary import BEYOND_DEG, WITHIN_DEG
 from aectorch.figures import save_figure
@@ -170,7 +170,7 @@ def compare_trials(first: str | os.PathLike, second: str | os.PathLike, toleranc
     if set(a) != set(b):
         raise ValueError(f"the two evaluations hold different trials ({len(a)} and {len(b)}, "
                          f"{len(set(a) ^ set(b))} not in both)")
-    out = {"trials": len(a), "tolerance_deg": tolerance_deg}
+    out: dict[str, Any] = {"trials": len(a), "tolerance_deg": tolerance_deg}
     for cue in ("pursuit", "vergence"):
         diffs = sorted(((abs(x - y), key) for key in a
                         for x, y in zip(a[key][f"{cue}_errors_deg"], b[key][f"{cue}_errors_deg"])), reverse=True)

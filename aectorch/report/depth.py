@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import torch
 
@@ -120,7 +120,7 @@ def depth_readout(checkpoint: str | Path, photos: str | Path | None = None, cali
     fitted = _fitted(learner, cfg, trials, names, calibration)
     env = _geometry(cfg.env.shift_m)
     grid_m = torch.arange(GRID_M[0], GRID_M[1] + 1e-9, GRID_M[2], dtype=torch.float64)
-    result = {"checkpoint": str(checkpoint)}
+    result: dict[str, Any] = {"checkpoint": str(checkpoint)}
     for name in names:
         result[name] = depth_readouts(trials[name], env, grid_m, fitted[name])
     result["tolerance_deg_for_0.05_m"] = depth_tolerance(env, sets[0][2])

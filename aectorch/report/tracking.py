@@ -67,7 +67,8 @@ def tracking_table(runs: Sequence[Run], evaluation: str, plot: Path | None = Non
         lines[1] = lines[1] + "".join(f" {k[: -len('_tracking_deg')]} within {within_deg:g} (%) |" for k in plain)
         lines[2] = lines[2] + "---|" * len(plain)
     for i, speed in enumerate(speeds):
-        within = [_stats([_within(result["tracking"]["per_trial"], speed, k, within_deg) for result in results], 1)
+        within = [_stats([_within(result["tracking"]["per_trial"], speed, k, within_deg)  # type: ignore[arg-type]
+                          for result in results], 1)  # (plain is empty without within_deg)
                   for k in plain]
         cells = [_stats([rows[i][k] for rows in per_run]) for k in keys] + within
         lines.append(f"| {speed:g} | " + " | ".join(cells) + " |")

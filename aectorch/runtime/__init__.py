@@ -135,15 +135,17 @@ def run_experiment(
     if checkpoint is not None and cfg.train.resume is None:
         raise ValueError("run_experiment got a checkpoint but cfg.train.resume is null: pass what prepare_run returned")
     previous = (torch.are_deterministic_algorithms_enabled(), torch.is_deterministic_algorithms_warn_only_enabled(),
-                torch.utils.deterministic.fill_uninitialized_memory)
+                torch.utils.deterministic.fill_uninitialized_memory)  # type: ignore[attr-defined]  # not in the stubs
     if cfg.train.deterministic:
         if torch.device(cfg.env.device).type == "cuda":
             os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")  # cuBLAS's condition for it
         torch.use_deterministic_algorithms(True, warn_only=True)
-        torch.utils.deterministic.fill_uninitialized_memory = FILL_UNINITIALIZED_MEMORY
+        torch.utils.deterministic.fill_uninitialized_memory = FILL_UNINITIALIZED_MEMORY  # type: ignore[attr-defined]
     shard = distributed.setup(cfg.env.num_envs, cfg.env.device)
     try:
-        folder = RunFolder(cfg.train.resume if checkpoint is not None else run_dir, main=shard.is_main)
+        # (cfg.train.resume is set when there is a checkpoint, checked above)
+        folder = RunFolder(cfg.train.resume if checkpoint is not None else run_dir,  # type: ignore[arg-type]
+                           main=shard.is_main)
         try:
             _agree_on_start(shard, folder, cfg, checkpoint)
             run = TrainingRun(cfg, folder, shard, checkpoint, default_callbacks(cfg, folder.main, callback), groups)
@@ -157,4 +159,4 @@ def run_experiment(
     finally:
         distributed.teardown()
         torch.use_deterministic_algorithms(previous[0], warn_only=previous[1])  # as the caller had it
-        torch.utils.deterministic.fill_uninitialized_memory = previous[2]
+        torch.utils.deterministic.fill_uninitialized_memory = previous[2]  # type: ignore[attr-defined]

@@ -258,7 +258,7 @@ def check_resume_groups(cfg: ExperimentConfig, stored: ExperimentConfig, groups:
     check_started_groups(groups, started, where)
     for group, option in sorted(groups.items()):
         given = f"{'+' if group in ADDED_GROUPS else ''}{group}={option}"
-        for key in sorted(GROUPS[group].get(option, {})):
+        for key in sorted(GROUPS[group].get(option, {})):  # type: ignore[arg-type]  # (None: no option's keys)
             if key in {f"train.{k}" for k in RESUME_KEYS}:
                 continue
             ours, run = OmegaConf.select(mine, key), OmegaConf.select(theirs, key)

@@ -143,7 +143,7 @@ def config_classes(root: type = ExperimentConfig) -> list[type]:
     """Every config dataclass the experiment reaches from ``root`` through its fields' types
     (nested dataclasses, and the values of lists, tuples, dicts and optionals of them), ``root`` first."""
     found: list[type] = []
-    todo = [root]
+    todo: list = [root]
     while todo:
         cls = todo.pop(0)
         if cls in found:

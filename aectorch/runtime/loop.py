@@ -117,7 +117,7 @@ class Callback:
             observation then holds the whole window too).
     """
 
-    watch = None
+    watch: Callable[[str, dict], None] | None = None
 
     def on_start(self, run: "TrainingRun") -> None:
         """Before the first iteration of this session."""
@@ -461,7 +461,7 @@ class TrainingRun:
                     for it in range(self.start, self.total):
                         for callback in self.callbacks:
                             callback.before_iteration(self, it)
-                        record = self.learner.iteration(self.env, watch=watch)
+                        record = self.learner.iteration(self.env, watch=watch)  # type: ignore[arg-type]
                         record = self.shard.gather_record(record)  # every process sees the whole batch's record
                         self.metrics.update(record)
                         self.iteration_done = done = it + 1

@@ -187,10 +187,10 @@ class TrainingMetrics:
         of each movement's window (the long window holds them), the last ``recent // 2`` trials."""
         out = {}
         for movement, w in self.errors.items():
-            last = w[-self.recent:]
+            last = w[-self.recent:]  # type: ignore[operator]  # (called only with recent set)
             out[f"{movement}_recent_deg"] = float(last.mean()) if last.numel() else math.nan
             out[f"{movement}_recent_1px"] = float((last <= WITHIN_DEG).double().mean()) if last.numel() else math.nan
-        depth = self.depth[-max(1, self.recent // 2):]
+        depth = self.depth[-max(1, self.recent // 2):]  # type: ignore[operator]
         out["depth_recent_m"] = float(depth.mean()) if depth.numel() else math.nan
         return out
 

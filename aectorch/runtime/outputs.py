@@ -8,6 +8,7 @@ import math
 import os
 import tempfile
 from pathlib import Path
+from typing import IO, Any
 
 __all__ = ["CODE_AT_ENDS", "FIGURE_FILES", "LOCK_NAME", "OUTPUTS_LIST", "RUN_FILES", "RunFolder", "RunFolderBusy",
            "WriteFailed", "atomic_write", "format_summary", "json_value", "note_output", "write_json"]
@@ -103,7 +104,7 @@ def json_value(value):
     return value
 
 
-def write_json(path: Path, data: dict) -> None:
+def write_json(path: str | os.PathLike, data: dict) -> None:
     """Write ``data`` as JSON, whole or not at all (`atomic_write`)."""
     text = json.dumps(data, indent=2, allow_nan=True) + "\n"
     atomic_write(path, lambda f: f.write(text))
@@ -123,7 +124,7 @@ def _quiet_tensorboard_thread() -> None:
             return
         hook(args)
 
-    excepthook._aectorch = True
+    excepthook._aectorch = True  # type: ignore[attr-defined]
     threading.excepthook = excepthook
 
 
@@ -137,12 +138,12 @@ class RunFolder:
 
     def __init__(self, path: str | Path, main: bool = True) -> None:
         self.path, self.main = Path(path), main
-        self._lock = None
+        self._lock: IO[str] | None = None
         if main:
             self.path.mkdir(parents=True, exist_ok=True)
             self._acquire()
         self.metrics_path = self.path / "metrics.jsonl"
-        self._writer = None
+        self._writer: Any = None  # tensorboard's SummaryWriter once started
 
     @staticmethod
     def _busy(path: Path, holder: str) -> RunFolderBusy:

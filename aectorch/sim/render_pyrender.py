@@ -23,6 +23,7 @@ Conventions that make the two renderers agree (see ``docs/simulation.md``):
 from __future__ import annotations
 
 import os
+from typing import Any
 
 import numpy as np
 import torch
@@ -159,7 +160,7 @@ def _stable_program_cache(pyrender, renderer) -> None:
     """
     base = pyrender.shader_program.ShaderProgramCache
 
-    class StableProgramCache(base):
+    class StableProgramCache(base):  # type: ignore[valid-type,misc]  # pyrender's class, looked up at run time
         def __init__(self, shader_dir=None):
             super().__init__(shader_dir)
             self._stable: dict = {}
@@ -251,7 +252,7 @@ class PyrenderRenderer:
         pose = np.eye(4)
         pose[:3, 3] = [scene.background_x_m, *scene.background_center_yz_m]
         self._gl_scene.add(_quad(pyrender, background, scene.background_size_m, filter, self.lod_bias), pose=pose)
-        self._texture_nodes: dict[int, object] = {}
+        self._texture_nodes: dict[int, Any] = {}  # pyrender Nodes
         self._visible: int | None = None
         self._camera_node = None
         self._gl_renderer = None

@@ -84,8 +84,9 @@ class PlaneScene:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and value > 0):
                 raise ValueError(f"PlaneScene: {name} must be a number > 0, got {value!r}")
-        self.object_center_yz_m = tuple(float(v) for v in self.object_center_yz_m)
-        self.background_center_yz_m = tuple(float(v) for v in self.background_center_yz_m)
+        self.object_center_yz_m = tuple(float(v) for v in self.object_center_yz_m)  # type: ignore[assignment]
+        self.background_center_yz_m = tuple(  # type: ignore[assignment]  # (a pair: the field's type)
+            float(v) for v in self.background_center_yz_m)
 
     @property
     def num_textures(self) -> int:

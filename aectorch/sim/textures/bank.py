@@ -431,10 +431,10 @@ class TextureBank:
         if isinstance(index, slice):
             return self.textures[index]
         if is_int(index):
-            if not -n <= index < n:
+            if not -n <= index < n:  # type: ignore[operator]  # (is_int: an integer)
                 raise IndexError(f"texture index must lie in [{-n}, {n}) for {n} textures, got {index}")
             return self.textures[index]
-        return self.textures[self._index_tensor(index, "index")]
+        return self.textures[self._index_tensor(index, "index")]  # type: ignore[arg-type]
 
     def sample_indices(self, batch: int, generator: torch.Generator) -> Tensor:
         """Texture indices drawn uniformly with replacement.

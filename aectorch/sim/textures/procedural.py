@@ -138,9 +138,9 @@ def dead_leaves_image(
             continue
         inside = (ys[top:bottom] - cy) ** 2 + (xs[:, left:right] - cx) ** 2 <= r * r
         canvas[top:bottom, left:right][inside] = grey
-    canvas = torch.from_numpy(canvas)
+    image = torch.from_numpy(canvas)
     if inner_contrast > 0:
         texture = pink_noise_images(1, height, width, generator=generator, dtype=torch.float64)[0]
-        canvas = (1 - inner_contrast) * canvas + inner_contrast * texture
-    low_value, high_value = canvas.amin(), canvas.amax()
-    return ((canvas - low_value) / (high_value - low_value).clamp_min(1e-12)).to(dtype)
+        image = (1 - inner_contrast) * image + inner_contrast * texture
+    low_value, high_value = image.amin(), image.amax()
+    return ((image - low_value) / (high_value - low_value).clamp_min(1e-12)).to(dtype)
