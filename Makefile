@@ -50,5 +50,5 @@ bench-compare: setup
 	.venv/bin/pytest-benchmark compare $$out/$(A).json $$out/$(B).json --columns=min,median,iqr,rounds
 
 clean:
-	rm -rf .venv .venv-lerobot site .pytest_cache .hypothesis build dist *.egg-info
+	rm -rf .venv .venv-lerobot site .pytest_cache .hypothesis .mypy_cache .ruff_cache build dist *.egg-info
 	find . -path ./.git -prune -o -type d -name __pycache__ -prune -exec rm -rf {} +
