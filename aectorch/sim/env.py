@@ -421,8 +421,7 @@ class ActiveDepthEnv:
         if not 0 <= start <= total - num_envs:
             raise ValueError(f"batch_slice=(start, total) must have 0 <= start <= total - num_envs = "
                              f"{total - num_envs}, got {batch_slice!r}")
-        self._rows = slice(start, start + num_envs)
-        self._draws = total
+        self._rows, self._draws = slice(start, start + num_envs), total
         self.device, self.dtype = torch.device("cpu") if device is None else torch.device(device), dtype
         self.fixation_iterations = fixation_iterations
         self.shift_m = float(shift_m)
@@ -430,8 +429,7 @@ class ActiveDepthEnv:
         self.yoked_pursuit, self.q_iterations = yoked_pursuit, min(q_iterations, fixation_iterations)
         self.pursuit_start_deg = _range_or_value(pursuit_start_deg, "pursuit_start_deg")
         self.vergence_start_deg = _range_or_value(vergence_start_deg, "vergence_start_deg")
-        self.pursuit_start_error_deg = float(check_real(pursuit_start_error_deg, "pursuit_start_error_deg", minimum=0,
-                                                        unit="degrees"))
+        self.pursuit_start_error_deg = float(check_real(pursuit_start_error_deg, "pursuit_start_error_deg", minimum=0))
         self.camera = camera or PinholeCamera()
         self.window = _window(self.camera, window)
         self.head = (head or HOAP3Head()).to(device=self.device, dtype=dtype)
