@@ -94,3 +94,48 @@ def test_calibration_compares_the_adapted_run_with_the_scratch_run_from_the_wind
     write(tmp_path / "plain", [{"iteration": 10, "vergence_mae_deg": 0.1}])
     with pytest.raises(SystemExit, match="vergence_recent_deg"):
         calibration.pair(tmp_path / "plain", tmp_path / "s", change=100)
+    # --update keeps the other labels of the file; without it the file holds the pairs given
+    table = tmp_path / "cal.json"
+    table.write_text(json.dumps({"roll": {"kept": True}, "tilt": {"old": True}}))
+    calibration.main(["tilt=" + f"{tmp_path / 'a'}:{tmp_path / 's'}", "--change", "100", "--json", str(table), "--update"])
+    stored = json.loads(table.read_text())
+    assert stored["roll"] == {"kept": True} and stored["tilt"]["vergence"]["adapted"] == 0.21
+    calibration.main(["tilt=" + f"{tmp_path / 'a'}:{tmp_path / 's'}", "--change", "100", "--json", str(table)])
+    assert list(json.loads(table.read_text())) == ["tilt"]
+    with pytest.raises(SystemExit):
+        calibration.main(["tilt=" + f"{tmp_path / 'a'}:{tmp_path / 's'}", "--change", "100", "--update"])
+
+
+def test_swap_takes_one_cue_s_part_from_the_donor_and_nothing_else(tmp_path):
+    import importlib.util
+
+    import torch
+
+    spec = importlib.util.spec_from_file_location("swap", STUDY / "swap.py")
+    swap = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(swap)
+
+    def state(value):
+        return {"iteration": int(value), "learner": {
+            f"cues.{cue}.{part}.w": torch.full((2, 3), value + i) for i, (cue, part) in
+            enumerate((c, p) for c in ("parallax", "stereo") for p in ("agent", "encoder"))}}
+
+    base, donor = state(0.0), state(10.0)
+    out, count = swap.swap(base, donor, "parallax", "agent")
+    assert count == 1 and out["iteration"] == 0
+    assert torch.equal(out["learner"]["cues.parallax.agent.w"], donor["learner"]["cues.parallax.agent.w"])
+    for key in ("cues.parallax.encoder.w", "cues.stereo.agent.w", "cues.stereo.encoder.w"):
+        assert torch.equal(out["learner"][key], base["learner"][key]), key
+    with pytest.raises(ValueError, match="the cues: parallax, stereo"):
+        swap.swap(base, donor, "parallx", "agent")
+    donor["learner"]["cues.stereo.encoder.w"] = torch.zeros(3, 3)
+    with pytest.raises(ValueError, match="shape"):
+        swap.swap(base, donor, "stereo", "encoder")
+    torch.save(base, tmp_path / "b.pt"), torch.save(state(10.0), tmp_path / "d.pt")
+    swap.main([str(tmp_path / "b.pt"), str(tmp_path / "d.pt"), str(tmp_path / "o.pt"), "--cue", "stereo", "--part",
+               "encoder"])
+    written = torch.load(tmp_path / "o.pt")
+    assert float(written["learner"]["cues.stereo.encoder.w"][0, 0]) == 13.0
+    with pytest.raises(SystemExit):  # never over an existing file
+        swap.main([str(tmp_path / "b.pt"), str(tmp_path / "d.pt"), str(tmp_path / "o.pt"), "--cue", "stereo",
+                   "--part", "encoder"])

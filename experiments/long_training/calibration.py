@@ -1,7 +1,7 @@
 """Self-calibration: a run whose plant changed part-way against a run trained in the changed plant from its start.
 
     .venv/bin/python experiments/long_training/calibration.py \
-        "roll 10 deg=runs/cal_roll10_s0:runs/calscratch_roll10_s0" ... --change 2400 [--json out.json]
+        "roll 10 deg=runs/cal_roll10_s0:runs/calscratch_roll10_s0" ... --change 2400 [--json out.json [--update]]
 
 Each ``LABEL=ADAPTED:SCRATCH`` pair: ADAPTED was trained in the unchanged plant to ``--change``, then on
 in the changed one (``scripts/fork_run.py`` with a perturbation event at ``--change``); SCRATCH was
@@ -12,7 +12,9 @@ most 1.2), the iterations after the change until the adapted window, past its pe
 still holds fixations from before the change at first), comes within 1.2x of the scratch run's final
 one (``-``: never), and pursuit's short window just before the change (the
 adapted run's first window after it, the change's first 125 iterations) and at the end: whether the
-movement the change does not act on stays where it was.
+movement the change does not act on stays where it was. ``--update`` keeps the other labels an
+existing ``--json`` file holds (the pairs given replace theirs), so changes measured at different
+times share one file.
 """
 
 from __future__ import annotations
@@ -58,7 +60,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("pairs", nargs="+", metavar="LABEL=ADAPTED:SCRATCH")
     parser.add_argument("--change", type=int, required=True, help="the iteration of the adapted runs' change")
     parser.add_argument("--json", type=Path)
+    parser.add_argument("--update", action="store_true", help="keep the other labels of an existing --json file")
     args = parser.parse_args(argv)
+    if args.update and not args.json:
+        parser.error("--update needs --json FILE")
     results = {}
     for item in args.pairs:
         label, _, runs = item.partition("=")
@@ -79,7 +84,13 @@ def main(argv: list[str] | None = None) -> None:
               f"| {d['adapted']:.3f} / {d['scratch']:.3f} | {d['ratio']:.2f} | {cell(d['iterations_to_1.2x'])} "
               f"| {p['first_after_change']:.3f} / {p['adapted']:.3f} / {p['scratch']:.3f} |")
     if args.json:
-        args.json.write_text(json.dumps(results, indent=1) + "\n")
+        kept = {}
+        if args.update and args.json.is_file():
+            try:
+                kept = json.loads(args.json.read_text())
+            except ValueError as err:
+                sys.exit(f"error: --update: cannot read {args.json}: {err}")
+        args.json.write_text(json.dumps({**kept, **results}, indent=1) + "\n")
 
 
 if __name__ == "__main__":
