@@ -68,10 +68,12 @@ def _without_last5(value):
     (perturbations as data; the fixture's run rolls the eyes) the events acting (``perturbations``), the short
     window (``*_recent_*``), each event's start, end, kind and eyes, the plasticity and the
     recovery read-out (with the figures off the fixture's was empty); the texture statistics
-    of each trial's first view in its row (``view_*``); and the checkpoint an evaluation
-    was made from (``source``: its file, iteration and hash)."""
+    of each trial's first view in its row (``view_*``); the checkpoint an evaluation
+    was made from (``source``: its file, iteration and hash); and the vergence test's largest end
+    and fraction of ends beyond 1 deg (``max_abs_deg``, ``beyond_1deg``)."""
     if isinstance(value, dict):
-        new = ("perturbations", "start", "end", "kind", "eyes", "plasticity", "recovery", "source")
+        new = ("perturbations", "start", "end", "kind", "eyes", "plasticity", "recovery", "source", "max_abs_deg",
+               "beyond_1deg")
         return {k: _without_last5(v) for k, v in value.items() if "last5" not in k and "_recent_" not in k
                 and k not in new and not k.startswith("view_")}
     if isinstance(value, list):
