@@ -7,7 +7,9 @@ ARGS ?=
 PYTEST_ARGS ?=
 # LEROBOT=0 skips the LeRobot bridge's tests (they run in their own .venv-lerobot).
 LEROBOT ?= 1
-# pytest-xdist worker processes of the main suite (on 2 cores: 8 min 36 s with 2 on an idle AMD EPYC, 1,117 tests; the LeRobot part 1 min 14 s more, measured while training ran beside it).
+# pytest-xdist worker processes of the main suite (on 2 cores: 8 min 36 s with 2 on an idle AMD EPYC, 1,117 tests;
+# 15 min 38 s for 1,127 on a slower idle AMD EPYC whose training ran 300 iterations in 60 s against 20 s there;
+# the LeRobot part 56 s more).
 TEST_WORKERS ?= 2
 
 # `make bench`: the benchmark suite at full size, its results written to benchmarks/results
