@@ -8,7 +8,8 @@ PYTEST_ARGS ?=
 # LEROBOT=0 skips the LeRobot bridge's tests (they run in their own .venv-lerobot).
 LEROBOT ?= 1
 # pytest-xdist worker processes of the main suite (on 2 cores: 8 min 36 s with 2 on an idle AMD EPYC, 1,117 tests;
-# 15 min 38 s for 1,127 on a slower idle AMD EPYC whose training ran 300 iterations in 60 s against 20 s there;
+# 15 min 38 s for 1,127 on a slower idle AMD EPYC whose training ran 300 iterations in 60 s (start included)
+# against about 20 s there (2,400 in 163 s);
 # the LeRobot part 56 s more).
 TEST_WORKERS ?= 2
 
