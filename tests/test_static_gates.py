@@ -47,7 +47,7 @@ EXEMPT = {
 def _tool(name: str) -> str:
     path = Path(sys.executable).parent / name
     if not path.exists():
-        pytest.skip(f"{name} is not installed: scripts/setup.sh installs the test extra (pip install -e .[test])")
+        pytest.fail(f"{name} is not installed: scripts/setup.sh installs the test extra (pip install -e .[test])")
     return str(path)
 
 
