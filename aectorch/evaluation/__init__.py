@@ -35,7 +35,7 @@ simulation; the command line, on a checkpoint written by ``train.py``, is `__mai
 from aectorch.evaluation.adaptation import adaptation, recovery_of
 from aectorch.evaluation.depth_readout import depth_readouts, depth_tolerance
 from aectorch.evaluation.evaluation import evaluate
-from aectorch.evaluation.offsets import limit_cycle, offset_summary, offset_sweep
+from aectorch.evaluation.offsets import capture_range, limit_cycle, offset_summary, offset_sweep
 from aectorch.evaluation.summary import (
     BEYOND_DEG, LAST_ITERATIONS, WITHIN_DEG, fractions, movements, per_trial_rows, summarise,
 )
@@ -43,5 +43,5 @@ from aectorch.evaluation.trials import EVAL_BATCH_SIZE, frozen_iterations, run_t
 from aectorch.evaluation.views import view_statistics
 
 __all__ = ["BEYOND_DEG", "EVAL_BATCH_SIZE", "LAST_ITERATIONS", "WITHIN_DEG", "adaptation", "depth_readouts",
-           "depth_tolerance", "evaluate", "fractions", "frozen_iterations", "limit_cycle", "movements", "offset_summary", "offset_sweep", "per_trial_rows",
+           "capture_range", "depth_tolerance", "evaluate", "fractions", "frozen_iterations", "limit_cycle", "movements", "offset_summary", "offset_sweep", "per_trial_rows",
            "recovery_of", "run_trials", "summarise", "view_statistics"]

@@ -24,13 +24,20 @@ from aectorch._checks import check_int
 from aectorch.evaluation.trials import EVAL_BATCH_SIZE, placement, _all_conditions, _check_trial_arguments, _trial_session
 from aectorch.sim import TextureBank, TrialProtocol, resolve_protocol
 
-__all__ = ["AWAY_MIN_DEG", "DEFAULT_OFFSETS_DEG", "limit_cycle", "offset_summary", "offset_sweep"]
+__all__ = ["AWAY_MIN_DEG", "CAPTURE_AWAY", "CAPTURE_FROM_DEG", "DEFAULT_OFFSETS_DEG", "capture_range", "limit_cycle",
+           "offset_summary", "offset_sweep"]
 
 #: -1 to +1 degree in 0.02 degree steps (about a tenth of a pixel).
 DEFAULT_OFFSETS_DEG = tuple(round(-1.0 + 0.02 * i, 2) for i in range(101))
 #: `offset_summary` counts a mean increment of at least this many degrees (the default actions'
 #: smallest step) that points away from the optimum as a step away.
 AWAY_MIN_DEG = 0.05
+#: `capture_range` looks from this distance from the optimum outward (degrees): closer in, the mean
+#: read-out's small steps about the optimum are its precision, not its reach.
+CAPTURE_FROM_DEG = 0.5
+#: `capture_range`: an offset is within the capture range while at most this share of the trials
+#: steps away from the optimum there.
+CAPTURE_AWAY = 0.1
 
 
 def _pans_at(env, movement: str, offset: Tensor) -> Tensor:
@@ -141,6 +148,45 @@ def limit_cycle(offsets_deg: Tensor, increment_deg: Tensor, *, steps: int = 30, 
     return torch.stack(seen[-last:], 1).mean(1)
 
 
+def capture_range(offsets_deg: Tensor, away: Tensor, *, start_deg: float = CAPTURE_FROM_DEG,
+                  share: float = CAPTURE_AWAY) -> tuple[float, float]:
+    """How far from the optimum a policy still steps back toward it, below and above it.
+
+    Args:
+        offsets_deg: the sweep's offsets ``[K]``.
+        away: ``[N, K]``, True where trial n's step at offset k points away from the optimum.
+        start_deg: offsets closer to the optimum than this are left out (the policy's precision).
+        share: an offset is captured while at most this share of the trials steps away there.
+
+    Returns:
+        ``(below, above)``: on each side the largest ``|offset|`` up to which every swept offset
+        from ``start_deg`` outward is captured; 0 where the first one already is not; NaN where the
+        sweep reaches no offset ``start_deg`` or more on that side.
+
+    Example:
+        >>> x = torch.tensor([-3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0])
+        >>> away = torch.tensor([[True, False, False, False, False, True, False]])
+        >>> capture_range(x, away)
+        (2.0, 1.0)
+    """
+    share_away = away.double().mean(0)
+    out = []
+    for side in (-1.0, 1.0):
+        mask = (torch.sign(offsets_deg) == side) & (offsets_deg.abs() >= start_deg)
+        if not bool(mask.any()):
+            out.append(float("nan"))
+            continue
+        distance, order = offsets_deg[mask].abs().sort()
+        failed = share_away[mask][order] > share
+        reach = 0.0
+        for d, bad in zip(distance.tolist(), failed.tolist()):
+            if bad:
+                break
+            reach = d
+        out.append(reach)
+    return out[0], out[1]
+
+
 def offset_summary(sweep: dict[str, Tensor], *, probe_deg: float = 0.1, pixel_deg: float = 0.22,
                    far_deg: float = 1.0) -> dict:
     """The sweep's numbers: where the reward peaks (mean |offset| of each trial's peak, and the
@@ -150,12 +196,17 @@ def offset_summary(sweep: dict[str, Tensor], *, probe_deg: float = 0.1, pixel_de
     greedy map and (``mean_readout_limit_cycle_abs_deg``) of the mean read-out's map, and, of the
     offsets more than ``far_deg`` below (``away_far_below``) and above (``away_far_above``) the
     optimum, the share of trials x offsets where the mean read-out steps away from it (by at least
-    `AWAY_MIN_DEG`; NaN where the sweep reaches no such offset)."""
+    `AWAY_MIN_DEG`; NaN where the sweep reaches no such offset), and the policy's
+    `capture_range` on each side (``capture_below_deg``, ``capture_above_deg``; NaN where the
+    sweep reaches no offset beyond ``far_deg`` on that side)."""
     x, reward, increment = sweep["offsets_deg"], sweep["reward"], sweep["increment_deg"]
     expected = sweep["expected_increment_deg"]
     away = (torch.sign(expected) == torch.sign(x)) & (expected.abs() >= AWAY_MIN_DEG)
     far = {side: away[:, mask].double().mean() if bool(mask.any()) else torch.tensor(float("nan"))
            for side, mask in (("below", x < -far_deg), ("above", x > far_deg))}
+    # The capture range where the sweep reaches beyond ``far_deg`` on that side (NaN otherwise).
+    capture = [reach if bool(mask.any()) else float("nan")
+               for reach, mask in zip(capture_range(x, away), (x < -far_deg, x > far_deg))]
     peak = x[reward.argmax(1)]
     zero = int((x.abs()).argmin())
     sides = [int((x - s).abs().argmin()) for s in (-probe_deg, probe_deg)]
@@ -177,5 +228,7 @@ def offset_summary(sweep: dict[str, Tensor], *, probe_deg: float = 0.1, pixel_de
         "mean_readout_limit_cycle_abs_deg": float(limit_cycle(x, expected).mean()),
         "away_far_below": float(far["below"]),
         "away_far_above": float(far["above"]),
+        "capture_below_deg": capture[0],
+        "capture_above_deg": capture[1],
         "trials": int(reward.shape[0]),
     }

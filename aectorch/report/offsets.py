@@ -23,10 +23,12 @@ OFFSET_ROWS = {
     "mean_readout_limit_cycle_abs_deg": "where the mean read-out settles (deg)",
     "away_far_below": "the mean read-out steps away from the optimum, over 1 deg below it",
     "away_far_above": "the mean read-out steps away from the optimum, over 1 deg above it",
+    "capture_below_deg": "capture range below the optimum: the mean read-out steps back from every offset up to (deg)",
+    "capture_above_deg": "capture range above the optimum (deg)",
 }
 _FRACTIONS = ("reward_peak_within_px", "greedy_zero_at_optimum", "away_far_below", "away_far_above")
 #: Rows left out when no learner has them (a sweep within +-1 deg reaches no offset beyond 1 deg).
-_FAR_ROWS = ("away_far_below", "away_far_above")
+_FAR_ROWS = ("away_far_below", "away_far_above", "capture_below_deg", "capture_above_deg")
 
 
 def offset_measurement(checkpoint: str | Path, textures: str | Path | None,
