@@ -17,7 +17,9 @@ from omegaconf import MISSING
 from aectorch._checks import check_int, check_real
 from aectorch.choices import Policy, Readout, RendererName
 from aectorch.evaluation import BEYOND_DEG, EVAL_BATCH_SIZE, WITHIN_DEG, evaluate
+from aectorch.evaluation.stereo_pairs import START_KINDS, evaluate_pairs, stereo_policy
 from aectorch.evaluation.trials import TRACKING_SKIP, run_tracking, tracking_by_speed, tracking_rows
+from aectorch.baselines import Matcher
 from aectorch.figures import plot_evaluation, plot_tracking
 from aectorch.runtime.builders import trial_protocol
 from aectorch.runtime.checkpoint import load_checkpoint, load_learner
@@ -25,8 +27,12 @@ from aectorch.runtime.command import check_checkpoint_file, check_output_file, r
 from aectorch.runtime.outputs import note_output, write_json
 from aectorch.runs import checkpoint_source
 from aectorch.sim import DEFAULT_DISTANCES_M, PAN_RANGE_DEG, TextureBank, check_oculomotor_range, resolve_protocol
+from aectorch.sim.stereo_pairs import read_pairs
 
 __all__ = ["EvaluateConfig", "main"]
+
+#: Fixation points per stereo pair (``pairs=``).
+PAIR_FIXATIONS = 300
 
 
 @dataclass
@@ -61,6 +67,16 @@ class EvaluateConfig:
         vergence_range_deg: [low, high], the oculomotor vergence range of the trials (default:
             the run's, env.vergence_range_deg): e.g. a run trained without the range evaluated
             within it.
+        pairs: a folder of rectified stereo photographs with ground-truth disparity, a pair's
+            folder or a folder of them (Middlebury's layout: im0.png, im1.png, disp0.pfm; or the
+            plain one: left.*, right.*, disparity.npy): instead of the paper's test, the stereo
+            cue (frozen, greedy) and the classical matcher fixate points of each pair for a
+            fixation's iterations, from the protocol's start vergence and from the vergence
+            test's (the optimum +-2 deg); the result holds each fixation's final error in eye
+            pixels (aectorch.evaluation.stereo_pairs). Not with textures or tracking.
+        pair_scale: with pairs, the photo pixels one eye pixel spans (1, 2, ...).
+        fixations: with pairs, the fixation points per pair (fewer where fewer have a known
+            disparity and texture).
     """
 
     checkpoint: str = MISSING
@@ -78,6 +94,9 @@ class EvaluateConfig:
     depth_speed: float = 0.0
     skip: int = TRACKING_SKIP
     vergence_range_deg: Optional[list[float]] = None
+    pairs: Optional[str] = None
+    pair_scale: int = 1
+    fixations: int = PAIR_FIXATIONS
 
     def __post_init__(self) -> None:
         if not self.depths:
@@ -101,11 +120,27 @@ class EvaluateConfig:
                              f"tracking=[0,0.5,1]) too, or leave {given} out")
         if self.textures is not None and not os.path.isdir(self.textures):
             raise ValueError(f"textures: no such folder {self.textures!r}")
+        self._check_pairs()
         check_checkpoint_file(self.checkpoint)
         # The outputs before the trials: a path that cannot be written fails now, not after them.
         check_output_file(self.out, "out", (".json",))
         if self.figure is not None:
             check_output_file(self.figure, "figure", (".png", ".pdf", ".svg"))
+
+    def _check_pairs(self) -> None:
+        check_int(self.pair_scale, "pair_scale", minimum=1)
+        check_int(self.fixations, "fixations", minimum=1)
+        if self.pairs is None:
+            for name, default in (("pair_scale", 1), ("fixations", PAIR_FIXATIONS)):
+                if getattr(self, name) != default:
+                    raise ValueError(f"{name} acts only on stereo pairs: give pairs=FOLDER too, or leave {name} out")
+            return
+        for other in ("textures", "tracking", "figure"):
+            if getattr(self, other) is not None:
+                raise ValueError(f"pairs and {other} exclude each other: the pairs are the evaluation's images "
+                                 f"(give one of them)")
+        if not os.path.isdir(self.pairs):
+            raise ValueError(f"pairs: no such folder {self.pairs!r} (a folder of stereo pairs)")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -114,6 +149,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _evaluate(args: EvaluateConfig) -> int:
+    pairs = None if args.pairs is None else _read_pairs(args.pairs)  # a bad folder fails before the checkpoint loads
     payload = load_checkpoint(args.checkpoint)
     cfg, learner = load_learner(args.checkpoint, payload=payload)
     iteration = int(payload["iteration"])
@@ -130,6 +166,8 @@ def _evaluate(args: EvaluateConfig) -> int:
         textures = args.textures
     vergence_range = None if args.vergence_range_deg is None else tuple(args.vergence_range_deg)
     protocol = resolve_protocol(trial_protocol(cfg), renderer=args.renderer, vergence_range_deg=vergence_range)
+    if args.pairs is not None:
+        return _pairs(args, pairs, cfg, learner, protocol, iteration)
     if args.tracking is not None:
         return _tracking(args, learner, bank, textures, protocol, iteration)
     result = evaluate(learner, bank, distances_m=list(args.depths), protocol=protocol, batch_size=args.batch_size,
@@ -169,6 +207,46 @@ def _write(out: str, result: dict) -> None:
     that ``train.overwrite`` deletes it with the run)."""
     write_json(out, result)
     note_output(out)
+
+
+def _read_pairs(folder: str) -> list:
+    try:
+        return read_pairs(folder)
+    except (ValueError, OSError) as err:
+        raise ValueError(f"pairs: {err}") from err
+
+
+def _pairs(args: EvaluateConfig, pairs, cfg, learner, protocol, iteration: int) -> int:
+    """The stereo pairs' evaluation (``pairs=FOLDER``): the learner's stereo cue and the matcher
+    with its actions, from both kinds of start; its JSON and table."""
+    cue = learner.cues["stereo"]
+    matcher = Matcher(actions_deg=cue.config.actions_deg, scales=cue.config.scales)
+    policies = {"learner": stereo_policy(learner), "matcher": lambda observation, world: matcher.increment_deg(observation)}
+    spread = cfg.env.vergence_start_spread_deg
+    start = (cfg.env.vergence_start_deg - spread, cfg.env.vergence_start_deg + spread)
+    try:
+        result = evaluate_pairs(policies, pairs, scales=[s.name for s in cue.encoder.scales], pair_scale=args.pair_scale,
+                                fixations=args.fixations, steps=protocol.fixation_iterations, seed=args.seed,
+                                start_vergence_deg=start, vergence_range_deg=protocol.vergence_range_deg,
+                                batch_size=args.batch_size, progress=args.progress)
+    except ValueError as err:
+        raise ValueError(f"pairs: {err}") from err
+    result.update(checkpoint=args.checkpoint, folder=args.pairs, iteration=iteration, matcher_actions_deg=list(
+        cue.config.actions_deg), source=checkpoint_source(args.checkpoint, iteration))
+    _write(args.out, result)
+    rows = [f"{'policy':<12} {'start':<14} {'median |error| px':>18} {'within 1 px':>12} {'beyond 5 px':>12} "
+            f"{'smooth median':>14} {'edge median':>12}"]
+    for name, kinds in result["summary"].items():
+        for kind in START_KINDS:
+            s = kinds[kind]
+            rows.append(f"{name:<12} {kind:<14} {s['all']['median_abs_px']:>18.3f} {s['all']['within_1px']:>12.1%} "
+                        f"{s['all']['beyond_5px']:>12.1%} {s['smooth']['median_abs_px']:>14.3f} "
+                        f"{s['edge']['median_abs_px']:>12.3f}")
+    fixations = ", ".join(f"{p['name']} {p['fixations']}" for p in result["pairs"])
+    rows.append(f"fixation points: {fixations}; pair_scale {args.pair_scale}, {result['steps']} iterations each; "
+                f"checkpoint iteration {iteration}; written to {args.out}")
+    print("\n".join(rows))
+    return 0
 
 
 def _tracking(args: EvaluateConfig, learner, bank: TextureBank, textures: str, protocol, iteration: int) -> int:
