@@ -6,7 +6,7 @@ drives vergence), a sparse coder turns the cue's image pair into features and a 
 the code reconstructs the pair), an agent learns from the reward and chooses the eye movement, and
 the coder learns from the same error; after each trial a depth MLP learns the distance from the
 final eye angles. Without the cues' symmetries this is exactly what ``JointLearner`` computes
-(tests/test_examples.py checks it).
+(tests/project/test_examples.py checks it).
 
     python examples/minimal_loop.py            # 600 iterations of 16 heads, about a minute on 2 cores
     python examples/minimal_loop.py 100

@@ -32,7 +32,7 @@ Implementation notes (why the code looks the way it does):
   `aectorch.ops.native`): the same algorithm, one loop per signal over its correlations
   in L1, 2.5-4x faster than the torch code here (docs/performance.md). ``backend="torch"``
   forces the code above, which is also the CUDA path and the fallback when no compiler is
-  available. The two agree within float rounding (tests/test_pursuit.py).
+  available. The two agree within float rounding (tests/coding/test_pursuit.py).
 """
 
 from __future__ import annotations

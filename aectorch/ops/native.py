@@ -18,7 +18,7 @@ CPU, and the sources are copied into it, so a second checkout (a worktree, a cop
 scratch space) reuses the same build.
 
 If it cannot be built (no compiler, say), the pursuits fall back to the pure-torch code with one
-warning that says why; results agree within float rounding (tests/test_pursuit.py). Set
+warning that says why; results agree within float rounding (tests/coding/test_pursuit.py). Set
 ``AECTORCH_NATIVE=0`` to never use it, and ``AECTORCH_CACHE`` to move the cache
 (default ``~/.cache/aectorch``). On x86-64 the kernels are compiled for this CPU
 (``-march=native``); ``AECTORCH_NATIVE_MARCH`` names another target, e.g. ``x86-64-v3`` (AVX2,

@@ -3,7 +3,7 @@
 // In eager torch every pixel of a coarse scale costs ~80 tensor ops (the ray, both planes, the
 // footprint's derivatives, the level of detail, the sub-samples, two bilinear lookups each), each
 // a pass over memory plus dispatch. Here one loop per pixel does the same arithmetic in the same
-// order, so the two agree to float rounding (tests/test_sim.py). Only power-of-two textures (the
+// order, so the two agree to float rounding (tests/sim/test_sim.py). Only power-of-two textures (the
 // levels' sizes and packing in closed form, as in render_torch._trilinear).
 //
 // SIMD across pixels: a row (one camera of one batch element) is rendered in blocks of N pixels

@@ -78,7 +78,7 @@ log = logging.getLogger("aectorch")
 #: memory never written: about 360 fills per default iteration, 5 % of its self CPU time in torch's
 #: profiler (measured at commit c196118 by its ``benchmarks/loop_ops.py``).
 #: A run never reads such memory: its checkpoint is bit-identical either way
-#: (``tests/test_reliability.py::test_the_nan_fill_of_new_tensors_changes_no_bit``).
+#: (``tests/runtime/test_reliability.py::test_the_nan_fill_of_new_tensors_changes_no_bit``).
 FILL_UNINITIALIZED_MEMORY = False
 
 #: ``run_experiment``'s ``checkpoint`` when the caller did not call `prepare_run`.

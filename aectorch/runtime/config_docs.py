@@ -3,7 +3,7 @@
 Each field of a config dataclass is explained once, in the ``Attributes:`` section of its class's
 docstring (the lerobot habit); the tables in the docs are rendered from those entries and the
 defaults, between marker comments (``<!-- config-table: env -->`` ... ``<!-- /config-table -->``),
-so they cannot drift from the code. ``tests/test_config_docs.py`` checks that the tables in the
+so they cannot drift from the code. ``tests/runtime/test_config_docs.py`` checks that the tables in the
 docs are the generated ones and that every field of every config dataclass the experiment
 reaches has its entry.
 

@@ -15,7 +15,7 @@ three collectives the learning needs:
   keeps its rows. The environments' textures, distances and start states and the actions'
   sampling draw this way, so two processes with B environments each make the same run as one
   process with 2B environments, up to the summation order of the reductions
-  (``tests/test_distributed.py``).
+  (``tests/runtime/test_distributed.py``).
 
 `setup()` reads torchrun's environment (``RANK``, ``WORLD_SIZE``, ...) and initialises the process
 group: gloo for CPU, nccl for CUDA. Without torchrun it returns a shard of world size 1
@@ -108,7 +108,7 @@ def _attempt_store(world: int):
     torch's ``env://`` initialisation uses the agent's store without such a prefix, so after a
     restart a process could read an address that a process of the group before had left there
     and fail on "Connection refused" (in 1 of 3 restarts of a two-process gloo group here; with the
-    prefix, none in 4; pytorch/pytorch#167288). ``tests/test_restarts.py`` restarts a group."""
+    prefix, none in 4; pytorch/pytorch#167288). ``tests/runtime/test_restarts.py`` restarts a group."""
     import datetime
 
     import torch.distributed as dist

@@ -3,7 +3,7 @@
 A checkpoint's ``format`` is :data:`CHECKPOINT_FORMAT` when it was written by this version;
 :func:`migrate` turns an older one into today's layout step by step (``MIGRATIONS[v]`` turns
 format v into v + 1), so that every checkpoint written since the first release of ``train.py``
-loads (``tests/test_migrations.py`` loads one stored checkpoint of every version that changed what
+loads (``tests/runtime/test_migrations.py`` loads one stored checkpoint of every version that changed what
 a checkpoint holds). Nothing else in the package knows an old layout.
 
 Format 1 (commits 30ee905 to a9b2aa6): the learner's two cues were written out: the state dict named

@@ -1,0 +1,1 @@
+"""The repository as a whole: layering, static gates, docs, README, examples, packaging, scripts, benchmarks."""

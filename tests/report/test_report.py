@@ -1,0 +1,361 @@
+"""aectorch.runs (the run-folder reader) and python -m aectorch.report, whose tables docs/results.md shows."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import pytest
+
+from aectorch.evaluation.summary import BEYOND_DEG, WITHIN_DEG
+from aectorch.report.__main__ import main
+from aectorch.report.tables import band
+from aectorch.runs import Run, read_json, read_metrics
+from aectorch.sim import PinholeCamera
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _run(folder: Path, lines: list[dict], events=None) -> Path:
+    folder.mkdir()
+    (folder / "metrics.jsonl").write_text("".join(json.dumps(line) + "\n" for line in lines))
+    if events is not None:
+        (folder / "summary.json").write_text(json.dumps({"perturbation": {"events": events}}))
+    return folder
+
+
+def _rows(trials: list[tuple[str, float, list[float], list[float]]]) -> list[dict]:
+    return [{"texture": t, "distance_m": d, "pursuit_error_deg": p[-1], "vergence_error_deg": v[-1],
+             "depth_error_m": 0.01, "pursuit_errors_deg": p, "vergence_errors_deg": v} for t, d, p, v in trials]
+
+
+def _evaluation(path: Path, spec, **extra) -> Path:
+    path.write_text(json.dumps({"per_trial": _rows(spec), **extra}))
+    return path
+
+
+def _finished(folder: Path, seed: int, mae: float, train_s: float = 60.0) -> Path:
+    """A run folder as train.py and two `python -m aectorch.evaluate` calls leave it."""
+    folder.mkdir()
+    (folder / "config.yaml").write_text(f"seed: {seed}\nenv:\n  num_envs: 4\n")
+    (folder / "metrics.jsonl").write_text("".join(
+        json.dumps({"iteration": i, "pursuit_mae_deg": mae * i, "vergence_mae_deg": mae}) + "\n" for i in (10, 20)))
+    (folder / "summary.json").write_text(json.dumps({
+        "iterations": 20, "train_seconds": train_s, "best": None,
+        "final": {"pursuit_mae_deg": 0.1, "vergence_mae_deg": 0.2, "depth_mae_m": 0.3}}))
+    result = {"pursuit_mae_deg": mae, "vergence_mae_deg": mae / 2, "depth_mae_m": 0.05, "trials": 3,
+              "pursuit": {"median_abs": 0.2}, "vergence": {"median_abs": 0.0}, "depth": {"median_abs": 0.01},
+              "fractions": {"both": {"within": 0.5, "beyond": 0.25}, "vergence": {"within": 0.75, "beyond": 0.0}},
+              "last5": {"pursuit_mae_deg": mae / 3, "vergence_mae_deg": mae / 4,
+                        "fractions": {"both": {"within": 0.6, "beyond": 0.0}}}}
+    spec = [("x", 1.0, [0.1, -0.3], [0.0, 0.0]), ("x", 1.5, [0.2, 0.2], [0.1, 0.1]), ("x", 3.0, [5.0, 5.0], [0, 0])]
+    for name in ("evaluation.json", "final_textures.json", "final_choose.json"):
+        _evaluation(folder / name, spec, **result)
+    return folder
+
+
+def test_the_reader_reads_each_file_of_a_run_and_names_what_is_missing(tmp_path):
+    run = Run(_finished(tmp_path / "run", seed=3, mae=1.0))
+    assert run.config["seed"] == 3 and run.config["env"]["num_envs"] == 4
+    assert [line["iteration"] for line in run.metrics] == [10, 20] and run.metrics_at[20]["pursuit_mae_deg"] == 20.0
+    assert run.summary["iterations"] == 20 and len(run.per_trial("final_choose.json")) == 3
+    with pytest.raises(FileNotFoundError, match="provenance.json: no such file"):
+        run.provenance
+    with pytest.raises(FileNotFoundError, match="no such folder"):
+        Run(tmp_path / "nowhere")
+    (tmp_path / "old.json").write_text(json.dumps({"pursuit_mae_deg": 1.0}))
+    with pytest.raises(KeyError, match="no per_trial rows"):
+        Run(tmp_path).per_trial("old.json")
+    (tmp_path / "list.json").write_text("[1, 2]")
+    with pytest.raises(ValueError, match="must hold a JSON object"):
+        read_json(tmp_path / "list.json")
+
+
+def test_read_metrics_round_trip_and_truncated_last_line(tmp_path):
+    path = tmp_path / "metrics.jsonl"
+    records = [{"iteration": i, "pursuit_mae_deg": 1.0 / i, "depth_mae_m": math.nan if i < 3 else 0.5}
+               for i in range(1, 6)]
+    path.write_text("\n".join(json.dumps(r) for r in records) + "\n\n")  # (NaN as train.py writes it)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        back = read_metrics(path)
+    assert [r["iteration"] for r in back] == [1, 2, 3, 4, 5] and math.isnan(back[0]["depth_mae_m"])
+    assert back[4] == records[4]
+    path.write_text(path.read_text() + '{"iteration": 6, "pur')
+    with pytest.warns(UserWarning, match="skipping truncated last line"):
+        assert len(read_metrics(path)) == 5
+    path.write_text(json.dumps(records[0]) + "\nnot json\n" + json.dumps(records[1]) + "\n")
+    with pytest.raises(ValueError, match="line 2 is not valid JSON"):
+        read_metrics(path)
+
+
+def test_curves_prints_the_runs_side_by_side(tmp_path, capsys):
+    a = _run(tmp_path / "a", [{"iteration": i, "pursuit_mae_deg": i / 100, "vergence_mae_deg": None}
+                              for i in (25, 50, 75, 100)], events=[{"iteration": 60, "label": "rolled"}])
+    b = _run(tmp_path / "b", [{"iteration": i, "pursuit_mae_deg": 2.0, "vergence_mae_deg": 0.5} for i in (50, 100)])
+    plot = tmp_path / "out" / "cmp.png"
+    assert main(["curves", str(a), str(b), "--names", "x", "y", "--every", "25", "--from", "50",
+                 "--keys", "pursuit_mae_deg", "vergence_mae_deg", "--plot", str(plot)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == "| iteration | pursuit_mae_deg x | pursuit_mae_deg y | vergence_mae_deg x | vergence_mae_deg y |"
+    assert out[2] == "| 50 | 0.500 | 2.000 | - | 0.500 |"
+    assert out[3] == "| 75 | 0.750 | - | - | - |"  # b has no line at 75
+    assert out[4].startswith("| 100 | 1.000 |") and len(out) == 6 and plot.stat().st_size > 0
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--names", "only-one"], "one name per run"),
+    (["--names", "same", "same"], "distinct"),
+    (["--every", "0"], "--every"),
+])
+def test_curves_rejects_bad_arguments(tmp_path, capsys, args, message):
+    a = _run(tmp_path / "a", [{"iteration": 1}])
+    b = _run(tmp_path / "b", [{"iteration": 1}])
+    assert main(["curves", str(a), str(b), *args]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_a_folder_without_the_file_asked_for_is_one_error_line(tmp_path, capsys):
+    assert main(["curves", str(tmp_path)]) == 2
+    assert "has no metrics.jsonl" in capsys.readouterr().err
+    assert main(["table", str(tmp_path / "missing")]) == 2
+    assert capsys.readouterr().err.startswith("error: run folder")
+
+
+def test_trials_counts_the_fixation_ends_that_agree(tmp_path, capsys):
+    a = _evaluation(tmp_path / "a.json", [("x", 1.0, [0.1, 0.0], [0.0, 0.0]), ("y", 2.0, [0.0, 0.0], [0.5, 0.0])])
+    b = _evaluation(tmp_path / "b.json", [("y", 2.0, [0.04, 0.0], [0.0, 0.0]), ("x", 1.0, [0.1, 0.0], [0.0, 0.2])])
+    assert main(["trials", str(a), str(b), "--json", str(tmp_path / "c.json")]) == 0
+    result = json.loads((tmp_path / "c.json").read_text())
+    assert result["pursuit"]["agree"] == 1.0  # 0.04 deg apart is within 0.05
+    assert result["vergence"]["agree"] == 0.5 and result["vergence"]["max_difference_deg"] == 0.5
+    assert result["vergence"]["worst"][0]["texture"] == "y" and result["both_agree_trials"] == 0.0
+    assert "pursuit" in capsys.readouterr().out
+    c = _evaluation(tmp_path / "d.json", [("x", 1.0, [0.1, 0.0], [0.0, 0.0])])
+    assert main(["trials", str(a), str(c)]) == 2
+    assert "different trials" in capsys.readouterr().err
+
+
+def test_table_reports_the_near_trials_the_fractions_and_the_spread_of_the_runs(tmp_path, capsys):
+    runs = [_finished(tmp_path / f"s{seed}", seed=seed, mae=seed - 2.0) for seed in (3, 4)]
+    assert main(["table", *map(str, runs)]) == 0
+    header, _, row, _, spread = capsys.readouterr().out.splitlines()
+    cells = dict(zip(header.strip("| ").split(" | "), row.strip("| ").split(" | ")))
+    assert cells["seed"] == "3" and cells["pursuit MAE (deg)"] == "1.000"
+    assert cells["1.0-1.5 m pursuit MAE (deg)"] == "0.200" and cells["1.0-1.5 m vergence MAE (deg)"] == "0.050"
+    assert cells[f"both within {WITHIN_DEG} deg"] == "0.500" and cells["evaluated (best.pt: iteration)"] == "last"
+    assert dict(zip(header.strip("| ").split(" | "), spread.strip("| ").split(" | ")))["pursuit MAE (deg)"] \
+        == "1.500 +- 0.707"
+
+
+def test_band_counts_fixation_ends_by_the_evaluations_thresholds():
+    # Both ends of each trial: on target is |error| <= WITHIN_DEG in every movement, failed is
+    # |error| > BEYOND_DEG in any: the thresholds and the rule of aectorch.evaluation.summary.
+    rows = _rows([("a", 1.0, [WITHIN_DEG, -WITHIN_DEG], [0.0, 0.0]),  # both ends on target
+                  ("b", 1.2, [WITHIN_DEG + 0.01, 0.0], [0.0, -BEYOND_DEG]),  # neither, and not failed
+                  ("c", 1.4, [0.0, 0.0], [0.0, BEYOND_DEG + 0.01]),  # on target, then failed
+                  ("far", 3.0, [9.0, 9.0], [9.0, 9.0])])
+    out = band(rows, 1.0, 1.5)
+    assert out["trials"] == 3 and out["within"] == pytest.approx(3 / 6) and out["beyond"] == pytest.approx(1 / 6)
+    assert out["pursuit_mae_deg"] == pytest.approx((3 * WITHIN_DEG + 0.01) / 6)
+    with pytest.raises(ValueError, match="no trial at 2.0-2.5 m"):
+        band(rows, 2.0, 2.5)
+
+
+def test_band_and_ablation_read_the_evaluations_they_name(tmp_path, capsys):
+    runs = [_finished(tmp_path / f"s{seed}", seed=seed, mae=1.0) for seed in (0, 1)]
+    assert main(["band", *map(str, runs), "--eval", "final_choose.json", "--low", "1.0", "--high", "1.5"]) == 0
+    assert capsys.readouterr().out.startswith("1.0-1.5 m, final_choose.json, mean of 2 runs: pursuit 0.200 deg, "
+                                              "vergence 0.050 deg")
+    assert main(["ablation", f"first={runs[0]}", f"second={runs[1]}:_missing", "--json", str(tmp_path / "a.json")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[2] == "| first | 1.000 / 0.500 / 0.050 | 50.0% / 25.0% | 0.333 / 0.250 | 1.000 / 0.500 / 0.050 " \
+                       "| 50.0% / 25.0% | 0.333 / 0.250 |"
+    assert lines[3] == "| second | n/a | n/a | n/a | n/a | n/a | n/a |"
+    assert json.loads((tmp_path / "a.json").read_text())["second"]["suffix"] == "_missing"
+    assert main(["ablation", "no-label"]) == 2
+    assert "label=run[:suffix]" in capsys.readouterr().err
+
+
+def test_compare_gives_each_groups_mean_and_sd_and_plots_its_curves(tmp_path, capsys):
+    runs = [_finished(tmp_path / f"s{seed}", seed=seed, mae=1.0 + seed, train_s=60.0 * (1 + seed)) for seed in (0, 1)]
+    plot, out = tmp_path / "groups.png", tmp_path / "groups.json"
+    assert main(["compare", f"both={runs[0]},{runs[1]}", f"one={runs[0]}", "--evals", "photos=final_choose.json",
+                 "--json", str(out), "--plot", str(plot)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[2].startswith("| photos | both | 1.500 (0.707) | 0.750 (0.354) | 0.050 (0.000) | 50.0% | 25.0% | "
+                               "0.500 / 0.375, 60.0% | 0.100 / 0.200 | 90 (42) |")
+    assert lines[3].startswith("| photos | one | 1.000 (0.000) |")
+    table = json.loads(out.read_text())["table"]
+    assert table["photos"]["both"]["pursuit_mae_deg"]["runs"] == [1.0, 2.0] and plot.stat().st_size > 0
+
+
+def test_rl_puts_the_clients_beside_the_learner(tmp_path, capsys):
+    folder = tmp_path / "rl"
+    folder.mkdir()
+    for seed, mae in ((0, 0.5), (1, 0.7)):
+        (folder / f"sb3_error_s{seed}.json").write_text(json.dumps({"train_s": 100.0, "eval": {"photos": {
+            "trained": {"vergence_mae_deg": mae, "within_0.22_deg": 0.5}, "random": {"vergence_mae_deg": 3.0}}}}))
+    (folder / "notes.json").write_text("{}")  # not a client's file: skipped
+    own = _finished(tmp_path / "own", seed=0, mae=1.0)
+    assert main(["rl", str(folder), "--own", str(own), "--default-set", "photos"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[2] == "| SB3 PPO | error | photos | 2 | 0.600 (0.141) [0.50 / 0.70] | 50.0% | 3.00 | 100 |"
+    assert lines[3] == "| aectorch NAC (vergence only) | coding (improvement) | photos | 1 | 0.500 [0.50] | 75.0% | - | 60 |"
+
+
+def test_the_command_line_lists_its_commands():
+    done = subprocess.run([sys.executable, "-m", "aectorch.report", "--help"], cwd=ROOT, capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0
+    for command in ("table", "compare", "curves", "band", "trials", "ablation", "rl", "tails", "matcher", "offsets",
+                    "depth-readout", "depth-tolerance"):
+        assert command in done.stdout
+
+
+def _code_run(folder: Path, seed: int) -> Path:
+    import torch
+
+    from aectorch.coding.readouts import code_summary
+
+    generator = torch.Generator().manual_seed(seed)
+    code = {name: code_summary(torch.randn(200, 16, generator=generator)) for name in ("parallax/fine", "stereo/fine")}
+    start = {name: code_summary(torch.randn(200, 16, generator=generator)) for name in code}
+    folder.mkdir()
+    (folder / "summary.json").write_text(json.dumps({"code": code, "code_initial": start}))
+    return folder
+
+
+def test_code_gives_each_groups_mean_and_range_beside_the_start(tmp_path, capsys):
+    runs = [_code_run(tmp_path / f"s{seed}", seed) for seed in range(3)]
+    plot = tmp_path / "out" / "binocularity.png"
+    assert main(["code", f"normal={runs[0]},{runs[1]}", str(runs[2]), "--cue", "stereo", "--plot", str(plot)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert len(out) == 5 and out[2].startswith("| normal (2) | stereo/fine | ") and out[3].startswith("| s2 (1) | ")
+    codes = [Run(run).code for run in runs[:2]]
+    index = [c["stereo/fine"]["binocularity"]["mean_abs_index"] for c in codes]
+    start = [c["initial"]["stereo/fine"]["binocularity"]["mean_abs_index"] for c in codes]
+    expected = f"{sum(index) / 2:.3f} ({min(index):.3f}-{max(index):.3f}) [{sum(start) / 2:.3f}]"
+    assert out[2].split(" | ")[2] == expected
+    assert plot.stat().st_size > 0 and out[4] == f"wrote {plot}"
+
+
+@pytest.mark.parametrize("args, message", [
+    (["x=", "--cue", "stereo"], "a group must be"),
+    (["a={one}", "a={two}"], "distinct"),
+    (["nowhere"], "no such folder"),
+])
+def test_code_rejects_bad_groups(tmp_path, capsys, args, message):
+    (tmp_path / "one").mkdir()
+    (tmp_path / "two").mkdir()
+    args = [a.format(one=tmp_path / "one", two=tmp_path / "two") for a in args]
+    assert main(["code", *[a if "=" in a or a.startswith("--") or a == "stereo" else str(tmp_path / a)
+                           for a in args]]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_rl_tabulates_the_clients_and_active_depth(tmp_path, capsys):
+    def result(mae, random_mae, **pursuit):
+        row = lambda v, p: {"vergence_mae_deg": v, "within_0.22_deg": 0.5, "fixations": 8,  # noqa: E731
+                            **({"pursuit_mae_deg": p} if p is not None else {})}
+        return {"train_s": 10.0, "eval": {"test textures": {"trained": row(mae, pursuit.get("trained")),
+                                                            "random": row(random_mae, pursuit.get("random"))}}}
+
+    for name, value in (("cleanrl_scaled_s0", 0.2), ("cleanrl_scaled_s1", 0.4), ("sb3_coding_s0", 1.0)):
+        (tmp_path / f"{name}.json").write_text(json.dumps(result(value, 2.5)))
+    (tmp_path / "sb3-activedepth_scaled_s0.json").write_text(json.dumps(result(0.5, 2.0, trained=1.0, random=3.0)))
+    (tmp_path / "other_s0.json").write_text("{}")  # not a client's file: left alone
+    assert main(["rl", str(tmp_path)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert "| CleanRL-style PPO | scaled | test textures | 2 | 0.300 (0.141) [0.20 / 0.40] | 50.0% | 2.50 | 10 |" in out
+    assert "| SB3 PPO | coding | test textures | 1 | 1.000 [1.00] | 50.0% | 2.50 | 10 |" in out
+    assert "| SB3 PPO, MultiDiscrete | scaled | test textures | 1 | 1.000 [1.00] | 3.000 | 0.500 [0.50] | 2.000 | 10 |" in out
+
+
+def test_adaptation_tabulates_the_recovery_of_each_error(tmp_path, capsys):
+    run = tmp_path / "rolled"
+    run.mkdir()
+    (run / "config.yaml").write_text("train:\n  recent_window: 128\n")
+    values = [0.1, 0.1, 0.5, 0.3, 0.11, 0.1, 0.4, 0.4]
+    within = [1.0, 0.96, 0.2, 0.6, 0.97, 0.99, 0.5, 0.5]
+    lines = [{"iteration": 10 * i, "vergence_recent_deg": v, "vergence_recent_1px": w, "pursuit_recent_deg": 0.1,
+              "pursuit_recent_1px": 1.0, "depth_recent_m": 0.05} for i, (v, w) in enumerate(zip(values, within))]
+    (run / "metrics.jsonl").write_text("".join(json.dumps(line) + "\n" for line in lines))
+    assert main(["adaptation", str(run), "--change", "10"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert len(out) == 5 and out[2].startswith("| rolled | vergence | 0.100 | 0.500 (5.0x, 20) | 30 | 0.400 |")
+    assert main(["adaptation", str(tmp_path / "missing"), "--change", "10"]) == 2
+    assert "no such folder" in capsys.readouterr().err
+
+
+def test_accommodation_gives_each_groups_mean_and_sd(tmp_path, capsys):
+    def run(name, vergence, mae_D=None):
+        folder = tmp_path / name
+        folder.mkdir()
+        result = {"vergence_mae_deg": vergence, "pursuit_mae_deg": 0.03, "depth_mae_m": 0.05}
+        if mae_D is not None:
+            result["accommodation_focus"] = {"mae_D": mae_D, "mae_px": 4 * mae_D, "within_0.25px": 0.1,
+                                             "within_0.5px": 0.2}
+            px = PinholeCamera().degrees_per_pixel  # two fixation ends per trial, in blur-disc degrees
+            result["per_trial"] = [{"distance_m": 1.0, "accommodation_errors_deg": [-mae_D * px, -0.5 * px]},
+                                   {"distance_m": 3.0, "accommodation_errors_deg": [0.25 * px, 0.25 * px]}]
+        (folder / "evaluation.json").write_text(json.dumps(result))
+        return str(folder)
+
+    acc = ",".join(run(f"a{i}", v, d) for i, (v, d) in enumerate([(0.02, 0.4), (0.04, 0.6)]))
+    plain = ",".join(run(f"p{i}", v) for i, v in enumerate([0.05, 0.05]))
+    assert main(["accommodation", f"with={acc}", f"plain={plain}"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "| | with (2 seeds) | plain (2 seeds) |"
+    assert "| vergence MAE (deg) | 0.030 +- 0.014 | 0.050 +- 0.000 |" in lines
+    assert "| accommodation MAE (D) | 0.500 +- 0.141 | - |" in lines
+    assert main(["accommodation", f"with={acc}", f"plain={plain}", "--per-distance"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    at = lines.index("| distance (m) | with: px, mean abs. / signed | plain: px, mean abs. / signed |")
+    assert lines[at + 2:] == ["| 1 | 0.50 / -0.50 | - |", "| 3 | 0.25 / +0.25 | - |"]  # (0.4 + 0.5 + 0.6 + 0.5) / 4
+    assert main(["accommodation", f"plain={plain}", "--per-distance"]) == 2
+    assert "no per-trial accommodation errors" in capsys.readouterr().err
+    assert main(["accommodation", "nogroup"]) == 2
+    assert "groups are name=run,run,..." in capsys.readouterr().err
+
+
+def test_tails_counts_the_far_ends_compares_near_and_far_and_lists_the_worst_with_their_views(tmp_path, capsys):
+    def folder(name: str, trials) -> Path:
+        run = tmp_path / name
+        run.mkdir()
+        rows = _rows(trials)
+        for i, row in enumerate(rows):  # the flat view is the failing one
+            row.update(view_contrast=0.001 if row["texture"] == "flat" else 0.3, view_energy_full=1e-6 * (i + 1))
+        (run / "final_choose.json").write_text(json.dumps({"per_trial": rows}))
+        return run
+
+    a = folder("a", [("flat", 1.0, [0.1, 0.0], [-12.0, 1.5]),  # ends beyond 2 and beyond 1 deg
+                     ("texture", 2.0, [0.1, 0.1], [0.1, 0.1])])
+    b = folder("b", [("texture", 1.2, [0.3, 0.0], [0.0, 0.0]), ("texture", 3.0, [0.0, 0.0], [0.0, 0.2])])
+    assert main(["tails", f"g={a},{b}", "--eval", "final_choose.json", "--worst", "2",
+                 "--json", str(tmp_path / "t.json")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    # 8 fixation ends; within 0.22 deg: a 2 of 4, b 3 of 4; MAEs are the means of the runs' (vergence:
+    # a 13.7 / 4, b 0.2 / 4; near: a 6.75, b 0; far: 0.1 each)
+    assert lines[2] == ("| g | 8 | 62.5% | 2 (25.0%) | 1 (12.5%) | 0.075 / 1.737 | 0.100 / 3.375 | 0.050 / 0.100 "
+                        "| 33.75x |")
+    result = json.loads((tmp_path / "t.json").read_text())["g"]
+    assert [w["errors_deg"]["vergence"] for w in result["worst"]] == [-12.0, 1.5]
+    # the one end beyond 2 deg is a vergence short of its optimum (diverged): counted by its kind
+    assert result["all"]["beyond_2_vergence-"] == 1 and result["all"]["beyond_2_vergence+"] == 0
+    assert result["all"]["beyond_2_pursuit+"] == result["all"]["beyond_2_pursuit-"] == 0
+    assert lines[3:5] == ["", "g: the ends beyond 2 deg by the movement of the largest error and its sign (vergence + "
+                        "past the optimum, - short of it): vergence- 1"]
+    # without the ends beyond 1 deg: run a's vergence is its two 0.1 deg ends
+    assert [r["inside_vergence_mae_deg"] for r in result["runs"]] == pytest.approx([0.1, 0.05])
+    assert "| g 0 | 3.425 | 0.100 | 2 |" in lines
+    assert result["worst"][0]["texture"] == "flat" and result["worst"][0]["view_contrast"] == 0.001
+    assert result["views"]["beyond_1"] == {"trials": 1, "view_contrast": 0.001, "view_energy_full": 1e-6}
+    assert result["views"]["all"]["trials"] == 4 and result["views"]["all"]["view_contrast"] == pytest.approx(0.3)
+    assert any(line.startswith("| g, with an end beyond 1 deg | 1 | 0.001 | 1e-06 |") for line in lines)
+    assert main(["tails", "no-runs"]) == 2
+    assert "name=run,run" in capsys.readouterr().err
