@@ -32,7 +32,7 @@ from aectorch.coding.patches import as_scale
 from aectorch.evaluation.trials import placement
 from aectorch.sim.oculomotor import VERGENCE_RANGE_DEG
 from aectorch.sim.pair_world import StereoPairWorld, eye_extent_px
-from aectorch.sim.stereo_pairs import StereoPair, disparity_roughness, pick_fixations
+from aectorch.sim.stereo_pairs import MIN_CONTRAST, StereoPair, disparity_roughness, pick_fixations
 
 __all__ = ["BEYOND_PX", "EDGE_RESIDUAL_PX", "EDGE_UNKNOWN", "START_KINDS", "WITHIN_PX", "evaluate_pairs",
            "pair_summary", "stereo_policy"]
@@ -177,7 +177,6 @@ def evaluate_pairs(
     start_vergence_deg: float | tuple[float, float] = 0.0,
     offset_deg: float = 2.0,
     vergence_range_deg: Sequence[float] = VERGENCE_RANGE_DEG,
-    min_contrast: float = 0.05,
     batch_size: int = 256,
     progress: bool = False,
 ) -> dict:
@@ -194,7 +193,6 @@ def evaluate_pairs(
         start_vergence_deg: the protocol's start vergence, a value or a ``(low, high)`` range.
         offset_deg: the vergence test's largest offset from the optimum.
         vergence_range_deg: the vergence's range, degrees.
-        min_contrast: the fixation points' least contrast (`pick_fixations`).
         batch_size: fixations at once.
         progress: show a progress bar.
 
@@ -208,7 +206,7 @@ def evaluate_pairs(
         >>> shifted = torch.cat((photo[:, 5:], photo[:, -1:].expand(-1, 5)), 1)  # disparity 5 px
         >>> pair = StereoPair("shifted", photo, shifted, torch.full((260, 400), 5.0))
         >>> still = lambda observation, world: torch.zeros(world.num_envs)
-        >>> out = evaluate_pairs({"still": still}, [pair], fixations=4, steps=1, min_contrast=0.0)
+        >>> out = evaluate_pairs({"still": still}, [pair], fixations=4, steps=1)
         >>> out["summary"]["still"]["protocol"]["all"]["median_abs_px"]
         5.0
     """
@@ -224,7 +222,7 @@ def evaluate_pairs(
     if not policies or not pairs:
         raise ValueError("evaluate_pairs needs at least one policy and one pair")
     settings = dict(pair_scale=pair_scale, fixations=fixations, steps=steps, seed=seed, start_vergence_deg=start,
-                    offset_deg=offset_deg, vergence_range_deg=tuple(vergence_range_deg), min_contrast=min_contrast,
+                    offset_deg=offset_deg, vergence_range_deg=tuple(vergence_range_deg), min_contrast=MIN_CONTRAST,
                     batch_size=batch_size)
     bar = None
     if progress:

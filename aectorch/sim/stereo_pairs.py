@@ -25,13 +25,15 @@ from torch import Tensor
 from aectorch._checks import check_int, check_real
 from aectorch.sim.textures.files import load_grey
 
-__all__ = ["MIDDLEBURY_FILES", "PLAIN_FILES", "StereoPair", "corner_disparity", "disparity_roughness", "layout",
+__all__ = ["MIDDLEBURY_FILES", "MIN_CONTRAST", "PLAIN_FILES", "StereoPair", "corner_disparity", "disparity_roughness", "layout",
            "pick_fixations", "read_pair", "read_pairs", "read_pfm"]
 
 #: Middlebury's layout: left image, right image, the left image's disparity.
 MIDDLEBURY_FILES = ("im0.png", "im1.png", "disp0.pfm")
 #: The plain layout: ``left.*``, ``right.*`` (any extension Pillow reads) and the disparity.
 PLAIN_FILES = ("left.*", "right.*", "disparity.npy")
+#: A fixation point's least contrast: the standard deviation of grey (in [0, 1]) around it.
+MIN_CONTRAST = 0.05
 
 
 @dataclass(frozen=True)
@@ -205,7 +207,7 @@ def _window_std(image: Tensor, half: int) -> Tensor:
 
 
 def pick_fixations(pair: StereoPair, count: int, *, half_extent_px: int, texture_half_px: int,
-                   min_contrast: float = 0.05, grid_px: int = 4, seed: int = 0) -> Tensor:
+                   min_contrast: float = MIN_CONTRAST, grid_px: int = 4, seed: int = 0) -> Tensor:
     """Fixation points on ``pair``: pixel corners ``(x, y)`` ``[N, 2]`` (long) with known ground
     truth and texture, ``count`` of them drawn from the candidates (all when fewer), reproducibly.
 
