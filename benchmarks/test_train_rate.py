@@ -13,6 +13,8 @@ import pytest
 from aectorch.sim import TextureBank
 from benchmarks import harness
 
+pytestmark = pytest.mark.integration  # python train.py processes
+
 SCALES = "[wide,coarse,fine]"
 VARIANTS = {
     "defaults": [],

@@ -38,6 +38,7 @@ def run(tmp_path_factory) -> tuple[Path, Path]:
     return folder / "run" / "checkpoint.pt", textures
 
 
+@pytest.mark.integration
 def test_writes_the_result_json_and_figure(run, tmp_path, capsys):
     checkpoint, textures = run
     out, figure = tmp_path / "e.json", tmp_path / "e.png"
@@ -64,6 +65,7 @@ def test_writes_the_result_json_and_figure(run, tmp_path, capsys):
     assert min(abs(e) for r in result["per_trial"] for e in r["vergence_errors_deg"]) > 3.4
 
 
+@pytest.mark.integration
 def test_tracking_writes_its_rows_and_the_report_reads_them(run, tmp_path, capsys):
     """``tracking=[...]``: the moving object's test (per speed and per trial); then
     ``python -m aectorch.report tracking`` over two run folders, with its figure."""
@@ -101,6 +103,7 @@ def test_tracking_writes_its_rows_and_the_report_reads_them(run, tmp_path, capsy
     assert report(["tracking", str(run[0].parent)]) == 2  # no tracking.json there
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("args, key", [
     (["textures={t}", "out={o}"], "checkpoint"),
     (["checkpoint={c}"], "out"),
@@ -134,6 +137,7 @@ def test_corrupt_checkpoint_and_help(tmp_path, capsys):
     assert main(["--help"]) == 0 and "textures     a folder of held-out images" in capsys.readouterr().out
 
 
+@pytest.mark.integration
 def test_module_entry_point_exits_2():
     done = subprocess.run([sys.executable, "-m", "aectorch.evaluate", "out=x.json"], cwd=ROOT,
                           capture_output=True, text=True, timeout=120,

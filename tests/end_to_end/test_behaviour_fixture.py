@@ -23,6 +23,8 @@ import pytest
 from aectorch.runtime.config import to_container, to_experiment_config
 from aectorch.runtime.migrations import migrate
 
+pytestmark = pytest.mark.integration  # every test here runs training or a subprocess
+
 HERE = Path(__file__).resolve().parents[1] / "fixtures" / "short_run"
 _spec = importlib.util.spec_from_file_location("short_run_record", HERE / "record.py")
 record = importlib.util.module_from_spec(_spec)

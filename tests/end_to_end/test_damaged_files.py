@@ -27,6 +27,8 @@ from aectorch.report.__main__ import main as report
 from aectorch.runtime import load_checkpoint, load_learner, run_experiment
 from tests.runtime.test_train import _cfg, textures  # noqa: F401  (the fixture)
 
+pytestmark = pytest.mark.integration  # every test here runs training or a subprocess
+
 EXAMPLES = settings(max_examples=20, deadline=None, derandomize=True,
                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 

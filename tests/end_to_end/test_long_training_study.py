@@ -22,6 +22,7 @@ def _call(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=600)
 
 
+@pytest.mark.integration
 def test_stages_train_evaluate_each_stage_and_curves_read_them(tmp_path):
     from PIL import Image
 
@@ -56,6 +57,7 @@ def test_stages_train_evaluate_each_stage_and_curves_read_them(tmp_path):
     assert curves["choose"]["b"]["4"]["vergence"]["sd"] == 0.0
 
 
+@pytest.mark.integration
 def test_stages_refuse_bad_arguments_before_any_work(tmp_path):
     for args, message in ((["--stages", "8,4"], "positive and increasing"),
                           (["--stages", "4", "--eval", "choose"], "NAME=FOLDER"),

@@ -162,6 +162,7 @@ def test_bad_options_are_named():
     env.close()
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("example", ["sb3_vergence", "torchrl_vergence", "cleanrl_ppo_vergence"])
 def test_the_rl_examples_train_and_evaluate(example, tmp_path):
     import importlib.util

@@ -63,6 +63,7 @@ print(native.available(), code.indices.shape[-1], "|".join(str(w.message) for w 
 """
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("how", ["disabled", "no compiler"])
 def test_without_the_kernel_the_pursuits_fall_back_to_torch(tmp_path, how):
     env = dict(os.environ, AECTORCH_CACHE=str(tmp_path))  # nothing cached: a fresh build
@@ -109,6 +110,7 @@ def _gram_of(seed: int, child: bool = False) -> torch.Tensor:
     return torch.ops.aectorch.gram(d)
 
 
+@pytest.mark.integration
 def test_kernels_run_in_a_forked_child_after_their_threads_started():
     """A fork's child has none of the parent's OpenMP threads: its kernels run on one thread, with
     the same bits. Before, a child that used them (a multiprocessing pool, a DataLoader's worker
@@ -217,6 +219,7 @@ print(native.available(), torch.equal(gram_matrix(d), d.t() @ d),
 """
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("onednn", ["1", "0"])
 def test_the_kernels_products_are_onednns_unless_aectorch_onednn_is_0(onednn):
     """By default the fused kernels' float32 products run in oneDNN: torch's product (MKL) within

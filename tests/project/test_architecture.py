@@ -19,6 +19,7 @@ MAX_LINES = 80
 REASON = "# long:"
 
 
+@pytest.mark.integration
 def test_the_layering_contract_is_kept():
     lint = Path(sys.executable).parent / "lint-imports"
     if not lint.exists():

@@ -14,6 +14,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 
 
+@pytest.mark.integration
 def test_tutorial_code_runs_in_order(tmp_path):
     text = (ROOT / "docs" / "tutorial-torch.md").read_text()
     blocks = re.findall(r"```python\n(.*?)```", text, re.S)
@@ -48,6 +49,7 @@ def test_every_result_file_is_cited_and_every_cited_one_exists():
                 f"{folder}/{path.name} is cited by no page of docs/ or the README"
 
 
+@pytest.mark.integration
 def test_site_builds_strictly(tmp_path):
     mkdocs = shutil.which("mkdocs", path=str(Path(sys.executable).parent))
     if mkdocs is None:

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import torch
 
 from aectorch.framework import JointLearner, LearnerConfig, default_cues
@@ -45,6 +46,7 @@ def test_the_minimal_loop_computes_what_the_joint_learner_computes():
     assert set(out["errors_deg"]) == {"pursuit", "vergence"} and len(out["errors_deg"]["pursuit"]) == 2 * b
 
 
+@pytest.mark.integration
 def test_the_minimal_loop_runs_from_the_command_line():
     done = subprocess.run([sys.executable, str(ROOT / "examples" / "minimal_loop.py"), "31"], capture_output=True,
                           text=True, timeout=600, cwd=ROOT)

@@ -8,6 +8,7 @@ os.environ["PYOPENGL_PLATFORM"] = "osmesa"
 import importlib.metadata
 
 import numpy as np
+import pytest
 
 
 def test_version_matches_distribution():
@@ -52,6 +53,7 @@ def test_pyrender_osmesa_renders_white_quad():
     assert depth[32, 32] > 0 and depth[0, 0] == 0
 
 
+@pytest.mark.integration
 def test_the_wheel_ships_the_fused_kernels_sources(tmp_path):
     """The kernels are built on the user's machine from the .cpp files next to ``aectorch.ops.native``:
     the package data must ship them from where the loader reads them."""

@@ -51,12 +51,14 @@ def _tool(name: str) -> str:
     return str(path)
 
 
+@pytest.mark.integration
 def test_ruff_finds_nothing():
     done = subprocess.run([_tool("ruff"), "check", "--no-cache", *RUFF_PATHS], cwd=ROOT, capture_output=True,
                           text=True, timeout=300)
     assert done.returncode == 0, done.stdout[-6000:] + done.stderr[-2000:]
 
 
+@pytest.mark.integration
 def test_mypy_finds_nothing():
     # pyproject.toml's [tool.mypy] names the files; the cache (.mypy_cache) makes a second run take seconds
     done = subprocess.run([_tool("mypy")], cwd=ROOT, capture_output=True, text=True, timeout=600)
@@ -166,6 +168,7 @@ def _tracked(git: str = "git") -> list[str]:
     return [name for name in done.stdout.decode().split("\0") if name]
 
 
+@pytest.mark.integration
 def test_the_walked_tree_holds_the_tracked_files():
     walked = set(_tracked(git="no-such-git"))
     assert "aectorch/__init__.py" in walked and "tests/project/test_static_gates.py" in walked
@@ -173,6 +176,7 @@ def test_the_walked_tree_holds_the_tracked_files():
     assert set(_tracked()) - walked <= {name for name in _tracked() if name.split("/")[0].startswith(".")}
 
 
+@pytest.mark.integration
 def test_no_internal_ticket_numbers():
     tracked = _tracked()
     assert [name for name in tracked if TICKET.search(name)] == []

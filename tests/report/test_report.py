@@ -208,6 +208,7 @@ def test_rl_puts_the_clients_beside_the_learner(tmp_path, capsys):
     assert lines[3] == "| aectorch NAC (vergence only) | coding (improvement) | photos | 1 | 0.500 [0.50] | 75.0% | - | 60 |"
 
 
+@pytest.mark.integration
 def test_the_command_line_lists_its_commands():
     done = subprocess.run([sys.executable, "-m", "aectorch.report", "--help"], cwd=ROOT, capture_output=True, text=True,
                           timeout=120)

@@ -60,6 +60,7 @@ def test_matcher_runs_the_learners_trials_and_prints_what_it_writes(tmp_path, ca
         assert result["fractions"]["both"]["within"] == 1.0 and result["vergence_mae_deg"] < 0.1
 
 
+@pytest.mark.integration
 def test_offsets_computes_a_checkpoints_diagnostic_and_tabulates_stored_ones(tiny_run, tmp_path, capsys):
     run, images = tiny_run
     out, plot = tmp_path / "offsets.json", tmp_path / "offsets.png"
@@ -105,6 +106,7 @@ def test_offsets_refuses_learners_of_different_cues(tmp_path, capsys):
     assert "the same cues" in capsys.readouterr().err
 
 
+@pytest.mark.integration
 def test_depth_readout_compares_read_outs_of_the_same_trials(tiny_run, tmp_path, capsys):
     """Its calibrated read-out is train.py's ``train.depth_calibration_trials``; the cache gives the same."""
     run, _ = tiny_run
@@ -141,6 +143,7 @@ def test_depth_tolerance_is_the_eye_error_that_moves_the_geometrys_depth(capsys)
     assert 0.1 < rows[0]["q2"] < 0.25 and rows[1]["q2"] < rows[0]["q2"] / 5  # vergence: 0.17 deg at 1 m
 
 
+@pytest.mark.integration
 def test_offsets_sweeps_the_pan_cues_of_a_learner_with_the_slip_cue(tmp_path, capsys):
     """``+experiment=slip``'s learner also learns a velocity (the slip cue), which no offset moves:
     the diagnostic sweeps its parallax and stereo cues, comparable with a default learner's."""

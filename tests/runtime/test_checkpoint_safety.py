@@ -56,6 +56,7 @@ def test_the_library_refuses_a_malicious_checkpoint(malicious):
     assert not marker.exists()
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("command", ["evaluate", "visualize", "record", "resume"])
 def test_every_entry_point_refuses_a_malicious_checkpoint_in_one_line(malicious, command, tmp_path):
     run, marker = malicious

@@ -86,6 +86,7 @@ def test_every_key_of_the_command_lines_is_documented(config):
         assert len(line.split()) > 2, f"{config.__name__}.{field.name} has no description under Args:"
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("command", ["aectorch.evaluate", "aectorch.record", "aectorch.visualize"])
 def test_each_command_line_prints_its_help(command):
     done = subprocess.run([sys.executable, "-m", command, "--help"], cwd=ROOT, capture_output=True, text=True,

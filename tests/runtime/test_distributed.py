@@ -69,6 +69,7 @@ def _close(a, b, path="checkpoint"):
         assert a == b, path
 
 
+@pytest.mark.integration
 def test_two_processes_with_b_envs_match_one_process_with_2b(tmp_path, textures):
     split, whole = tmp_path / "split", tmp_path / "whole"
     done = _torchrun(*_tiny(textures, 3, split), cwd=tmp_path)
@@ -97,6 +98,7 @@ def test_two_processes_with_b_envs_match_one_process_with_2b(tmp_path, textures)
     # Resuming with another number of processes, and torchrun's restarts: tests/runtime/test_restarts.py.
 
 
+@pytest.mark.integration
 def test_multirun_sweep_through_the_submitit_launcher(tmp_path, textures):
     # submitit_local: the launcher that submitit_slurm is, with local subprocesses for jobs.
     sweep = tmp_path / "sweep"

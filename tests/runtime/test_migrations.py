@@ -75,6 +75,7 @@ def test_a_stored_format_1_payload_migrates_once_and_today_s_is_left_alone():
         migrate({**new, "format": 4})
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("path", [STORED[0], STORED[len(STORED) // 2], STORED[-2], STORED[-1]], ids=lambda p: p.stem)
 def test_a_stored_checkpoint_resumes(tmp_path, path):
     run = tmp_path / "run"
@@ -90,6 +91,7 @@ OLD_DEFAULTS = [f"learner.cues.{cue}.{key}={value}" for cue in ("parallax", "ste
                 for key, value in (("agent", "nac"), ("readout", "argmax"), ("scales", "[wide,coarse,fine]"))]
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("path", STORED[-2:], ids=lambda p: p.stem)
 def test_the_last_checkpoint_of_each_old_format_holds_what_today_s_code_computes(tmp_path, path):
     """a9b2aa6's (format 1) and 430fb6a's (format 2) run of make.py's settings, migrated, against the

@@ -51,6 +51,7 @@ def _assert_equal_everywhere(a, b, path="checkpoint"):
 
 
 # -- reproducible -----------------------------------------------------------------------------------
+@pytest.mark.integration
 def test_same_seed_and_config_give_the_same_run(tmp_path, textures):
     one, two = tmp_path / "one", tmp_path / "two"
     run_experiment(_cfg(textures), one)
@@ -62,6 +63,7 @@ def test_same_seed_and_config_give_the_same_run(tmp_path, textures):
     assert _without_time(_lines(one)) != _without_time(_lines(other))
 
 
+@pytest.mark.integration
 def test_planned_stop_and_sigterm_resume_to_the_same_checkpoint_tensors(tmp_path, textures):
     straight = tmp_path / "straight"
     run_experiment(_cfg(textures), straight)
@@ -87,6 +89,7 @@ def test_planned_stop_and_sigterm_resume_to_the_same_checkpoint_tensors(tmp_path
         assert _without_time(_lines(run)) == _without_time(_lines(straight))
 
 
+@pytest.mark.integration
 def test_tensorboard_continues_without_duplicates_or_gaps(tmp_path, textures):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -100,6 +103,7 @@ def test_tensorboard_continues_without_duplicates_or_gaps(tmp_path, textures):
     assert steps == list(range(2, 13, 2))
 
 
+@pytest.mark.integration
 def test_the_nan_fill_of_new_tensors_changes_no_bit(tmp_path, textures, monkeypatch):
     """Deterministic runs leave torch's NaN fill of new tensors off (5 % of an iteration's CPU time):
     with it on, every bit of the checkpoint is the same, so the run reads no memory it did not write."""
@@ -117,6 +121,7 @@ def test_the_nan_fill_of_new_tensors_changes_no_bit(tmp_path, textures, monkeypa
 
 
 # -- provenance --------------------------------------------------------------------------------------
+@pytest.mark.integration
 def test_run_folder_records_versions_commit_and_device(tmp_path, textures):
     run = tmp_path / "run"
     run_experiment(_cfg(textures, "train.iterations=4"), run)
@@ -137,6 +142,7 @@ def test_run_folder_records_versions_commit_and_device(tmp_path, textures):
 
 
 # -- the watchdog ------------------------------------------------------------------------------------
+@pytest.mark.integration
 def test_watchdog_stops_on_nan_and_keeps_the_last_healthy_checkpoint(tmp_path, textures, monkeypatch, caplog):
     learners = []  # the run's learner, captured as it is built (its real __init__ runs)
     build = JointLearner.__init__
@@ -242,6 +248,7 @@ def test_watchdog_config_rejects_bad_values(field, value):
         WatchdogConfig(**{field: value})
 
 
+@pytest.mark.integration
 def test_train_py_exits_3_with_one_watchdog_line_and_a_checkpoint(tmp_path, textures):
     run = tmp_path / "run"
     # A threshold below any TD error: the first learning step trips it.
@@ -257,6 +264,7 @@ def test_train_py_exits_3_with_one_watchdog_line_and_a_checkpoint(tmp_path, text
 
 
 # -- bad files and contradictions stop before any work ----------------------------------------------
+@pytest.mark.integration
 def test_unreadable_or_missing_images_are_named(tmp_path):
     empty = tmp_path / "empty"
     empty.mkdir()
@@ -280,6 +288,7 @@ def test_unreadable_or_missing_images_are_named(tmp_path):
             assert "bad.png" in errors[0]
 
 
+@pytest.mark.integration
 def test_resume_rejects_contradicting_options_and_incompatible_checkpoints(tmp_path, textures):
     run = tmp_path / "run"
     run_experiment(_cfg(textures, "train.iterations=4"), run)
@@ -300,6 +309,7 @@ def test_resume_rejects_contradicting_options_and_incompatible_checkpoints(tmp_p
     assert "Traceback" not in done.stderr
 
 
+@pytest.mark.integration
 def test_recording_without_lerobot_says_where_it_lives(tmp_path, textures):
     try:
         import lerobot  # noqa: F401
@@ -330,6 +340,7 @@ def test_cuda_device_without_cuda_is_rejected_before_any_work(textures):
         validate_resources(_cfg(textures, "env.device=cuda"))
 
 
+@pytest.mark.integration
 def test_a_checkpoint_with_other_watchdog_options_still_resumes(tmp_path, textures):
     # The watchdog (and recording) sections come from the command line on resume: options of
     # another aectorch version stored there must not block it.
@@ -342,6 +353,7 @@ def test_a_checkpoint_with_other_watchdog_options_still_resumes(tmp_path, textur
     assert load_checkpoint(run / "checkpoint.pt")["iteration"] == 6
 
 
+@pytest.mark.integration
 def test_resume_after_a_kill_that_tore_the_last_metrics_line(tmp_path, textures):
     # SIGKILL (out of memory, a hard scheduler limit) can cut a metrics line in half.
     straight, run = tmp_path / "straight", tmp_path / "run"
@@ -353,6 +365,7 @@ def test_resume_after_a_kill_that_tore_the_last_metrics_line(tmp_path, textures)
     assert _without_time(_lines(run)) == _without_time(_lines(straight))
 
 
+@pytest.mark.integration
 def test_sigterm_while_finishing_leaves_a_run_that_resume_finishes_without_training(tmp_path, textures):
     """SIGTERM during the final evaluation: status 130 and one line naming the resume command; the
     folder holds the finished training and no half-written result; ``train.resume=`` then writes
@@ -383,6 +396,7 @@ def test_sigterm_while_finishing_leaves_a_run_that_resume_finishes_without_train
     assert Run(run).evaluation()["trials"] > 0
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("limit_bytes", [4000, 200])
 def test_a_full_disk_stops_the_run_and_keeps_a_checkpoint_that_resumes_to_the_same_result(tmp_path, textures,
                                                                                           limit_bytes):
@@ -415,6 +429,7 @@ def test_a_full_disk_stops_the_run_and_keeps_a_checkpoint_that_resumes_to_the_sa
     assert _without_time(_lines(full)) == _without_time(_lines(straight))
 
 
+@pytest.mark.integration
 def test_train_py_says_which_write_failed_and_how_to_resume(tmp_path, textures):
     run = tmp_path / "run"
     env = dict(os.environ, PYOPENGL_PLATFORM="osmesa", OMP_NUM_THREADS="1")

@@ -44,6 +44,7 @@ def _files(folder: Path) -> dict[str, str]:
 # --- resume ----------------------------------------------------------------------------------
 
 
+@pytest.mark.integration
 def test_a_resume_refuses_another_config_group_and_keeps_the_record_of_the_start(tmp_path, textures):
     run = tmp_path / "R"
     args = [*TINY, *QUIET, f"env.textures={textures}", f"hydra.run.dir={run}", "train.iterations=4"]
@@ -64,6 +65,7 @@ def test_a_resume_refuses_another_config_group_and_keeps_the_record_of_the_start
     assert "train.resume=auto" in (run / ".hydra" / "resumed" / "overrides.yaml").read_text()
 
 
+@pytest.mark.integration
 def test_a_group_whose_keys_contradict_the_stored_run_is_refused_without_hydras_record(textures):
     """A run of `run_experiment` has no ``.hydra/``: the group's own keys are compared."""
     from aectorch.runtime.checkpoint import check_resume_groups
@@ -80,6 +82,7 @@ def test_a_group_whose_keys_contradict_the_stored_run_is_refused_without_hydras_
     check_resume_groups(reared("monocular"), reared("monocular"), {"rearing": "monocular"}, None)
 
 
+@pytest.mark.integration
 def test_resume_auto_without_a_folder_to_resume_is_refused(tmp_path):
     for extra, key in (([], "hydra.run.dir"), (["-m", "seed=0"], "hydra.sweep.dir")):
         done = _single(*extra, "train.resume=auto", cwd=tmp_path)
@@ -103,6 +106,7 @@ def test_a_relaunched_sweep_is_told_to_give_another_sweep_folder(tmp_path, capsy
 # --- the run folder: overwrite, clobbering, writability ---------------------------------------
 
 
+@pytest.mark.integration
 def test_overwrite_deletes_what_aectorch_wrote_evaluations_included_and_nothing_else(tmp_path, textures):
     from aectorch.runs import file_sha256
 
@@ -132,6 +136,7 @@ def test_overwrite_deletes_what_aectorch_wrote_evaluations_included_and_nothing_
         Run(run).evaluation("tracking.json")
 
 
+@pytest.mark.integration
 def test_report_tracking_refuses_an_evaluation_of_another_checkpoint(tmp_path, textures, capsys):
     run = tmp_path / "run"
     run_experiment(_cfg(textures, "train.iterations=2"), run)
@@ -144,6 +149,7 @@ def test_report_tracking_refuses_an_evaluation_of_another_checkpoint(tmp_path, t
     assert str(run / "tracking.json") in line and "iteration 2" in line and "evaluate it again" in line, line
 
 
+@pytest.mark.integration
 def test_a_new_run_does_not_overwrite_a_users_files_in_its_folder(tmp_path, textures):
     run = tmp_path / "run"
     run.mkdir()
@@ -156,6 +162,7 @@ def test_a_new_run_does_not_overwrite_a_users_files_in_its_folder(tmp_path, text
     assert _files(run) == before
 
 
+@pytest.mark.integration
 def test_a_run_folder_that_cannot_be_made_or_written_is_one_line(tmp_path, monkeypatch):
     from aectorch.runtime import launch
 
@@ -179,6 +186,7 @@ def checkpoint(tmp_path_factory, textures) -> Path:
     return run / "checkpoint.pt"
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("args, message", [
     (["out={tmp}/missing/e.json"], "out: no such folder '{tmp}/missing'"),
     (["out={tmp}"], "out: '{tmp}' is a folder"),
@@ -197,12 +205,14 @@ def test_evaluate_refuses_bad_arguments_before_the_trials(checkpoint, tmp_path, 
     assert not any(p.suffix == ".json" for p in tmp_path.rglob("*"))
 
 
+@pytest.mark.integration
 def test_evaluate_refuses_an_output_it_cannot_write(checkpoint, tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(os, "access", lambda path, mode: False)  # (root is not stopped by permissions)
     assert evaluate([f"checkpoint={checkpoint}", f"out={tmp_path / 'e.json'}", "progress=false"]) == 2
     assert _error_line(capsys.readouterr().err).startswith(f"error: out: cannot write '{tmp_path / 'e.json'}'")
 
 
+@pytest.mark.integration
 def test_a_damaged_checkpoint_is_named_as_damaged(checkpoint, tmp_path, capsys):
     import random
 
@@ -225,6 +235,7 @@ def test_the_accommodation_start_without_the_accommodation_cue_is_refused(textur
         _cfg(textures, "env.accommodation_start_D=0")
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("override, expected", [
     ("rearing=monocularr", "rearing is one of: anisometropia_early, anisometropia_late, horizontal, monocular,"),
     ("+experiment=roll", "experiment is one of: accommodation, "),
@@ -297,6 +308,7 @@ def test_the_help_texts_and_the_readme_say_the_defaults():
     assert "greedy (argmax actions" not in text and "whose own default is mean" in text
 
 
+@pytest.mark.integration
 def test_a_start_killed_before_its_first_checkpoint_starts_again(tmp_path, textures):
     """Its own start record (provenance.json) without a checkpoint: a requeued job starts afresh."""
     run = tmp_path / "run"
@@ -306,6 +318,7 @@ def test_a_start_killed_before_its_first_checkpoint_starts_again(tmp_path, textu
     assert load_checkpoint(run / "checkpoint.pt")["iteration"] == 2
 
 
+@pytest.mark.integration
 def test_an_evaluation_written_before_the_hash_is_checked_by_its_iteration(tmp_path, textures):
     """An evaluation from an earlier aectorch (a ``checkpoint`` and an ``iteration``, no ``source``)
     left by the run that a later run in the folder replaced."""
@@ -330,6 +343,7 @@ def test_every_figure_a_run_draws_is_one_that_overwrite_deletes():
     assert drawn and drawn <= set(FIGURE_FILES), drawn - set(FIGURE_FILES)
 
 
+@pytest.mark.integration
 def test_the_groups_a_run_started_with_are_kept_in_its_provenance_for_resumes_of_sweep_jobs(tmp_path, textures):
     """A sweep's job has no ``.hydra/`` of its start after a relaunch (Hydra rewrites it): the
     groups come from ``provenance.json``'s first session."""

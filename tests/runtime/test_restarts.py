@@ -40,6 +40,7 @@ def _run(tmp_path: Path, textures: Path, run: Path, *extra: str) -> subprocess.C
     return _single(*TINY, *QUIET, f"env.textures={textures}", f"hydra.run.dir={run}", *extra, cwd=tmp_path)
 
 
+@pytest.mark.integration
 def test_a_rerun_into_a_finished_run_stops_before_any_write(tmp_path, textures):
     run, drawn = tmp_path / "R", ("train.figures=true", "train.tensorboard=true")
     done = _run(tmp_path, textures, run, *drawn)
@@ -74,6 +75,7 @@ def test_a_rerun_into_a_finished_run_stops_before_any_write(tmp_path, textures):
     assert len(sessions) == 1 and sessions[0]["start_iteration"] == 0
 
 
+@pytest.mark.integration
 def test_the_library_refuses_too_and_resume_and_overwrite_exclude_each_other(tmp_path, textures):
     run = tmp_path / "run"
     run_experiment(_cfg(textures, "train.iterations=2"), run)
@@ -87,6 +89,7 @@ def test_the_library_refuses_too_and_resume_and_overwrite_exclude_each_other(tmp
         _cfg(textures, "train.resume=auto", "train.overwrite=true")
 
 
+@pytest.mark.integration
 def test_a_share_that_changes_the_whole_batch_is_refused(tmp_path, textures, monkeypatch):
     run = tmp_path / "run"
     run_experiment(_cfg(textures, "train.iterations=2", "env.num_envs=6"), run)
@@ -101,6 +104,7 @@ def test_a_share_that_changes_the_whole_batch_is_refused(tmp_path, textures, mon
         prepare_run(_cfg(textures, f"train.resume={run}"), {"train.resume"})
 
 
+@pytest.mark.integration
 def test_a_relaunched_sweep_is_refused_and_resumes_with_auto(tmp_path, textures):
     sweep = tmp_path / "sweep"
     args = ["-m", *TINY, *QUIET, f"env.textures={textures}", "seed=0,1", "train.iterations=4",
@@ -141,6 +145,7 @@ def _rank_of(pid: int) -> int | None:
     return ranks[0] if ranks else None
 
 
+@pytest.mark.integration
 def test_torchrun_restarts_a_killed_worker_and_the_run_resumes_to_the_undisturbed_result(tmp_path, textures):
     """Real torchrun (2 processes, gloo, ``--max-restarts=2``), a real SIGKILL of rank 1 mid-run;
     the restarted group resumes ``checkpoint.pt`` (``train.resume=auto``) and ends equal to one
@@ -222,6 +227,7 @@ def _resuming(args: list[str], run: Path, *extra: str) -> list[str]:
         f"train.resume={run}", f"hydra.run.dir={run}", *extra]
 
 
+@pytest.mark.integration
 def test_a_run_resumes_with_another_number_of_processes(tmp_path, textures):
     """Written by 2 processes of 3 environments, resumed by 1 of 6; written by 1 of 6, resumed by 2
     of 3: both continue the same run (NAC: equal within the reductions' summation order). With PPO,

@@ -41,6 +41,7 @@ def test_a_folder_is_held_by_one_run_folder_at_a_time(tmp_path):
     RunFolder(tmp_path / "run").release()  # free again
 
 
+@pytest.mark.integration
 def test_a_second_run_into_a_running_folder_exits_at_once_and_a_killed_holder_locks_nothing(tmp_path, textures):
     run = tmp_path / "run"
     args = [*TINY, *QUIET, f"env.textures={textures}", "train.iterations=100000", "train.checkpoint_every=2"]

@@ -16,11 +16,14 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 import torch
 
 from aectorch.runtime import load_checkpoint
 from tests.runtime.test_reliability import _assert_equal_everywhere
 from tests.runtime.test_train import QUIET, ROOT, TINY, textures  # noqa: F401  (shared fixture)
+
+pytestmark = pytest.mark.integration  # every test here runs training or a subprocess
 
 _LOAD = "from aectorch.ops import native; import sys; sys.exit(0 if native.load() else 1)"
 

@@ -80,6 +80,7 @@ def _assert_same_state(a, b, where: str = "state") -> None:
         assert a == b, where
 
 
+@pytest.mark.integration
 def test_train_py_writes_the_run_folder(tmp_path, textures):
     run = tmp_path / "run"
     done = _train(*TINY, f"env.textures={textures}", f"eval.textures={textures}",
@@ -127,6 +128,7 @@ def test_train_py_writes_the_run_folder(tmp_path, textures):
     assert recovery["iteration"] == 4 and recovery["stop"] == 9 and recovery["vergence"]["key"] == "vergence_recent_deg"
 
 
+@pytest.mark.integration
 def test_resume_is_bit_identical(tmp_path, textures):
     import gc
 
@@ -147,6 +149,7 @@ def test_resume_is_bit_identical(tmp_path, textures):
     assert not (tmp_path / "ignored").exists()
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("fault", ["ctrl-c", "error"])
 def test_interruption_leaves_a_checkpoint_and_resume_completes(tmp_path, textures, monkeypatch, fault):
     """Ctrl-C in the middle of iteration 8 (its parallax step has learned) stops the run when the
@@ -180,6 +183,7 @@ def test_interruption_leaves_a_checkpoint_and_resume_completes(tmp_path, texture
     assert cfg.train.iterations == 12 and learner.parallax.encoder.dictionaries["coarse"].atoms.shape[1] == 16
 
 
+@pytest.mark.integration
 def test_sigterm_checkpoints_the_last_completed_iteration(tmp_path, textures):
     # kill, timeout and batch schedulers send SIGTERM: it must not lose the run.
     import signal
@@ -202,6 +206,7 @@ def test_sigterm_checkpoints_the_last_completed_iteration(tmp_path, textures):
                        load_checkpoint(run / "checkpoint.pt")["learner"])
 
 
+@pytest.mark.integration
 def test_train_py_exits_130_without_a_traceback_on_sigterm(tmp_path, textures):
     # The command line: one message with the checkpoint and how to resume, status 130, no traceback.
     import signal
@@ -273,6 +278,7 @@ def test_config_errors_name_the_field(override, field, textures):
             assert field is None
 
 
+@pytest.mark.integration
 def test_bad_override_exits_2_before_any_work(tmp_path):
     run = tmp_path / "run"
     for override, field in (("env.num_envs=0", "env.num_envs"), ("train.iterations=abc", "train.iterations")):
@@ -326,6 +332,7 @@ def test_preset_paper_and_perturbation_fractions():
         PerturbationConfig(roll_deg=3.0, first_fraction=0.8, second_fraction=0.7)
 
 
+@pytest.mark.integration
 def test_multirun_makes_one_folder_per_seed(tmp_path, textures):
     sweep = tmp_path / "sweep"
     done = _train("-m", "seed=0,1", *TINY, *QUIET, "train.iterations=2", f"env.textures={textures}",
@@ -335,6 +342,7 @@ def test_multirun_makes_one_folder_per_seed(tmp_path, textures):
         assert load_checkpoint(sweep / job / "checkpoint.pt")["config"]["seed"] == int(job)
 
 
+@pytest.mark.integration
 @pytest.mark.slow
 def test_compile_gives_the_same_run_as_eager(tmp_path, textures):
     """train.compile=true: same metrics and learner state as eager, within float tolerance. On the
@@ -381,6 +389,7 @@ def test_compile_leaves_the_fused_cpu_kernels_eager():
         assert compile_hot_path(learner, env) == ["parallax encoder", "stereo encoder", "renderer"]
 
 
+@pytest.mark.integration
 def test_keep_best_writes_the_best_training_window_and_evaluates_it(tmp_path, textures):
     cfg = _cfg(textures, "train.metrics_window=10", "eval.enabled=true")
     summary = run_experiment(cfg, tmp_path)
@@ -409,6 +418,7 @@ def test_keep_best_writes_the_best_training_window_and_evaluates_it(tmp_path, te
     assert summary["evaluation"]["checkpoint"] == "checkpoint.pt"
 
 
+@pytest.mark.integration
 def test_depth_calibration_refits_the_evaluated_mlp_on_greedy_training_trials(tmp_path, textures):
     five = "env.distances_m=[1.0,1.5,2.0,2.5,3.0]"
     summary = run_experiment(_cfg(textures, five, "train.metrics_window=10", "eval.enabled=true",
@@ -478,6 +488,7 @@ def test_the_oculomotor_range_is_on_by_default_and_reaches_the_environments_and_
             _cfg(textures, override)
 
 
+@pytest.mark.integration
 def test_fork_continues_a_run_with_changed_settings(tmp_path, textures, capsys, script):
     fork_run = script("fork_run")
     straight, source = tmp_path / "straight", tmp_path / "source"
@@ -528,6 +539,7 @@ def test_threads_zero_uses_every_core_shared_among_processes():
         to_experiment_config(OmegaConf.create({"train": {"threads": -1}}))
 
 
+@pytest.mark.integration
 def test_a_resume_reads_its_checkpoint_and_validates_its_resources_once(tmp_path, textures, monkeypatch):
     """The resume's rules live in `prepare_run`, which reads the checkpoint and checks the
     resources once; `run_experiment` given its result does neither again."""

@@ -404,6 +404,7 @@ def _lines(run):
             for line in (run / "metrics.jsonl").read_text().splitlines()]
 
 
+@pytest.mark.integration
 def test_events_are_logged_and_survive_a_resume_bit_identically(tmp_path, folder):
     from tests.runtime.test_train import _assert_same_state
 
@@ -443,6 +444,7 @@ def test_events_are_logged_and_survive_a_resume_bit_identically(tmp_path, folder
     assert summary["code"]["left eye: anisometropia 90 arcmin ends"]["iteration"] == 11
 
 
+@pytest.mark.integration
 def test_the_code_at_a_correction_is_the_code_of_a_run_that_stops_there(tmp_path, folder):
     """A run corrected at iteration 3 records the code it had then: that of the same run stopped
     at 3 (its final code), and not the code at its own end."""
@@ -455,6 +457,7 @@ def test_the_code_at_a_correction_is_the_code_of_a_run_that_stops_there(tmp_path
     assert "code" not in stopped["perturbation"]  # its event ends with the run: no correction trained
 
 
+@pytest.mark.integration
 def test_every_rearing_condition_runs(tmp_path, folder):
     """``rearing=<name>``: each condition's events run through a tiny training (smoke)."""
     from hydra import compose, initialize
@@ -513,6 +516,7 @@ def test_plasticity_floor_and_raise():
         to_experiment_config({"plasticity": {"raise_to": 2}})
 
 
+@pytest.mark.integration
 def test_unperturbed_runs_log_what_they_did(tmp_path, folder):
     """No perturbation: no new keys in metrics.jsonl, no perturbation in the summary."""
     cfg = _cfg(folder, "train.iterations=4", events=[])

@@ -277,6 +277,7 @@ def test_pyrender_renders_odd_widths(head):
         renderer.close()
 
 
+@pytest.mark.integration
 def test_missing_osmesa_gets_an_install_hint():
     code = (
         "import ctypes\n"

@@ -588,6 +588,7 @@ print(len(bank), bank.textures.numel() * 4 / 2**20, anon_mib() - start, float(ba
 """
 
 
+@pytest.mark.integration
 @pytest.mark.skipif(not __import__("os").path.exists("/proc/self/status"), reason="needs Linux's /proc")
 def test_a_folder_of_ten_thousand_images_loads_in_bounded_memory_with_a_progress_bar(tmp_path):
     import os

@@ -141,6 +141,7 @@ def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
                           text=True, timeout=300, env=env)
 
 
+@pytest.mark.integration
 def test_command_line(checkpoint, tmp_path, capsys):
     from PIL import Image
 
@@ -156,6 +157,7 @@ def test_command_line(checkpoint, tmp_path, capsys):
     assert capsys.readouterr().out.strip() == f"wrote {out} (4 frames)"  # iterations 1, 3, 5 and 6
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("args, key", [(["checkpoint=missing.pt"], "checkpoint"), (["distance=-1"], "distance")])
 def test_bad_input_is_one_error_line(args, key, checkpoint, tmp_path):
     done = _cli(f"checkpoint={checkpoint}", "out=trial.gif", *args, cwd=tmp_path)
@@ -165,6 +167,7 @@ def test_bad_input_is_one_error_line(args, key, checkpoint, tmp_path):
     assert not (tmp_path / "trial.gif").exists()
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("args, key", [
     (["texture=40"], "texture"), (["texture=nosuch.png"], "texture"), (["distance=50"], "distance"),
     (["out=trial.png"], "out"), (["fps=0"], "fps"), (["policy=argmax"], "policy"), (["renderer=opengl"], "renderer"),
