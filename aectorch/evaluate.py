@@ -156,6 +156,10 @@ def _evaluate(args: EvaluateConfig) -> int:
     if args.readout is not None:
         for cue in learner.cues.values():
             cue.config.readout = Readout(args.readout)  # type: ignore[union-attr]  # a CueLearner
+    vergence_range = None if args.vergence_range_deg is None else tuple(args.vergence_range_deg)
+    protocol = resolve_protocol(trial_protocol(cfg), renderer=args.renderer, vergence_range_deg=vergence_range)
+    if pairs is not None:
+        return _pairs(args, pairs, cfg, learner, protocol, iteration)
     if args.textures is None:
         bank, textures = TextureBank.default("test"), "default test bank"
     else:
@@ -164,10 +168,6 @@ def _evaluate(args: EvaluateConfig) -> int:
         except (ValueError, OSError) as err:
             raise ValueError(f"textures: {err}") from err
         textures = args.textures
-    vergence_range = None if args.vergence_range_deg is None else tuple(args.vergence_range_deg)
-    protocol = resolve_protocol(trial_protocol(cfg), renderer=args.renderer, vergence_range_deg=vergence_range)
-    if args.pairs is not None:
-        return _pairs(args, pairs, cfg, learner, protocol, iteration)
     if args.tracking is not None:
         return _tracking(args, learner, bank, textures, protocol, iteration)
     result = evaluate(learner, bank, distances_m=list(args.depths), protocol=protocol, batch_size=args.batch_size,
