@@ -203,7 +203,7 @@ def test_last5_is_the_mean_of_each_fixations_last_five_iterations():
 
 
 def test_offset_sweep_reads_the_cues_reward_and_greedy_increment_off_the_optimum(tmp_path):
-    from aectorch.evaluation.offsets import limit_cycle, offset_summary, offset_sweep
+    from aectorch.evaluation.offsets import capture_range, limit_cycle, offset_summary, offset_sweep
 
     bank, learner = _trained_learner()
     sweep = offset_sweep(learner, bank, cue="stereo", offsets_deg=[-0.5, 0.0, 0.5], distances_m=[2.0], batch_size=2)
@@ -236,6 +236,14 @@ def test_offset_sweep_reads_the_cues_reward_and_greedy_increment_off_the_optimum
     # (-0.01 at -2 deg steps away by less than the smallest action: not counted)
     assert summary["away_far_below"] == 0.0 and summary["away_far_above"] == 0.75  # 3 of the 4 beyond 1 deg
     assert math.isnan(offset_summary({**sweep, "offsets_deg": far / 3})["away_far_above"])  # no offset beyond 1 deg
+    # The capture range: below, every trial steps back out to -3 deg; above, half step away at +2 deg.
+    assert (summary["capture_below_deg"], summary["capture_above_deg"]) == (3.0, 1.0)
+    near = offset_summary({**sweep, "offsets_deg": far / 3})  # a sweep within 1 deg reports no capture range
+    assert math.isnan(near["capture_below_deg"]) and math.isnan(near["capture_above_deg"])
+    assert capture_range(far, torch.zeros(1, 7, dtype=torch.bool)) == (3.0, 3.0)
+    assert capture_range(far, torch.ones(1, 7, dtype=torch.bool)) == (0.0, 0.0)
+    assert capture_range(far / 3, torch.tensor([[0, 0, 0, 0, 0, 1, 0]], dtype=torch.bool)) == (1.0, 0.0)
+    assert all(math.isnan(v) for v in capture_range(far / 10, torch.zeros(1, 7, dtype=torch.bool)))
 
 
 def test_the_rows_hold_the_texture_statistics_of_each_trials_first_view():

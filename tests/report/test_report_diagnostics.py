@@ -164,11 +164,12 @@ def test_offsets_sweeps_the_pan_cues_of_a_learner_with_the_slip_cue(tmp_path, ca
     assert main(["offsets", f"slip={checkpoint}", "--textures", str(images), "--depths", "1.0", "--step", "0.5",
                  "--span", "2", "--json", str(out)]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert lines[0] == "| cues: parallax / stereo | slip |" and len(lines) == 12
+    assert lines[0] == "| cues: parallax / stereo | slip |" and len(lines) == 14
     stored = json.loads(out.read_text())["cues"]
     assert list(stored) == ["parallax", "stereo"] and stored["stereo"]["trials"] == 2
     # Beyond the default span's 1 deg: the rows of the steps away from the optimum (offsets -2 and +2).
     for line, side in zip(lines[9:11], ("below", "above")):
         cells = [f"{stored[cue][f'away_far_{side}']:.1%}" for cue in stored]
         assert line == f"| the mean read-out steps away from the optimum, over 1 deg {side} it | {' / '.join(cells)} |"
+    assert lines[11].startswith("| capture range below the optimum") and lines[12].startswith("| capture range above")
     assert main(["offsets", "x=missing.pt", "--span", "0"]) == 2 and "--span must be in" in capsys.readouterr().err
