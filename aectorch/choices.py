@@ -112,12 +112,15 @@ class DictionaryStart(Choice):
 
 
 class Proprioception(Choice):
-    """What a cue's agent may sense of its own eyes besides the images (`ActiveDepthEnv.proprioception`):
-    the commanded vergence angle (degrees), the left eye's commanded pan (degrees) or its focus (dioptres)."""
+    """What a cue's agent may sense of its own eyes and body besides the images
+    (`ActiveDepthEnv.proprioception`): the commanded vergence angle (degrees), the left eye's commanded
+    pan (degrees), its focus (dioptres), or the body's sideways shift since the fixation's start
+    (metres, positive to the robot's left)."""
 
     vergence = "vergence"
     pan = "pan"
     focus = "focus"
+    shift = "shift"
 
 
 class Readout(Choice):

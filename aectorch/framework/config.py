@@ -86,14 +86,15 @@ class CueConfig:
         proprioception: what the agent senses of its own eyes besides the code (default none):
             names of `aectorch.choices.Proprioception`, ``vergence`` (the commanded vergence
             angle, degrees), ``pan`` (the left eye's commanded pan, degrees), ``focus`` (the left
-            eye's focus, dioptres; needs accommodating eyes), read when the cue observes
+            eye's focus, dioptres; needs accommodating eyes), ``shift`` (the body's sideways shift
+            since the fixation's start, metres), read when the cue observes
             (`ActiveDepthEnv.proprioception`) and appended to its features, which the agent
             z-scores with the rest (but leaves out of the scaling to its ``feature_norm``, which
             would shrink each to a few per cent of a z-score among hundreds). The vergence angle encodes the distance once vergence is right,
             so with the focus it tells an accommodation cue which way the object's focus lies,
             which the blur alone cannot (docs/results.md, "Accommodation"). A cue's symmetry
-            leaves the vergence angle and the focus unchanged; ``pan`` changes sign under it, so
-            it needs ``symmetry=null``.
+            leaves the vergence angle and the focus unchanged; ``pan`` and ``shift`` change sign
+            under it, so they need ``symmetry=null``.
         reward_scales: the scales whose coding efficiency the agent learns from (default, empty:
             all of ``scales``); the code of every scale is still learned and seen. The wide and
             coarse scales' errors barely change within a pixel of the optimum, but leaving them
@@ -168,9 +169,10 @@ class CueConfig:
         if self.features == Features.none and not self.proprioception:
             raise ValueError(f"{owner}.features=none leaves the agent nothing to see: give it {owner}.proprioception "
                              f"(a list of {list(Proprioception.values())}) or features pooled or unit")
-        if self.symmetry is not None and Proprioception.pan in self.proprioception:
-            raise ValueError(f"{owner}.proprioception 'pan' changes sign under {owner}.symmetry={self.symmetry}; "
-                             f"use {owner}.symmetry=null or leave 'pan' out")
+        odd = [str(n) for n in (Proprioception.pan, Proprioception.shift) if n in self.proprioception]
+        if self.symmetry is not None and odd:
+            raise ValueError(f"{owner}.proprioception {odd[0]!r} changes sign under {owner}.symmetry={self.symmetry}; "
+                             f"use {owner}.symmetry=null or leave {odd[0]!r} out")
 
     @property
     def agent_config(self):

@@ -710,10 +710,11 @@ class ActiveDepthEnv:
     def proprioception(self, names) -> Tensor:
         """What the eyes sense of themselves now, ``[B, len(names)]``, one column per name of
         `aectorch.choices.Proprioception`: ``vergence`` (:attr:`vergence_deg`, the commanded
-        vergence angle, degrees), ``pan`` (the left eye's commanded pan, degrees) and ``focus``
+        vergence angle, degrees), ``pan`` (the left eye's commanded pan, degrees), ``focus``
         (the left eye's focus, dioptres; only where the eyes accommodate, ``accommodation_start_D``
-        or :meth:`set_focus`: an eye that follows the object would sense its distance). Efference
-        copies of the commands, not ground truth: a squint's offset is not in them.
+        or :meth:`set_focus`: an eye that follows the object would sense its distance) and
+        ``shift`` (the body's sideways shift since the fixation's start, :attr:`body_shift_m`,
+        metres). Efference copies of the commands, not ground truth: a squint's offset is not in them.
 
         Example:
             >>> env = ActiveDepthEnv(2, textures=torch.rand(2, 64, 64), accommodation_start_D=0.0, seed=0)
@@ -725,7 +726,7 @@ class ActiveDepthEnv:
             raise ValueError("proprioception 'focus' needs an environment whose eyes accommodate "
                              "(accommodation_start_D, env.accommodation_start_D; or set_focus): these eyes follow the object")
         columns = {Proprioception.vergence: lambda: self.vergence_deg, Proprioception.pan: lambda: self.pan_deg[:, 0],
-                   Proprioception.focus: lambda: self.focus_dioptres[:, 0]}
+                   Proprioception.focus: lambda: self.focus_dioptres[:, 0], Proprioception.shift: lambda: self.body_shift_m}
         if not names:
             return self.pan_deg.new_zeros(self.num_envs, 0)
         return torch.stack([columns[n]() for n in names], -1)

@@ -477,6 +477,15 @@ def test_proprioception_is_checked_where_it_is_configured_and_sensed():
     assert torch.equal(sensed, torch.stack((env.left_pan_deg, env.vergence_deg), -1))
     env.set_focus(torch.tensor([0.25, 0.75]))
     assert torch.equal(env.proprioception(["focus"])[:, 0], torch.full((env.num_envs,), 0.25))
+    with pytest.raises(ValueError, match="'shift' changes sign under cue.symmetry=mirror"):
+        CueConfig(symmetry="mirror", proprioception=["shift"])
+    # The body's shift since the fixation's start: 0 at the start, then the protocol's ramp, either way.
+    assert torch.equal(env.proprioception(["shift"])[:, 0], env.body_shift_m)
+    shifts = []
+    for _ in range(2 * env.fixation_iterations):
+        shifts.append(env.proprioception(["shift"])[0, 0].item())
+        env.end_iteration()
+    assert max(shifts) == pytest.approx(env.shift_m) and min(shifts) == pytest.approx(-env.shift_m)
 
 
 # -- adding a cue: its config, its environment methods, its tests (docs/architecture.md) ------------
