@@ -68,7 +68,7 @@ __all__ = ["ActiveDepthEnv", "CueSpec", "IterationInfo", "RENDERERS", "DEFAULT_D
 
 #: The key of an observation's whole rendered window, ``[B, 2, H, W]``, beside the scales' entries
 #: ``{scale name: [B, 2, side, side]}``. The coder reads the same key (``aectorch.coding.WINDOW``;
-#: the two packages stand side by side and do not import each other; tests/test_sim.py checks
+#: the two packages stand side by side and do not import each other; tests/sim/test_sim.py checks
 #: that they agree).
 WINDOW = "window"
 #: The paper's object distances: 1.0 to 3.0 m in 0.1 m steps.
@@ -167,7 +167,7 @@ SLIP = CueSpec("pursuit_velocity", "slip_observation", "apply_slip", "slip_to_op
 #: How :meth:`ActiveDepthEnv.parallax_observation` and ``stereo_observation`` render the foveal
 #: scales they are asked for: mipmapped textures (``GL_LINEAR_MIPMAP_LINEAR``), 2 x 2 lookups per
 #: pixel at a level of detail biased by -0.5: within 0.5 % of the exact area average
-#: (docs/simulation.md, tests/test_sim.py).
+#: (docs/simulation.md, tests/sim/test_sim.py).
 SCALE_FILTER = dict(filter="trilinear", lod_bias=-0.5, samples=2)
 
 
