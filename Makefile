@@ -7,10 +7,10 @@ ARGS ?=
 PYTEST_ARGS ?=
 # LEROBOT=0 skips the LeRobot bridge's tests (they run in their own .venv-lerobot).
 LEROBOT ?= 1
-# pytest-xdist worker processes of the main suite (on 2 cores: 8 min 36 s with 2 on an idle AMD EPYC, 1,117 tests;
-# 15 min 38 s for 1,127 on a slower idle AMD EPYC whose training ran 300 iterations in 60 s (start included)
-# against about 20 s there (2,400 in 163 s);
-# the LeRobot part 56 s more).
+# pytest-xdist worker processes of the main suite (on 2 idle cores: 1,173 tests in 7 min 58 s on an Intel
+# Xeon whose training runs 2,400 iterations on one thread in about 100 s; 1,127 in 15 min 38 s on a slower
+# AMD EPYC, 300 iterations in 60 s; the LeRobot part 24-56 s more, and about 3 minutes to build its
+# .venv-lerobot the first time).
 TEST_WORKERS ?= 2
 
 # `make bench`: the benchmark suite at full size, its results written to benchmarks/results
@@ -37,9 +37,7 @@ endif
 
 # `make test-fast`: the inner loop, the main suite less the tests marked integration (a training, an
 # experiment's command or a subprocess) or slow, and less the LeRobot part. `make test` runs them all.
-# Measured on a 2-core Intel Xeon shared with four training processes (load average about 6.5, the tests
-# at nice 15): 1,011 tests in 3 min 51 s and 4 min 36 s of wall time, 160 s of CPU time (user + sys), so
-# about 1.5 minutes on 2 idle cores (an estimate from the CPU time, not measured).
+# Measured on the same idle 2-core Intel Xeon: 1,011 tests in 69 s (74 s with make's setup check).
 test-fast: setup
 	PYOPENGL_PLATFORM=osmesa OMP_WAIT_POLICY=PASSIVE $(VENV_PY) -m pytest -q -n $(TEST_WORKERS) --ignore=tests/lerobot \
 	  -m "not integration and not slow" $(PYTEST_ARGS)
