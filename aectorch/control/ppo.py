@@ -77,6 +77,12 @@ class PPOConfig:
             pushing drifts back toward the uniform one instead of sharpening onto the training
             textures, as the lineage's AEC models keep their actors' weights small (Eckmann et al.
             2020: 0.04; Klimmasch et al. 2021).
+        logit_penalty: weight (>= 0; default 0: none) of the mean squared centred logit
+            (each state's logits less their mean) of the minibatch's states, added to the loss.
+            Unlike the weight decay it pulls only where the policy is evaluated, and unlike the
+            entropy bonus its gradient does not vanish where the policy has saturated (the
+            entropy's gradient in a logit is ``-p (log p + H)``, about 0 once one action takes
+            all the mass), so a state whose policy went deterministic becomes explorable again.
     """
 
     lr: float = 0.003
@@ -96,12 +102,13 @@ class PPOConfig:
     actor_init: float = 0.01
     lr_decay: Optional[float] = None
     weight_decay: float = 0.0
+    logit_penalty: float = 0.0
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
         for name in ("lr", "clip", "max_grad_norm", "normalize_eps"):
             check_real(getattr(self, name), f"{owner}.{name}", above=0)
-        for name in ("entropy_coef", "value_coef", "actor_init", "weight_decay"):
+        for name in ("entropy_coef", "value_coef", "actor_init", "weight_decay", "logit_penalty"):
             check_real(getattr(self, name), f"{owner}.{name}", minimum=0)
         for name in ("discount", "gae_lambda"):
             value = check_real(getattr(self, name), f"{owner}.{name}", minimum=0)
@@ -369,6 +376,9 @@ class PPO(nn.Module):
             for start in range(0, size * minibatches, size):
                 losses = self._loss(shuffled[start:start + size])
                 loss = losses["loss_objective"] + losses["loss_critic"] + losses["loss_entropy"]
+                if cfg.logit_penalty:
+                    logits = self.policy(shuffled_x[start:start + size])
+                    loss = loss + cfg.logit_penalty * (logits - logits.mean(-1, keepdim=True)).square().mean()
                 self.optimizer.zero_grad(set_to_none=False)
                 loss.backward()
                 if reduce is not None:  # one policy over all processes: the mean gradient

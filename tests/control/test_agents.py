@@ -197,9 +197,29 @@ def test_ppo_weight_decay_shrinks_the_policy_weights_alone():
     assert ratio < 0.6
 
 
+def test_ppo_logit_penalty_softens_a_saturated_policy_where_the_entropy_bonus_does_not():
+    # A policy that has put all its mass on one action (logits 20 apart), and rewards of noise that
+    # favour no action. The entropy bonus's gradient vanishes there (-p (log p + H) in each logit)
+    # and drowns in the noise; the penalty on the centred logits pulls them together.
+    f = torch.randn(16, 3, generator=_gen(1))
+    spreads = {}
+    for name, options in (("entropy", {}), ("penalty", dict(logit_penalty=0.1))):
+        agent = PPO(3, ACTIONS, PPOConfig(lr=0.05, entropy_coef=0.05, feature_norm=None, **options), generator=_gen())
+        with torch.no_grad():
+            agent.policy.weight.zero_()
+            agent.policy.bias.copy_(torch.linspace(-10, 10, len(ACTIONS)))
+        for step in range(8):
+            act = agent.act(f, uniform=torch.rand(16, generator=_gen(step)))
+            agent.learn(Transitions(f, act.actions, torch.randn(16, generator=_gen(100 + step)), f, last=True))
+        logits = agent.log_policy(f)
+        spreads[name] = float((logits.max(-1).values - logits.min(-1).values).mean())
+    assert spreads["penalty"] < 0.7 * spreads["entropy"], spreads
+
+
 def test_ppo_config_rejects_bad_values():
     for field, value in (("lr", 0), ("epochs", 0), ("discount", 1.5), ("gae_lambda", -0.1), ("hidden", -1),
-                         ("clip", -0.2), ("feature_norm", 0), ("lr_decay", 0), ("weight_decay", -1)):
+                         ("clip", -0.2), ("feature_norm", 0), ("lr_decay", 0), ("weight_decay", -1),
+                         ("logit_penalty", -0.1)):
         with pytest.raises(ValueError, match=f"PPOConfig.{field} must be"):
             PPOConfig(**{field: value})
 
