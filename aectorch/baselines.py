@@ -16,8 +16,10 @@ NaN.
 Example:
     >>> import torch
     >>> from aectorch.evaluation import run_trials
+    >>> from aectorch.sim import TrialProtocol
     >>> matcher = Matcher()
-    >>> out = run_trials(matcher, torch.rand(2, 64, 64), distances_m=[1.0], fixation_iterations=3)
+    >>> out = run_trials(matcher, torch.rand(2, 64, 64), distances_m=[1.0],
+    ...                  protocol=TrialProtocol(fixation_iterations=3))
     >>> sorted(out)[:3], out["vergence_deg"].shape
     (['depth_error_m', 'distance_m', 'pursuit_deg'], torch.Size([2, 2]))
 """

@@ -21,7 +21,6 @@ from aectorch.evaluation.stereo_pairs import START_KINDS, evaluate_pairs, stereo
 from aectorch.evaluation.trials import TRACKING_SKIP, run_tracking, tracking_by_speed, tracking_rows
 from aectorch.baselines import Matcher
 from aectorch.figures import plot_evaluation, plot_tracking
-from aectorch.runtime.builders import trial_protocol
 from aectorch.runtime.checkpoint import load_checkpoint, load_learner
 from aectorch.runtime.command import check_checkpoint_file, check_output_file, run
 from aectorch.runtime.outputs import note_output, write_json
@@ -157,7 +156,7 @@ def _evaluate(args: EvaluateConfig) -> int:
         for cue in learner.cues.values():
             cue.config.readout = Readout(args.readout)  # type: ignore[union-attr]  # a CueLearner
     vergence_range = None if args.vergence_range_deg is None else tuple(args.vergence_range_deg)
-    protocol = resolve_protocol(trial_protocol(cfg), renderer=args.renderer, vergence_range_deg=vergence_range)
+    protocol = resolve_protocol(cfg.env.protocol, renderer=args.renderer, vergence_range_deg=vergence_range)
     if pairs is not None:
         return _pairs(args, pairs, cfg, learner, protocol, iteration)
     if args.textures is None:

@@ -8,8 +8,8 @@ stage costs one global read on entry and exit.
 Example:
     >>> import torch
     >>> from aectorch.framework import JointLearner, LearnerConfig
-    >>> from aectorch.sim import ActiveDepthEnv
-    >>> env = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64), fixation_iterations=2, seed=0)
+    >>> from aectorch.sim import ActiveDepthEnv, TrialProtocol
+    >>> env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2), textures=torch.rand(3, 64, 64), seed=0)
     >>> learner = JointLearner(LearnerConfig())
     >>> with StageTimer() as timer:
     ...     _ = learner.iteration(env)

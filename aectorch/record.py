@@ -65,7 +65,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _record(args: RecordConfig) -> int:
     from aectorch.integrations.lerobot import record_trials
-    from aectorch.runtime import load_learner, trial_protocol
+    from aectorch.runtime import load_learner
     from aectorch.sim import ActiveDepthEnv, TextureBank, resolve_protocol
 
     cfg, learner = load_learner(args.checkpoint)
@@ -74,9 +74,9 @@ def _record(args: RecordConfig) -> int:
     else:
         bank = TextureBank.from_folder(args.textures, dtype=cfg.env.torch_dtype,
                                        progress=None if args.progress else False)
-    protocol = resolve_protocol(trial_protocol(cfg), renderer=args.renderer)
-    env = ActiveDepthEnv(args.envs, textures=bank, distances_m=cfg.env.distances_m, **protocol.env_kwargs(),
-                         seed=args.seed, device=cfg.env.device, dtype=cfg.env.torch_dtype)
+    protocol = resolve_protocol(cfg.env.protocol, renderer=args.renderer)
+    env = ActiveDepthEnv(args.envs, protocol=protocol, textures=bank, distances_m=cfg.env.distances_m, seed=args.seed,
+                         device=cfg.env.device, dtype=cfg.env.torch_dtype)
     root = record_trials(learner, env, args.trials, args.out, repo_id=args.repo_id,
                          progress=args.progress)
     episodes = 2 * args.trials * args.envs

@@ -32,9 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg, learner = load_learner(args.checkpoint)
     bank = TextureBank.from_folder(args.folder) if args.folder else TextureBank.default("test")
     n = min(args.textures, len(bank))
-    env = ActiveDepthEnv(n, textures=bank, fixation_iterations=cfg.env.fixation_iterations,
-                         shift_m=cfg.env.shift_m, shift_iterations=cfg.env.shift_iterations,
-                         yoked_pursuit=cfg.env.yoked_pursuit, seed=0)
+    env = ActiveDepthEnv(n, protocol=cfg.env.protocol, textures=bank, seed=0)
     env.set_trial(torch.arange(n), torch.full((n,), args.distance))
     learner.forget_transitions()
     with torch.no_grad():

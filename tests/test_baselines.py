@@ -7,7 +7,7 @@ import torch
 
 from aectorch.baselines import Matcher, ncc_displacement_px
 from aectorch.evaluation import evaluate, run_trials
-from aectorch.sim import ActiveDepthEnv, TextureBank
+from aectorch.sim import ActiveDepthEnv, TextureBank, TrialProtocol
 
 torch.set_num_threads(1)
 
@@ -31,7 +31,7 @@ def test_ncc_finds_a_known_subpixel_shift():
 
 @pytest.mark.parametrize("cue,movement", [("parallax", "pursuit"), ("stereo", "vergence")])
 def test_matcher_reads_an_eyes_offset_from_its_pair(cue, movement):
-    env = ActiveDepthEnv(3, textures=TextureBank.default("test"), shift_iterations=1, seed=0)
+    env = ActiveDepthEnv(3, protocol=TrialProtocol(shift_iterations=1), textures=TextureBank.default("test"), seed=0)
     env.set_trial(torch.tensor([0, 5, 9]), torch.tensor([1.0, 2.0, 3.0]))
     matcher = Matcher(actions_deg=None)
     for offset in (-0.6, 0.25):

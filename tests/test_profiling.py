@@ -10,7 +10,7 @@ import torch
 from aectorch.coding import EncoderConfig
 from aectorch.framework import JointLearner, LearnerConfig, default_cues
 from aectorch.profiling import StageTimer, stage
-from aectorch.sim import ActiveDepthEnv
+from aectorch.sim import ActiveDepthEnv, TrialProtocol
 
 torch.set_num_threads(1)
 
@@ -40,7 +40,7 @@ def test_stages_cost_nothing_without_a_timer_and_timers_nest():
 
 
 def test_learner_iterations_cover_every_stage_including_depth():
-    env = ActiveDepthEnv(4, textures=torch.rand(3, 64, 64), fixation_iterations=1, seed=0)
+    env = ActiveDepthEnv(4, protocol=TrialProtocol(fixation_iterations=1), textures=torch.rand(3, 64, 64), seed=0)
     learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=32)), depth_every_trials=8),
                            generator=torch.Generator().manual_seed(0))
     with StageTimer() as timer:

@@ -38,13 +38,13 @@ from typing import NamedTuple, Sequence
 import torch
 from torch import Tensor
 
-from aectorch._checks import check_choice, check_int, check_range
+from aectorch._checks import check_choice, check_int
 from aectorch.choices import Choice
 from aectorch.coding import BinocularEncoder, EncoderConfig
 from aectorch.coding.focus import focus_reward, input_energy
 from aectorch.coding.patches import DEFAULT_SCALES, as_scale
 from aectorch.control import DEFAULT_ACTIONS_DEG, RewardScale, learned_reward
-from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, ActiveDepthEnv, TextureBank, check_oculomotor_range
+from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, ActiveDepthEnv, TextureBank, TrialProtocol
 
 __all__ = ["EyeTask", "Observation", "Reward", "Step", "Task", "TaskConfig"]
 
@@ -151,14 +151,20 @@ class TaskConfig:
         if not self.actions_deg:
             raise ValueError("actions_deg must be a non-empty list of pan increments (degrees)")
         self.scales = tuple(as_scale(s).name for s in self.scales)
-        check_int(self.fixation_iterations, "fixation_iterations")
-        self.object_speed_deg = check_range(self.object_speed_deg, "object_speed_deg", unit="degrees per step")
-        self.object_depth_speed_m = check_range(self.object_depth_speed_m, "object_depth_speed_m",
-                                                unit="metres per step")
-        self.pan_range_deg, self.vergence_range_deg = check_oculomotor_range(self.pan_range_deg,
-                                                                             self.vergence_range_deg)
+        protocol = self.protocol  # the trial's fields, checked by `TrialProtocol`
+        for name in ("object_speed_deg", "object_depth_speed_m", "pan_range_deg", "vergence_range_deg"):
+            setattr(self, name, getattr(protocol, name))
         if isinstance(self.encoder, dict):
             self.encoder = EncoderConfig(**self.encoder)
+
+    @property
+    def protocol(self) -> TrialProtocol:
+        """The trial protocol of these options (`TrialProtocol`; the accommodation start only
+        with ``task="accommodation"``)."""
+        return TrialProtocol(renderer=self.renderer, fixation_iterations=self.fixation_iterations,
+                             object_speed_deg=self.object_speed_deg, object_depth_speed_m=self.object_depth_speed_m,
+                             accommodation_start_D=self.accommodation_start_D if self.task == Task.accommodation
+                             else None, pan_range_deg=self.pan_range_deg, vergence_range_deg=self.vergence_range_deg)
 
 
 class Step(NamedTuple):
@@ -206,13 +212,7 @@ class EyeTask:
             textures = TextureBank.default("train")
         elif isinstance(textures, str):
             textures = TextureBank.from_folder(textures)
-        self.env = ActiveDepthEnv(num_envs, textures=textures, renderer=config.renderer,
-                                  distances_m=config.distances_m, fixation_iterations=config.fixation_iterations,
-                                  object_speed_deg=config.object_speed_deg,
-                                  object_depth_speed_m=config.object_depth_speed_m,
-                                  accommodation_start_D=config.accommodation_start_D
-                                  if config.task == Task.accommodation else None,
-                                  pan_range_deg=config.pan_range_deg, vergence_range_deg=config.vergence_range_deg,
+        self.env = ActiveDepthEnv(num_envs, protocol=config.protocol, textures=textures, distances_m=config.distances_m,
                                   device=config.device, seed=0 if seed is None else seed)
         self.device = self.env.device
         self.scales = tuple(as_scale(s) for s in config.scales)

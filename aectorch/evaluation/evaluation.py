@@ -27,11 +27,6 @@ def evaluate(
     *,
     distances_m: Sequence[float] = DEFAULT_DISTANCES_M,
     protocol: TrialProtocol | None = None,
-    renderer: str | None = None,
-    fixation_iterations: int | None = None,
-    shift_m: float | None = None,
-    shift_iterations: int | None = None,
-    yoked_pursuit: bool | None = None,
     batch_size: int = EVAL_BATCH_SIZE,
     vergence_test: bool = True,
     offset_deg: float = 2.0,
@@ -50,8 +45,6 @@ def evaluate(
         distances_m: object distances; every texture is tested at every distance.
         protocol: the trial protocol (`aectorch.sim.TrialProtocol`; default its defaults, the
             training's); a learner is evaluated under the protocol it trained in.
-        renderer, fixation_iterations, shift_m, shift_iterations, yoked_pursuit: replace that
-            field of ``protocol`` when given.
         batch_size: environments simulated at once.
         vergence_test: also run the earlier models' vergence test.
         offset_deg, steps: its initial vergence offsets (uniform in +-offset_deg) and step count.
@@ -70,8 +63,7 @@ def evaluate(
         trial (``per_trial``, :func:`per_trial_rows`); ``trials``; and ``vergence_test`` when asked.
     """
     distances, policy = _check_trial_arguments(distances_m, batch_size, policy)
-    protocol = resolve_protocol(protocol, renderer=renderer, fixation_iterations=fixation_iterations, shift_m=shift_m,
-                                shift_iterations=shift_iterations, yoked_pursuit=yoked_pursuit)
+    protocol = resolve_protocol(protocol)
     bank = textures if isinstance(textures, TextureBank) else TextureBank(textures)
     index, distance = _all_conditions(len(bank), distances)
     greedy = policy == Policy.greedy

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+from dataclasses import replace
 from typing import Iterator, Sequence
 
 import torch
@@ -63,9 +64,9 @@ def _trial_session(learner, bank: TextureBank, distances: list[float], protocol:
 
     def env_for(size: int, h: int, instant: bool = False) -> ActiveDepthEnv:
         if (size, h, instant) not in envs:
-            options = protocol.env_kwargs()
-            options.update(fixation_iterations=h, shift_iterations=1 if instant else protocol.shift_iterations)
-            envs[size, h, instant] = ActiveDepthEnv(size, textures=bank, distances_m=distances, **options,
+            trial = replace(protocol, fixation_iterations=h,
+                            shift_iterations=1 if instant else protocol.shift_iterations)
+            envs[size, h, instant] = ActiveDepthEnv(size, protocol=trial, textures=bank, distances_m=distances,
                                                     seed=seed, device=device, dtype=dtype)
         return envs[size, h, instant]
 
@@ -165,11 +166,6 @@ def run_trials(
     *,
     distances_m: Sequence[float] = DEFAULT_DISTANCES_M,
     protocol: TrialProtocol | None = None,
-    renderer: str | None = None,
-    fixation_iterations: int | None = None,
-    shift_m: float | None = None,
-    shift_iterations: int | None = None,
-    yoked_pursuit: bool | None = None,
     batch_size: int = EVAL_BATCH_SIZE,
     seed: int = 0,
     policy: str = "greedy",
@@ -189,8 +185,6 @@ def run_trials(
         distances_m: object distances; every texture is tested at every distance.
         protocol: the trial protocol (`aectorch.sim.TrialProtocol`; default its defaults, the
             training's); a learner is evaluated under the protocol it trained in.
-        renderer, fixation_iterations, shift_m, shift_iterations, yoked_pursuit: replace that
-            field of ``protocol`` when given.
         batch_size: environments simulated at once.
         seed: seeds the environments and, with ``policy="sampled"``, the actions.
         policy: ``"greedy"`` or ``"sampled"``, as for :func:`evaluate`.
@@ -213,13 +207,13 @@ def run_trials(
         >>> import torch
         >>> from aectorch.framework import JointLearner, LearnerConfig
         >>> learner = JointLearner(LearnerConfig(), generator=torch.Generator().manual_seed(0))
-        >>> out = run_trials(learner, torch.rand(2, 64, 64), distances_m=[1.0, 2.0], fixation_iterations=2)
+        >>> out = run_trials(learner, torch.rand(2, 64, 64), distances_m=[1.0, 2.0],
+        ...                  protocol=TrialProtocol(fixation_iterations=2))
         >>> out["q_deg"].shape, out["distance_m"].tolist()
         (torch.Size([4, 4]), [1.0, 2.0, 1.0, 2.0])
     """
     distances, policy = _check_trial_arguments(distances_m, batch_size, policy)
-    protocol = resolve_protocol(protocol, renderer=renderer, fixation_iterations=fixation_iterations, shift_m=shift_m,
-                                shift_iterations=shift_iterations, yoked_pursuit=yoked_pursuit)
+    protocol = resolve_protocol(protocol)
     bank = textures if isinstance(textures, TextureBank) else TextureBank(textures)
     if conditions is None:
         index, distance = _all_conditions(len(bank), distances)

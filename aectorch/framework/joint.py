@@ -90,8 +90,9 @@ class JointLearner(nn.Module):
 
     Example:
         >>> import torch
-        >>> from aectorch.sim import ActiveDepthEnv
-        >>> env = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64), fixation_iterations=2, seed=0)
+        >>> from aectorch.sim import ActiveDepthEnv, TrialProtocol
+        >>> env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2), textures=torch.rand(3, 64, 64),
+        ...                      seed=0)
         >>> config = LearnerConfig(active_cues=["stereo"])      # the vergence-only model
         >>> learner = JointLearner(config, generator=torch.Generator().manual_seed(0))
         >>> record = learner.iteration(env)

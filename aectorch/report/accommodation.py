@@ -17,7 +17,7 @@ from aectorch.coding.focus import focus_reward, input_energy
 from aectorch.framework import CueConfig, CueLearner
 from aectorch.report.compare import _mean_sd
 from aectorch.runs import EVALUATION, Run
-from aectorch.sim import ActiveDepthEnv, PinholeCamera, TextureBank
+from aectorch.sim import ActiveDepthEnv, PinholeCamera, TextureBank, TrialProtocol
 
 __all__ = ["DEFOCUS_D", "DISTANCES_M", "accommodation_table", "distance_table", "focus_curve", "focus_measures", "policy_table",
            "train_focus_coder"]
@@ -96,7 +96,7 @@ def train_focus_coder(steps: int, spread: float, aperture_m: float, batch: int, 
     textures, both eyes at the optimal vergence and focused uniformly within +-``spread`` D of the
     object (what an eye that learns to focus sees)."""
     encoder = CueLearner.build_encoder(CueConfig(), generator=torch.Generator().manual_seed(seed))
-    env = ActiveDepthEnv(batch, aperture_m=aperture_m, seed=seed)
+    env = ActiveDepthEnv(batch, protocol=TrialProtocol(aperture_m=aperture_m), seed=seed)
     g = torch.Generator().manual_seed(seed + 1)
     for _ in range(steps):
         index = torch.randint(len(env.textures), (batch,), generator=g)
@@ -114,7 +114,8 @@ def _curve(encoder, textures: TextureBank, grid: Sequence[float], aperture_m: fl
     n = len(textures)
     index = torch.arange(n).repeat_interleave(len(DISTANCES_M))
     distance = torch.tensor(DISTANCES_M).repeat(n)
-    env = ActiveDepthEnv(len(index), textures=textures, aperture_m=aperture_m, distances_m=DISTANCES_M, seed=0)
+    env = ActiveDepthEnv(len(index), protocol=TrialProtocol(aperture_m=aperture_m), textures=textures,
+                         distances_m=DISTANCES_M, seed=0)
     env.set_trial(index, distance)
     env.apply_vergence(env.vergence_to_optimum())
     rows: dict[str, list[float]] = {"defocus_D": list(grid), "coding": [], "energy": [], "focus": []}
@@ -162,7 +163,8 @@ def policy_table(learner, textures: int = 8) -> list[str]:
     focused off the object by each defocus of `DEFOCUS_D`, on the first ``textures`` test textures
     at 1, 2 and 3 m."""
     cue, n = learner.accommodation, textures
-    env = ActiveDepthEnv(n, textures=TextureBank.default("test"), accommodation_start_D=0.0, seed=0)
+    env = ActiveDepthEnv(n, protocol=TrialProtocol(accommodation_start_D=0.0), textures=TextureBank.default("test"),
+                         seed=0)
     lines = ["distance | " + " | ".join(f"{d:+.1f} D: increment (deg), reward" for d in DEFOCUS_D)]
     with torch.no_grad():
         for distance in (1.0, 2.0, 3.0):

@@ -10,7 +10,7 @@ from typing import Any, Sequence
 import torch
 
 from aectorch.evaluation import depth_readouts, depth_tolerance, run_trials
-from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, ActiveDepthEnv
+from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, ActiveDepthEnv, TrialProtocol
 
 __all__ = ["depth_readout", "readout_lines", "tolerance_lines", "tolerance_table"]
 
@@ -20,7 +20,9 @@ GRID_M = (0.5, 5.0, 0.0005)
 
 def _geometry(shift_m: float) -> ActiveDepthEnv:
     """An environment for the head's geometry alone (``ideal_q_deg``), float64; nothing is rendered."""
-    return ActiveDepthEnv(1, textures=torch.zeros(1, 8, 8, dtype=torch.float64), shift_m=shift_m, dtype=torch.float64)
+    return ActiveDepthEnv(1, protocol=TrialProtocol(shift_m=shift_m), textures=torch.zeros(1, 8, 8,
+                                                                                           dtype=torch.float64),
+                          dtype=torch.float64)
 
 
 def tolerance_table(distances_m: Sequence[float] = DEFAULT_DISTANCES_M[::5], *, depth_m: float = 0.05,

@@ -8,7 +8,7 @@ from typing import Sequence
 from aectorch.baselines import Matcher
 from aectorch.evaluation import evaluate
 from aectorch.evaluation.summary import BEYOND_DEG, WITHIN_DEG
-from aectorch.sim import TextureBank
+from aectorch.sim import TextureBank, resolve_protocol
 
 __all__ = ["matcher_rows", "matcher_table"]
 
@@ -29,7 +29,8 @@ def matcher_table(textures: str | Path | None, distances_m: Sequence[float], *, 
         variants["matcher, unconstrained"] = Matcher(actions_deg=None)
     out = {}
     for name, matcher in variants.items():
-        result = evaluate(matcher, bank, distances_m=distances_m, renderer=renderer, progress=progress)
+        result = evaluate(matcher, bank, distances_m=distances_m, protocol=resolve_protocol(renderer=renderer),
+                          progress=progress)
         result.update(textures=str(textures) if textures is not None else "test textures", renderer=renderer)
         out[name] = result
     return out

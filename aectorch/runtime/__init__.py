@@ -47,7 +47,7 @@ from aectorch.framework import IterationRecord
 from aectorch.runtime import distributed
 from aectorch.runtime.builders import (
     available_threads, build_env, build_learner, build_textures, compile_hot_path, dictionaries, set_threads,
-    trial_options, trial_protocol,
+    trial_options,
 )
 from aectorch.runtime.checkpoint import (
     AUTO, CHECKPOINT_FORMAT, RESUME_KEYS, RunExists, check_new_run, check_resume_overrides, checkpoint_config,
@@ -66,7 +66,7 @@ __all__ = [
     "check_new_run", "check_resume_overrides", "checkpoint_config", "checkpoint_envs", "compile_hot_path",
     "default_callbacks", "dictionaries", "format_summary", "load_checkpoint", "load_learner", "prepare_run",
     "resolve_resume", "restore", "resume_config", "run_experiment",
-    "save_checkpoint", "set_threads", "to_container", "to_experiment_config", "trial_options", "trial_protocol",
+    "save_checkpoint", "set_threads", "to_container", "to_experiment_config", "trial_options",
     "validate_resources",
 ]
 

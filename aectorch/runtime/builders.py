@@ -9,12 +9,12 @@ import torch
 
 from aectorch.framework import JointLearner, Shard
 from aectorch.runtime.config import ExperimentConfig
-from aectorch.sim import PROCEDURAL_TEXTURES, ActiveDepthEnv, TextureBank, TrialProtocol
+from aectorch.sim import PROCEDURAL_TEXTURES, ActiveDepthEnv, TextureBank
 
 log = logging.getLogger("aectorch")
 
 __all__ = ["available_threads", "build_env", "build_learner", "build_textures", "compile_hot_path",
-           "dictionaries", "set_threads", "trial_options", "trial_protocol"]
+           "dictionaries", "set_threads", "trial_options"]
 
 
 def set_threads(threads: int, processes: int = 1) -> None:
@@ -48,22 +48,10 @@ def build_textures(folder: str | None, split: str, cfg: ExperimentConfig) -> Tex
     return TextureBank.from_folder(folder, progress=None if cfg.train.progress else False, **kwargs)
 
 
-def trial_protocol(cfg: ExperimentConfig) -> TrialProtocol:
-    """The trial protocol of the run's environments (what its evaluation uses too)."""
-    e = cfg.env
-    return TrialProtocol(renderer=e.renderer, fixation_iterations=e.fixation_iterations, shift_m=e.shift_m,
-                         shift_iterations=e.shift_iterations, yoked_pursuit=e.yoked_pursuit,
-                         q_iterations=e.q_iterations, object_speed_deg=tuple(e.object_speed_deg),
-                         object_depth_speed_m=tuple(e.object_depth_speed_m), aperture_m=e.aperture_m,
-                         accommodation_start_D=e.accommodation_start_D, yoked_accommodation=e.yoked_accommodation,
-                         pan_range_deg=tuple(e.pan_range_deg), vergence_range_deg=tuple(e.vergence_range_deg),
-                         pursuit_velocity=e.pursuit_velocity, velocity_memory=e.velocity_memory)
-
-
 def trial_options(cfg: ExperimentConfig) -> dict:
     """The keyword arguments of `aectorch.evaluation.evaluate` and `run_trials` that ``cfg`` sets:
     the run's trial protocol and the evaluation's batch size."""
-    return dict(protocol=trial_protocol(cfg), batch_size=cfg.eval.batch_size)
+    return dict(protocol=cfg.env.protocol, batch_size=cfg.eval.batch_size)
 
 
 def _start(value: float, spread: float) -> float | tuple[float, float]:
@@ -78,8 +66,8 @@ def build_env(cfg: ExperimentConfig, shard: Shard | None = None) -> ActiveDepthE
     return ActiveDepthEnv(
         e.num_envs,
         textures=build_textures(e.textures, "train", cfg),
+        protocol=e.protocol,
         distances_m=e.distances_m,
-        **trial_protocol(cfg).env_kwargs(),
         pursuit_start_deg=_start(e.pursuit_start_deg, e.pursuit_start_spread_deg),
         vergence_start_deg=_start(e.vergence_start_deg, e.vergence_start_spread_deg),
         pursuit_start_error_deg=e.pursuit_start_error_deg,

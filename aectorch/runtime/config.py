@@ -10,13 +10,12 @@ cannot see (`aectorch.runtime.resources`) and Hydra's store (`aectorch.runtime.s
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Optional
 
 import torch
 
-from aectorch._checks import (check_bool, check_choice, check_device, check_distances, check_int, check_range,
-                              check_real)
+from aectorch._checks import check_bool, check_choice, check_device, check_distances, check_int, check_real
 from aectorch.choices import DType, Eye, RendererName
 from aectorch.evaluation import EVAL_BATCH_SIZE
 from aectorch.framework import LearnerConfig
@@ -24,8 +23,8 @@ from aectorch.runtime.metrics import PAPER_WINDOW, RECENT_WINDOW
 from aectorch.runtime.perturbations import Event, PerturbationEventConfig, resolve_events
 from aectorch.runtime.watchdog import WatchdogConfig
 from aectorch.sim import (
-    PAN_RANGE_DEG, PROCEDURAL_TEXTURES, VERGENCE_RANGE_DEG, check_oculomotor_range,
-    DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, START_PURSUIT_DEG, START_VERGENCE_DEG,
+    DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, PROCEDURAL_TEXTURES, START_PURSUIT_DEG, START_VERGENCE_DEG, TrialProtocol,
+    check_oculomotor_range,
 )
 
 __all__ = [
@@ -43,6 +42,8 @@ __all__ = [
 ]
 
 _DTYPES = {DType.float32: torch.float32, DType.float64: torch.float64}
+#: `EnvConfig`'s keys that are the trial protocol's fields (`EnvConfig.protocol`).
+_PROTOCOL_FIELDS = tuple(f.name for f in fields(TrialProtocol))
 
 
 def _check_folder(value: object, name: str) -> None:
@@ -146,19 +147,18 @@ class EnvConfig:
     object_speed_deg: list[float] = field(default_factory=lambda: list(DEFAULT_PROTOCOL.object_speed_deg))
     object_depth_speed_m: list[float] = field(default_factory=lambda: list(DEFAULT_PROTOCOL.object_depth_speed_m))
     aperture_m: float = DEFAULT_PROTOCOL.aperture_m
-    accommodation_start_D: Optional[float] = None
-    yoked_accommodation: bool = True
-    pan_range_deg: list[float] = field(default_factory=lambda: list(PAN_RANGE_DEG))
-    vergence_range_deg: list[float] = field(default_factory=lambda: list(VERGENCE_RANGE_DEG))
-    pursuit_velocity: bool = False
-    velocity_memory: bool = False
+    accommodation_start_D: Optional[float] = DEFAULT_PROTOCOL.accommodation_start_D
+    yoked_accommodation: bool = DEFAULT_PROTOCOL.yoked_accommodation
+    pan_range_deg: list[float] = field(default_factory=lambda: list(DEFAULT_PROTOCOL.pan_range_deg))
+    vergence_range_deg: list[float] = field(default_factory=lambda: list(DEFAULT_PROTOCOL.vergence_range_deg))
+    pursuit_velocity: bool = DEFAULT_PROTOCOL.pursuit_velocity
+    velocity_memory: bool = DEFAULT_PROTOCOL.velocity_memory
     device: str = "cpu"
     dtype: DType = DType.float32
 
     def __post_init__(self) -> None:
         owner = "env"
         check_int(self.num_envs, f"{owner}.num_envs", 1)
-        self.renderer = check_choice(self.renderer, f"{owner}.renderer", RendererName)
         _check_folder(self.textures, f"{owner}.textures")
         if self.num_textures is not None:
             check_int(self.num_textures, f"{owner}.num_textures", 1)
@@ -166,32 +166,27 @@ class EnvConfig:
                 raise ValueError(f"{owner}.num_textures={self.num_textures} sizes a generated texture set, but "
                                  f"{owner}.textures={self.textures!r} is a folder: leave {owner}.num_textures=null")
         self.distances_m = check_distances(self.distances_m, f"{owner}.distances_m")
-        check_int(self.fixation_iterations, f"{owner}.fixation_iterations", 1)
-        check_real(self.shift_m, f"{owner}.shift_m", minimum=0, unit="metres")
-        check_int(self.shift_iterations, f"{owner}.shift_iterations", 1)
-        check_bool(self.yoked_pursuit, f"{owner}.yoked_pursuit")
-        check_int(self.q_iterations, f"{owner}.q_iterations", 1)
         for name in ("pursuit_start_deg", "vergence_start_deg"):
             check_real(getattr(self, name), f"{owner}.{name}", unit="degrees")
         for name in ("pursuit_start_spread_deg", "vergence_start_spread_deg", "pursuit_start_error_deg"):
             check_real(getattr(self, name), f"{owner}.{name}", minimum=0, unit="degrees")
-        self.object_speed_deg = list(check_range(self.object_speed_deg, f"{owner}.object_speed_deg",
-                                                 unit="degrees per iteration"))
-        self.object_depth_speed_m = list(check_range(self.object_depth_speed_m, f"{owner}.object_depth_speed_m",
-                                                     unit="metres per iteration"))
-        check_real(self.aperture_m, f"{owner}.aperture_m", minimum=0, unit="metres")
-        if self.accommodation_start_D is not None:
-            check_real(self.accommodation_start_D, f"{owner}.accommodation_start_D", minimum=0, unit="dioptres")
-        check_bool(self.yoked_accommodation, f"{owner}.yoked_accommodation")
-        check_bool(self.pursuit_velocity, f"{owner}.pursuit_velocity")
-        check_bool(self.velocity_memory, f"{owner}.velocity_memory")
-        if self.velocity_memory and not self.pursuit_velocity:
-            raise ValueError(f"{owner}.velocity_memory needs {owner}.pursuit_velocity=true (a velocity to remember "
-                             "the pursuit steps in)")
-        pan, vergence = check_oculomotor_range(self.pan_range_deg, self.vergence_range_deg, prefix=f"{owner}.")
-        self.pan_range_deg, self.vergence_range_deg = list(pan), list(vergence)
+        try:  # the trial protocol's fields are checked by `TrialProtocol`, named by their keys here
+            protocol = self.protocol
+        except ValueError as err:
+            raise ValueError(f"{owner}.{err}") from None
+        self.renderer = protocol.renderer
+        for name in ("object_speed_deg", "object_depth_speed_m", "pan_range_deg", "vergence_range_deg"):
+            setattr(self, name, list(getattr(protocol, name)))
+        # the config's environments have the HOAP-3's head: its pan range is refused here, before a run
+        check_oculomotor_range(self.pan_range_deg, self.vergence_range_deg, prefix=f"{owner}.")
         check_device(self.device, f"{owner}.device")
         self.dtype = check_choice(self.dtype, f"{owner}.dtype", DType)
+
+    @property
+    def protocol(self) -> TrialProtocol:
+        """The trial protocol these fields make (`TrialProtocol`): the one object the run's
+        environments (`aectorch.runtime.build_env`) and its evaluation take."""
+        return TrialProtocol(**{name: getattr(self, name) for name in _PROTOCOL_FIELDS})
 
     @property
     def torch_dtype(self) -> torch.dtype:

@@ -72,8 +72,9 @@ class TrainingMetrics:
     Example:
         >>> import torch
         >>> from aectorch.framework import JointLearner, LearnerConfig
-        >>> from aectorch.sim import ActiveDepthEnv
-        >>> env = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64), fixation_iterations=1, seed=0)
+        >>> from aectorch.sim import ActiveDepthEnv, TrialProtocol
+        >>> env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=1), textures=torch.rand(3, 64, 64),
+        ...                      seed=0)
         >>> learner = JointLearner(LearnerConfig(), generator=torch.Generator().manual_seed(0))
         >>> metrics = TrainingMetrics.for_learner(learner, 2)
         >>> metrics.update(learner.iteration(env))

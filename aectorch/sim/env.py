@@ -60,7 +60,7 @@ from aectorch.sim.oculomotor import check_oculomotor_range, clamp_eyes
 from aectorch.sim.perturbations import (NEUTRAL, Optics, blur_margin, defocus, defocus_each, orientation_filter,
                                         scale_contrast)
 from aectorch.sim.scene import PlaneScene
-from aectorch.sim.protocol import DEFAULT_PROTOCOL, START_PURSUIT_DEG, START_VERGENCE_DEG, TrialProtocol
+from aectorch.sim.protocol import START_PURSUIT_DEG, START_VERGENCE_DEG, TrialProtocol, resolve_protocol
 from aectorch.sim.textures import TextureBank, pink_noise_images
 
 __all__ = ["ActiveDepthEnv", "CueSpec", "IterationInfo", "RENDERERS", "DEFAULT_DISTANCES_M", "SCALE_FILTER",
@@ -284,50 +284,18 @@ class ActiveDepthEnv:
 
     Args:
         num_envs: number of environments B (>= 1).
+        protocol: the trial protocol (`TrialProtocol`, default its defaults, the paper's): the
+            renderer, h, the body shift and its profile, yoked pursuit, q's window, the moving
+            object, the eyes' aperture and the accommodation cue, the pursuit velocity and the
+            oculomotor range (its pan range is checked against ``head``'s joint limits here). An
+            ``accommodation_start_D`` adds the ``accommodation`` cue(s) to :attr:`CUES`, a
+            ``pursuit_velocity`` the ``slip`` cue (first: it sees the left eye's previous frame
+            against its current one, :meth:`slip_observation`); a ``shift_iterations`` or
+            ``q_iterations`` longer than the fixation is cut to ``fixation_iterations``.
         textures: object textures: a :class:`TextureBank`, a tensor ``[N, H, W]`` in [0, 1], or
             ``None`` for ``TextureBank.default("train")`` (100 procedural textures).
-        renderer: ``"torch"`` (default) or ``"pyrender"`` (OSMesa; ``renderer_options`` are
-            passed on, e.g. ``{"platform": "egl"}``).
         distances_m: the object distances a trial draws from uniformly (metres from the eyes'
             centres along the robot's forward axis; each > 0); default 1.0 .. 3.0 m in 0.1 m steps.
-        fixation_iterations: h, iterations per fixation (paper: 30). The defaults of this and
-            the next three arguments are `aectorch.sim.TrialProtocol`'s.
-        shift_m: δ, the body's lateral shift in each fixation (paper: 0.1 m).
-        shift_iterations: n, the body movement's profile: during iteration ``i`` (0-based) of a
-            fixation the body is at ``min(1, (i + 1) / n) * shift_m``, so the shift grows
-            linearly over the first n iterations and is then held (the paper's "successive images
-            during the self-induced lateral body movement"). 1 puts the whole shift before the
-            first iteration; n >= 1 (default 20, `TrialProtocol`), and an n longer than the
-            fixation is cut to ``fixation_iterations`` (the shift is complete by every fixation's
-            end).
-        yoked_pursuit: the pursuit increment moves both eyes (Hering's law of equal innervation),
-            so vergence only has to add the convergence (default, `TrialProtocol`); ``False``: it
-            moves the dominant (left) eye alone and the right eye must follow through vergence.
-        q_iterations: each fixation's q (left pan and vergence) is the mean over its last this
-            many iterations (default 1: the last iteration's, the paper), `TrialProtocol`.
-        aperture_m: the eyes' aperture (pupil diameter, metres) for the world's defocus: an eye
-            focused at F dioptres (:meth:`set_focus`) sees an object at d metres blurred by a disc
-            of ``aperture_m * |1 / d - F|`` radians; 0 is a pinhole (`TrialProtocol`).
-        accommodation_start_D: ``None`` (default): the eyes follow the object's focus. A number
-            (dioptres): the ``accommodation`` cue joins :attr:`CUES` (its action, in degrees of the
-            blur disc's diameter, changes both eyes' focus: :meth:`apply_accommodation`), and each
-            fixation starts with both eyes focused at this many dioptres (`TrialProtocol`).
-        yoked_accommodation: ``False``: the accommodation cue focuses the left eye and the
-            ``accommodation_right`` cue the right one (default ``True``: both alike).
-        object_speed_deg, object_depth_speed_m: a moving object (`TrialProtocol`,
-            `aectorch.sim.motion`): the ranges its sideways speed (degrees per iteration, drawn per
-            fixation) and its depth speed (metres per iteration, drawn per trial) are drawn from;
-            ``(0, 0)`` both (default): it stands still. :meth:`set_object_speed` pins them.
-        pursuit_velocity: the eyes keep a pursuit velocity (degrees per iteration, 0 at each
-            fixation's start) that moves them on between iterations, as the object and the body
-            move, and the ``slip`` cue joins :attr:`CUES` first: it sees the left eye's previous
-            frame against its current one (:meth:`slip_observation`, the retinal slip) and changes
-            the velocity (:meth:`apply_slip`). Default ``False`` (`TrialProtocol`).
-        velocity_memory: with ``pursuit_velocity``, each pursuit step also adds to the velocity.
-        pan_range_deg, vergence_range_deg: the oculomotor range (`aectorch.sim.oculomotor`):
-            ``(low, high)`` of each eye's pan (within the head's joint limits) and of the vergence
-            (holding 0), degrees; every movement ends within it (default `TrialProtocol`'s: pans
-            +-45, vergence -2 to 40).
         pursuit_start_deg: left-eye pan at each fixation's start: a number or a ``(low, high)``
             range drawn uniformly per environment and fixation.
         vergence_start_deg: right pan minus left pan at each fixation's start (0 = parallel),
@@ -346,13 +314,15 @@ class ActiveDepthEnv:
         background: the background's texture ``[Hb, Wb]`` (default: a fixed 1/f texture).
         seed: seed of the environment's own generator (textures, distances, start states).
         device, dtype: where and in which float type poses and images live.
+        renderer_options: passed on to the pyrender renderer, e.g. ``{"platform": "egl"}``.
         batch_slice: ``(start, total)``: these B environments are rows ``start .. start + B - 1``
             of a batch of ``total`` split across processes (`aectorch.runtime.distributed`). Every random
             draw is made for the whole batch and this slice kept, so the split batch behaves as
             one environment of ``total`` would. ``None``: the batch is these B.
 
     Example:
-        >>> env = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64), fixation_iterations=2, seed=0)
+        >>> env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2), textures=torch.rand(3, 64, 64),
+        ...                      seed=0)
         >>> first, second = env.parallax_observation()["window"].unbind(1)
         >>> first.shape
         torch.Size([2, 128, 128])
@@ -378,23 +348,9 @@ class ActiveDepthEnv:
         self,
         num_envs: int = 1,
         *,
+        protocol: TrialProtocol | None = None,
         textures=None,
-        renderer: str = DEFAULT_PROTOCOL.renderer,
         distances_m: Sequence[float] = DEFAULT_DISTANCES_M,
-        fixation_iterations: int = DEFAULT_PROTOCOL.fixation_iterations,
-        shift_m: float = DEFAULT_PROTOCOL.shift_m,
-        shift_iterations: int = DEFAULT_PROTOCOL.shift_iterations,
-        yoked_pursuit: bool = DEFAULT_PROTOCOL.yoked_pursuit,
-        q_iterations: int = DEFAULT_PROTOCOL.q_iterations,
-        object_speed_deg: tuple[float, float] = DEFAULT_PROTOCOL.object_speed_deg,
-        object_depth_speed_m: tuple[float, float] = DEFAULT_PROTOCOL.object_depth_speed_m,
-        aperture_m: float = DEFAULT_PROTOCOL.aperture_m,
-        accommodation_start_D: float | None = DEFAULT_PROTOCOL.accommodation_start_D,
-        yoked_accommodation: bool = DEFAULT_PROTOCOL.yoked_accommodation,
-        pursuit_velocity: bool = DEFAULT_PROTOCOL.pursuit_velocity,
-        velocity_memory: bool = DEFAULT_PROTOCOL.velocity_memory,
-        pan_range_deg: tuple[float, float] = DEFAULT_PROTOCOL.pan_range_deg,
-        vergence_range_deg: tuple[float, float] = DEFAULT_PROTOCOL.vergence_range_deg,
         pursuit_start_deg=START_PURSUIT_DEG,
         vergence_start_deg=START_VERGENCE_DEG,
         pursuit_start_error_deg: float = 0.0,
@@ -409,10 +365,8 @@ class ActiveDepthEnv:
         batch_slice: tuple[int, int] | None = None,
     ) -> None:
         check_int(num_envs, "num_envs")
-        protocol = TrialProtocol(renderer, fixation_iterations, shift_m, shift_iterations, yoked_pursuit, q_iterations,
-                                 object_speed_deg, object_depth_speed_m, aperture_m, accommodation_start_D, yoked_accommodation,
-                                 pan_range_deg, vergence_range_deg, pursuit_velocity, velocity_memory)
-        renderer = str(protocol.renderer)
+        self.protocol = protocol = resolve_protocol(protocol)
+        renderer, h = str(protocol.renderer), protocol.fixation_iterations
         distances = check_distances(distances_m, "distances_m")
         if dtype not in (torch.float32, torch.float64):
             raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
@@ -423,10 +377,9 @@ class ActiveDepthEnv:
                              f"{total - num_envs}, got {batch_slice!r}")
         self._rows, self._draws = slice(start, start + num_envs), total
         self.device, self.dtype = torch.device("cpu") if device is None else torch.device(device), dtype
-        self.fixation_iterations = fixation_iterations
-        self.shift_m = float(shift_m)
-        self.shift_iterations = min(shift_iterations, fixation_iterations)
-        self.yoked_pursuit, self.q_iterations = yoked_pursuit, min(q_iterations, fixation_iterations)
+        self.fixation_iterations, self.shift_m = h, float(protocol.shift_m)
+        self.shift_iterations = min(protocol.shift_iterations, h)
+        self.yoked_pursuit, self.q_iterations = protocol.yoked_pursuit, min(protocol.q_iterations, h)
         self.pursuit_start_deg = _range_or_value(pursuit_start_deg, "pursuit_start_deg")
         self.vergence_start_deg = _range_or_value(vergence_start_deg, "vergence_start_deg")
         self.pursuit_start_error_deg = float(check_real(pursuit_start_error_deg, "pursuit_start_error_deg", minimum=0))
@@ -717,14 +670,16 @@ class ActiveDepthEnv:
         metres). Efference copies of the commands, not ground truth: a squint's offset is not in them.
 
         Example:
-            >>> env = ActiveDepthEnv(2, textures=torch.rand(2, 64, 64), accommodation_start_D=0.0, seed=0)
+            >>> env = ActiveDepthEnv(2, protocol=TrialProtocol(accommodation_start_D=0.0),
+            ...                      textures=torch.rand(2, 64, 64), seed=0)
             >>> env.proprioception(["vergence", "focus"]).shape
             torch.Size([2, 2])
         """
         names = [check_choice(n, "proprioception", Proprioception) for n in names]
         if Proprioception.focus in names and self.focus_dioptres is None:
             raise ValueError("proprioception 'focus' needs an environment whose eyes accommodate "
-                             "(accommodation_start_D, env.accommodation_start_D; or set_focus): these eyes follow the object")
+                             "(the protocol's accommodation_start_D, env.accommodation_start_D; or set_focus): "
+                             "these eyes follow the object")
         columns = {Proprioception.vergence: lambda: self.vergence_deg, Proprioception.pan: lambda: self.pan_deg[:, 0],
                    Proprioception.focus: lambda: self.focus_dioptres[:, 0], Proprioception.shift: lambda: self.body_shift_m}
         if not names:

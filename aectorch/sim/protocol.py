@@ -1,9 +1,10 @@
 """The trial protocol's defaults, held once, and the interface every renderer satisfies.
 
 :class:`TrialProtocol` is what a trial is: the renderer, the fixation length h, the body shift
-and its profile, and whether pursuit is yoked. `ActiveDepthEnv`, the experiment's
-`EnvConfig` and the evaluation (`aectorch.evaluation.run_trials`, `evaluate`) all take their
-defaults from it.
+and its profile, and whether pursuit is yoked. It is the one object that travels from the
+experiment's `EnvConfig` (``EnvConfig.protocol``) to `ActiveDepthEnv` (``protocol=``) and the
+evaluation (`aectorch.evaluation.run_trials`, `evaluate`), and the one place its rules are
+checked.
 
 :class:`Renderer` states what `ActiveDepthEnv` needs of a renderer; `TorchPlaneRenderer` and
 `PyrenderRenderer` both satisfy it (``isinstance(r, Renderer)`` checks the methods' presence).
@@ -12,7 +13,7 @@ defaults from it.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol, Sequence, runtime_checkable
 
 from torch import Tensor
@@ -84,7 +85,7 @@ class TrialProtocol:
 
     Example:
         >>> protocol = TrialProtocol(fixation_iterations=10)
-        >>> protocol.shift_iterations, protocol.env_kwargs()["renderer"]
+        >>> protocol.shift_iterations, str(protocol.renderer)
         (20, 'torch')
         >>> resolve_protocol(protocol, shift_m=0.2).shift_m
         0.2
@@ -139,12 +140,6 @@ class TrialProtocol:
         """Whether the object moves (either speed range is not ``(0, 0)``)."""
         return self.object_speed_deg != (0.0, 0.0) or self.object_depth_speed_m != (0.0, 0.0)
 
-    def env_kwargs(self) -> dict:
-        """The keyword arguments of `ActiveDepthEnv` this protocol sets."""
-        out = asdict(self)
-        out["renderer"] = str(self.renderer)
-        return out
-
 
 #: The default protocol.
 DEFAULT_PROTOCOL = TrialProtocol()
@@ -175,9 +170,7 @@ class Renderer(Protocol):
 
 def resolve_protocol(protocol: TrialProtocol | None = None, **fields) -> TrialProtocol:
     """``protocol`` (default :data:`DEFAULT_PROTOCOL`) with the given fields that are not ``None``
-    replaced: the evaluation functions take a protocol and, for convenience, single fields."""
-    from dataclasses import replace
-
+    replaced: the command lines' single options over the run's protocol."""
     base = DEFAULT_PROTOCOL if protocol is None else protocol
     if not isinstance(base, TrialProtocol):
         raise ValueError(f"protocol must be a TrialProtocol, got {type(base).__name__}")

@@ -83,11 +83,11 @@ def _check_record_arguments(texture, distance_m, policy: str) -> float:
 
 
 def _environment(texture: Tensor, name: str, distance: float, seed: int, device, dtype,
-                 **protocol) -> ActiveDepthEnv:
+                 protocol: TrialProtocol) -> ActiveDepthEnv:
     bank = TextureBank(texture[None].detach().cpu(), [name], source="record_trial")
     try:
-        return ActiveDepthEnv(1, textures=bank, distances_m=[distance], seed=seed,
-                              device=device, dtype=dtype, **protocol)
+        return ActiveDepthEnv(1, protocol=protocol, textures=bank, distances_m=[distance], seed=seed,
+                              device=device, dtype=dtype)
     except ValueError as err:
         if str(err).startswith("distances_m"):  # beyond the background plane
             raise ValueError(f"distance_m: {err}") from err
@@ -109,9 +109,7 @@ def _run(learner, env: ActiveDepthEnv, distance: float, greedy: bool, cue: str) 
 
 
 def record_trial(learner, texture: Tensor, distance_m: float, *, protocol: TrialProtocol | None = None,
-                 fixation_iterations: int | None = None, shift_m: float | None = None,
-                 shift_iterations: int | None = None, yoked_pursuit: bool | None = None,
-                 renderer: str | None = None, policy: str = "greedy", seed: int = 0,
+                 policy: str = "greedy", seed: int = 0,
                  texture_name: str = "texture", cue: str | None = None) -> TrialFrames:
     """Run one frozen trial of ``learner`` on ``texture`` at ``distance_m`` and keep what it saw.
 
@@ -125,10 +123,8 @@ def record_trial(learner, texture: Tensor, distance_m: float, *, protocol: Trial
         texture: the object's texture, a floating ``[H, W]`` tensor in [0, 1].
         distance_m: the object's distance, metres.
         protocol: the trial protocol (`aectorch.sim.TrialProtocol`, default its defaults); a
-            learner is watched under the protocol it trained in (`aectorch.runtime.trial_protocol` of its run's
+            learner is watched under the protocol it trained in (``EnvConfig.protocol`` of its run's
             config).
-        fixation_iterations, shift_m, shift_iterations, yoked_pursuit, renderer: replace that
-            field of ``protocol`` when given.
         policy: ``"greedy"`` (the argmax action) or ``"sampled"`` (as in training).
         seed: seeds the environment and, with ``policy="sampled"``, the actions.
         texture_name: a name for titles.
@@ -139,11 +135,9 @@ def record_trial(learner, texture: Tensor, distance_m: float, *, protocol: Trial
         :class:`TrialFrames` of ``2 * fixation_iterations`` iterations.
     """
     distance = _check_record_arguments(texture, distance_m, policy)
-    protocol = resolve_protocol(protocol, renderer=renderer, fixation_iterations=fixation_iterations, shift_m=shift_m,
-                                shift_iterations=shift_iterations, yoked_pursuit=yoked_pursuit)
+    protocol = resolve_protocol(protocol)
     parameter = next(learner.parameters())
-    env = _environment(texture, texture_name, distance, seed, parameter.device, parameter.dtype,
-                       **protocol.env_kwargs())
+    env = _environment(texture, texture_name, distance, seed, parameter.device, parameter.dtype, protocol)
     learned = [name for name in env.CUES if name in learner.cues]
     if cue is None:
         cue = learned[-1]

@@ -89,7 +89,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _visualize(args: VisualizeConfig) -> int:
-    from aectorch.runtime import load_learner, trial_protocol
+    from aectorch.runtime import load_learner
+    from aectorch.sim import resolve_protocol
     from aectorch.visualize import animate_trial, frame_steps, record_trial
 
     try:
@@ -98,8 +99,8 @@ def _visualize(args: VisualizeConfig) -> int:
         raise ValueError(f"checkpoint: {err}") from err
     texture, name = _texture(args.texture)
     try:
-        frames = record_trial(learner, texture, float(args.distance), protocol=trial_protocol(cfg),
-                              renderer=args.renderer or cfg.env.renderer, policy=args.policy,
+        frames = record_trial(learner, texture, float(args.distance),
+                              protocol=resolve_protocol(cfg.env.protocol, renderer=args.renderer), policy=args.policy,
                               seed=args.seed, texture_name=name)
     except ValueError as err:
         if str(err).startswith("distance_m: "):  # beyond the background plane

@@ -12,7 +12,7 @@ import torch
 from aectorch.evaluation import evaluate, run_trials, summarise
 from aectorch.coding import EncoderConfig
 from aectorch.framework import JointLearner, LearnerConfig, default_cues
-from aectorch.sim import ActiveDepthEnv, TextureBank
+from aectorch.sim import ActiveDepthEnv, TextureBank, TrialProtocol
 
 torch.set_num_threads(1)
 
@@ -32,11 +32,12 @@ def test_evaluate_runs_every_texture_at_every_distance_frozen():
     bank = TextureBank(torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0)))
     learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=32)), depth_every_trials=12),
                            generator=torch.Generator().manual_seed(0))
-    env = ActiveDepthEnv(4, textures=bank, fixation_iterations=1, seed=0)
+    env = ActiveDepthEnv(4, protocol=TrialProtocol(fixation_iterations=1), textures=bank, seed=0)
     for _ in range(6):  # three trials of four environments: the depth MLP gets trained
         learner.iteration(env)
     before = copy.deepcopy(learner.state_dict())
-    result = evaluate(learner, bank, distances_m=[1.0, 2.0], batch_size=4, fixation_iterations=2, steps=3)
+    result = evaluate(learner, bank, protocol=TrialProtocol(fixation_iterations=2), distances_m=[1.0, 2.0],
+                      batch_size=4, steps=3)
     assert result["trials"] == 6 and result["pursuit"]["n"] == 12 and result["vergence"]["n"] == 12
     assert [row["distance_m"] for row in result["per_distance"]] == [1.0, 2.0]
     rows = result["per_texture"]  # every texture has as many trials: their mean is the overall MAE
@@ -60,7 +61,8 @@ def test_untrained_greedy_policy_is_far_from_zero_error():
     """A frozen random policy does not fixate: the metric can fail."""
     bank = TextureBank(torch.rand(2, 64, 64, generator=torch.Generator().manual_seed(1)))
     learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=32))), generator=torch.Generator().manual_seed(0))
-    result = evaluate(learner, bank, distances_m=[1.0], fixation_iterations=3, vergence_test=False)
+    result = evaluate(learner, bank, protocol=TrialProtocol(fixation_iterations=3), distances_m=[1.0],
+                      vergence_test=False)
     assert result["pursuit_mae_deg"] > 1.0  # at 1 m pursuit needs 5.7 degrees; 3 steps give <= 0.6
 
 
@@ -78,7 +80,7 @@ def test_sampled_policy_differs_from_greedy_and_leaves_the_learner_as_it_was():
     learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=32))), generator=torch.Generator().manual_seed(0))
     before = copy.deepcopy(learner.state_dict())
     generator_before = learner.generator.get_state()
-    kwargs = dict(distances_m=[1.0, 2.0], fixation_iterations=3, steps=3)
+    kwargs = dict(distances_m=[1.0, 2.0], protocol=TrialProtocol(fixation_iterations=3), steps=3)
     greedy = evaluate(learner, bank, **kwargs)
     sampled = evaluate(learner, bank, policy="sampled", **kwargs)
     again = evaluate(learner, bank, policy="sampled", **kwargs)
@@ -99,7 +101,7 @@ def _trained_learner():
     bank = TextureBank(torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0)))
     learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=32)), depth_every_trials=12),
                            generator=torch.Generator().manual_seed(0))
-    env = ActiveDepthEnv(4, textures=bank, fixation_iterations=1, seed=0)
+    env = ActiveDepthEnv(4, protocol=TrialProtocol(fixation_iterations=1), textures=bank, seed=0)
     for _ in range(6):
         learner.iteration(env)
     return bank, learner
@@ -108,9 +110,9 @@ def _trained_learner():
 def test_run_trials_gives_the_trials_evaluate_summarises():
     bank, learner = _trained_learner()
     before = copy.deepcopy(learner.state_dict())
-    out = run_trials(learner, bank, distances_m=[1.0, 2.0], batch_size=4, fixation_iterations=2)
-    result = evaluate(learner, bank, distances_m=[1.0, 2.0], batch_size=4, fixation_iterations=2,
-                      vergence_test=False)
+    out = run_trials(learner, bank, protocol=TrialProtocol(fixation_iterations=2), distances_m=[1.0, 2.0], batch_size=4)
+    result = evaluate(learner, bank, protocol=TrialProtocol(fixation_iterations=2), distances_m=[1.0, 2.0],
+                      batch_size=4, vergence_test=False)
     assert out["q_deg"].shape == (6, 4) and out["pursuit_deg"].shape == (6, 2)
     assert out["texture_index"].tolist() == [0, 0, 1, 1, 2, 2] and out["distance_m"].tolist() == [1.0, 2.0] * 3
     assert out["pursuit_deg"].abs().mean().item() == pytest.approx(result["pursuit_mae_deg"])
@@ -128,9 +130,11 @@ def test_run_trials_gives_the_trials_evaluate_summarises():
 def test_run_trials_runs_the_given_conditions():
     bank = TextureBank(torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0)))
     learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=32))), generator=torch.Generator().manual_seed(0))
-    grid = run_trials(learner, bank, distances_m=[1.0, 2.0], batch_size=8, fixation_iterations=2)
+    grid = run_trials(learner, bank, protocol=TrialProtocol(fixation_iterations=2), distances_m=[1.0, 2.0],
+                      batch_size=8)
     pick = (torch.tensor([2, 0]), torch.tensor([1.0, 2.0], dtype=torch.float64))
-    some = run_trials(learner, bank, distances_m=[1.0, 2.0], batch_size=8, fixation_iterations=2, conditions=pick)
+    some = run_trials(learner, bank, protocol=TrialProtocol(fixation_iterations=2), distances_m=[1.0, 2.0],
+                      batch_size=8, conditions=pick)
     assert some["texture_index"].tolist() == [2, 0] and some["distance_m"].tolist() == [1.0, 2.0]
     # The same trials as in the grid (texture-major: rows 4 and 1), whatever else is in the batch.
     assert torch.allclose(some["q_deg"], grid["q_deg"][[4, 1]], atol=1e-4)
@@ -144,7 +148,7 @@ def test_run_trials_runs_the_given_conditions():
 
 def test_evaluate_writes_one_row_per_trial_and_the_fractions_on_target():
     bank, learner = _trained_learner()
-    kwargs = dict(distances_m=[1.0, 2.0], batch_size=4, fixation_iterations=4)
+    kwargs = dict(distances_m=[1.0, 2.0], batch_size=4, protocol=TrialProtocol(fixation_iterations=4))
     result = evaluate(learner, bank, vergence_test=False, **kwargs)
     out = run_trials(learner, bank, **kwargs)
     rows = result["per_trial"]
@@ -173,12 +177,14 @@ def test_evaluate_follows_the_training_protocol():
     with yoked pursuit ends fixations elsewhere than an instant one with the left eye alone."""
     bank = TextureBank(torch.rand(2, 64, 64, generator=torch.Generator().manual_seed(0)))
     learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=32))), generator=torch.Generator().manual_seed(0))
-    kwargs = dict(distances_m=[1.0], batch_size=2, fixation_iterations=6)
-    instant = run_trials(learner, bank, shift_iterations=1, yoked_pursuit=False, **kwargs)
-    spread = run_trials(learner, bank, shift_iterations=6, yoked_pursuit=True, **kwargs)
+    kwargs = dict(distances_m=[1.0], batch_size=2)
+    instant = run_trials(learner, bank, protocol=TrialProtocol(fixation_iterations=6, shift_iterations=1,
+                                                               yoked_pursuit=False), **kwargs)
+    spread = run_trials(learner, bank, protocol=TrialProtocol(fixation_iterations=6, shift_iterations=6,
+                                                              yoked_pursuit=True), **kwargs)
     assert not torch.allclose(instant["vergence_deg"], spread["vergence_deg"])
     with pytest.raises(ValueError, match="shift_iterations"):
-        run_trials(learner, bank, shift_iterations=0, **kwargs)
+        run_trials(learner, bank, protocol=TrialProtocol(fixation_iterations=6, shift_iterations=0), **kwargs)
 
 
 def test_last5_is_the_mean_of_each_fixations_last_five_iterations():
@@ -186,15 +192,16 @@ def test_last5_is_the_mean_of_each_fixations_last_five_iterations():
     from aectorch.evaluation import frozen_iterations
 
     bank, learner = _trained_learner()
-    out = run_trials(learner, bank, distances_m=[1.5], batch_size=3, fixation_iterations=7)
-    env = ActiveDepthEnv(3, textures=bank, distances_m=[1.5], fixation_iterations=7, seed=0)
+    out = run_trials(learner, bank, protocol=TrialProtocol(fixation_iterations=7), distances_m=[1.5], batch_size=3)
+    env = ActiveDepthEnv(3, protocol=TrialProtocol(fixation_iterations=7), textures=bank, distances_m=[1.5], seed=0)
     env.set_trial(torch.arange(3), torch.full((3,), 1.5))
     errors = [r.errors_deg["vergence"] for r in frozen_iterations(learner, env)]
     assert len(errors) == 14
     by_hand = torch.stack([torch.stack(errors[2:7]).mean(0), torch.stack(errors[9:14]).mean(0)], 1)
     torch.testing.assert_close(out["vergence_last5_deg"], by_hand.cpu())
     torch.testing.assert_close(out["vergence_deg"], torch.stack([errors[6], errors[13]], 1).cpu())
-    result = evaluate(learner, bank, distances_m=[1.5], batch_size=3, fixation_iterations=7, vergence_test=False)
+    result = evaluate(learner, bank, protocol=TrialProtocol(fixation_iterations=7), distances_m=[1.5], batch_size=3,
+                      vergence_test=False)
     row = result["per_trial"][1]
     assert row["vergence_error_last5_deg"] == pytest.approx(by_hand[1, 1].item())
     assert row["vergence_errors_last5_deg"] == pytest.approx(by_hand[1].tolist())
@@ -209,7 +216,7 @@ def test_offset_sweep_reads_the_cues_reward_and_greedy_increment_off_the_optimum
     sweep = offset_sweep(learner, bank, cue="stereo", offsets_deg=[-0.5, 0.0, 0.5], distances_m=[2.0], batch_size=2)
     assert sweep["reward"].shape == sweep["increment_deg"].shape == (3, 3)
     # The same view by hand: the body shifted, the left eye at its optimum, the right 0.5 deg past it.
-    env = ActiveDepthEnv(3, textures=bank, distances_m=[2.0], shift_iterations=1, seed=0)
+    env = ActiveDepthEnv(3, protocol=TrialProtocol(shift_iterations=1), textures=bank, distances_m=[2.0], seed=0)
     env.set_trial(torch.arange(3), torch.full((3,), 2.0))
     left = env.optimal_left_pan_deg()
     env.set_pan_deg(torch.stack((left, env.optimal_right_pan_deg(left) + 0.5), -1))
@@ -257,7 +264,8 @@ def test_the_rows_hold_the_texture_statistics_of_each_trials_first_view():
                        names=["flat", "noise", "noise x2"])
     learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=32))),
                            generator=torch.Generator().manual_seed(0))
-    result = evaluate(learner, bank, distances_m=[1.0, 2.0], batch_size=6, fixation_iterations=2, vergence_test=False)
+    result = evaluate(learner, bank, protocol=TrialProtocol(fixation_iterations=2), distances_m=[1.0, 2.0],
+                      batch_size=6, vergence_test=False)
     rows = {(r["texture"], r["distance_m"]): r for r in result["per_trial"]}
     keys = ["view_contrast", *(f"view_energy_{s}" for s in ("wide", "coarse", "fine", "full"))]
     for (texture, _), row in rows.items():

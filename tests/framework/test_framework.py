@@ -11,7 +11,7 @@ import torch
 from aectorch.coding import EncoderConfig
 from aectorch.control import PPO, ActorCriticConfig, NaturalActorCritic
 from aectorch.framework import CueConfig, JointLearner, LearnerConfig, default_cues
-from aectorch.sim import ActiveDepthEnv, CueSpec
+from aectorch.sim import ActiveDepthEnv, CueSpec, TrialProtocol
 
 torch.set_num_threads(1)
 
@@ -20,8 +20,8 @@ def make(num_envs=2, h=2, *, encoder=None, cue=None, **learner):
     """An environment and a learner of 32 atoms per dictionary, with the natural actor-critic (most
     tests here are of its updates); ``encoder`` and ``cue``: fields of every cue's `EncoderConfig`
     and `CueConfig`, ``learner``: of `LearnerConfig`."""
-    env = ActiveDepthEnv(num_envs, textures=torch.rand(4, 64, 64, generator=torch.Generator().manual_seed(1)),
-                         fixation_iterations=h, seed=0)
+    env = ActiveDepthEnv(num_envs, protocol=TrialProtocol(fixation_iterations=h),
+                         textures=torch.rand(4, 64, 64, generator=torch.Generator().manual_seed(1)), seed=0)
     cues = default_cues(encoder=EncoderConfig(**{"num_atoms": 32, **(encoder or {})}), **{"agent": "nac", **(cue or {})})
     learner = JointLearner(LearnerConfig(cues=cues, **learner), generator=torch.Generator().manual_seed(0))
     return env, learner
@@ -261,7 +261,7 @@ def test_small_batches_train_with_the_default_steps(num_envs):
     limit = WatchdogConfig().td_error_max
 
     def run(control):
-        env = ActiveDepthEnv(num_envs, seed=0, shift_iterations=20, yoked_pursuit=True)
+        env = ActiveDepthEnv(num_envs, protocol=TrialProtocol(shift_iterations=20, yoked_pursuit=True), seed=0)
         learner = JointLearner(LearnerConfig(cues=default_cues(nac=control, agent="nac")),
                                generator=torch.Generator().manual_seed(0))
         worst, entropy = 0.0, []
@@ -381,8 +381,8 @@ def test_a_cues_agent_sees_its_proprioception_after_its_code():
     cues["accommodation"] = CueConfig(encoder=EncoderConfig(num_atoms=16), scales=("fine", "full"),
                                       efficiency="information", proprioception=["vergence", "focus"])
     learner = JointLearner(LearnerConfig(cues=cues), generator=torch.Generator().manual_seed(0))
-    env = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64), fixation_iterations=3, accommodation_start_D=0.5,
-                         seed=0)
+    env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=3, accommodation_start_D=0.5),
+                         textures=torch.rand(3, 64, 64), seed=0)
     acc, stereo = learner.accommodation, learner.stereo
     assert acc.agent.num_features == acc.encoder.num_features + 2
     sensed = []
@@ -418,7 +418,8 @@ def test_an_agent_with_features_none_senses_its_proprioception_alone():
                                       efficiency="information", proprioception=["vergence", "focus"])
     cues["stereo"].features, cues["stereo"].proprioception = "none", ("vergence",)  # with the swap symmetry
     learner = JointLearner(LearnerConfig(cues=cues), generator=torch.Generator().manual_seed(0))
-    env = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64), fixation_iterations=3, accommodation_start_D=0.5, seed=0)
+    env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=3, accommodation_start_D=0.5),
+                         textures=torch.rand(3, 64, 64), seed=0)
     acc, stereo = learner.accommodation, learner.stereo
     assert acc.agent.num_features == 2 and stereo.agent.num_features == 1
     assert stereo.feature_permutation.tolist() == [0]
@@ -442,7 +443,8 @@ def test_a_cues_agent_learns_from_the_efficiency_of_its_reward_scales():
     cues["accommodation"] = CueConfig(encoder=EncoderConfig(num_atoms=16), scales=("fine", "full"), reward_scales=["full"],
                                       efficiency="information", proprioception=["vergence", "focus"])
     learner = JointLearner(LearnerConfig(cues=cues), generator=torch.Generator().manual_seed(0))
-    env = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64), fixation_iterations=3, accommodation_start_D=0.5, seed=0)
+    env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=3, accommodation_start_D=0.5),
+                         textures=torch.rand(3, 64, 64), seed=0)
     records = learner.iteration(env)
     stereo, parallax, acc = records.stereo, records.parallax, records.accommodation
     names = [s.name for s in learner.stereo.encoder.scales]
@@ -521,8 +523,8 @@ def test_a_cue_added_by_its_config_and_its_environment_runs_through_learner_metr
     from aectorch.runtime.metrics import TrainingMetrics
     from aectorch.runtime.watchdog import Watchdog, WatchdogConfig
 
-    env = TorsionEnv(2, textures=torch.rand(4, 64, 64, generator=torch.Generator().manual_seed(1)),
-                     fixation_iterations=3, seed=0)
+    env = TorsionEnv(2, protocol=TrialProtocol(fixation_iterations=3),
+                     textures=torch.rand(4, 64, 64, generator=torch.Generator().manual_seed(1)), seed=0)
     small = EncoderConfig(num_atoms=16)
     cues = {**default_cues(encoder=small), "torsion": CueConfig(encoder=small, agent="ppo")}
     learner = JointLearner(LearnerConfig(cues=cues), generator=torch.Generator().manual_seed(0))

@@ -21,7 +21,7 @@ from aectorch.framework import JointLearner, LearnerConfig, default_cues  # noqa
 from aectorch.integrations.lerobot import (  # noqa: E402
     FEATURES_STATE, StereoFrames, pretrain_encoder, record_trials, stereo_batches,
 )
-from aectorch.sim import ActiveDepthEnv, TextureBank  # noqa: E402
+from aectorch.sim import ActiveDepthEnv, TextureBank, TrialProtocol  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 REPO = "aectorch/hoap3-sim"
@@ -30,8 +30,8 @@ REPO = "aectorch/hoap3-sim"
 def _world(seed: int = 0):
     # The whole shift before the first frame and pursuit by the left eye alone, so each recorded
     # state can be checked step by step.
-    env = ActiveDepthEnv(1, textures=TextureBank.procedural(4, size=(128, 128), seed=0), seed=seed,
-                         shift_iterations=1, yoked_pursuit=False)
+    env = ActiveDepthEnv(1, protocol=TrialProtocol(shift_iterations=1, yoked_pursuit=False),
+                         textures=TextureBank.procedural(4, size=(128, 128), seed=0), seed=seed)
     learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=16))), generator=torch.Generator().manual_seed(0))
     return env, learner
 

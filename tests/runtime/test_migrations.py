@@ -18,7 +18,6 @@ import pytest
 import torch
 
 from aectorch.runtime import CHECKPOINT_FORMAT, load_checkpoint, load_learner, run_experiment, to_experiment_config
-from aectorch.runtime.builders import trial_protocol
 from aectorch.runtime.migrations import migrate
 from aectorch.sim import ActiveDepthEnv
 
@@ -40,8 +39,8 @@ def test_a_stored_checkpoint_loads_and_its_learner_steps(path):
     assert payload["format"] == CHECKPOINT_FORMAT and torch.load(path, weights_only=False)["format"] in (1, 2)
     cfg, learner = load_learner(path, payload=payload)
     assert cfg.learner.cues["stereo"].encoder.num_atoms == 16 and list(learner.cues) == ["parallax", "stereo"]
-    env = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0)),
-                         **trial_protocol(cfg).env_kwargs(), seed=0)
+    env = ActiveDepthEnv(2, protocol=cfg.env.protocol,
+                         textures=torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0)), seed=0)
     records = [learner.iteration(env) for _ in range(4)]
     assert all(bool(c.reward.isfinite().all()) for r in records for c in r.cues.values())
     assert any(r.stereo.td_error is not None for r in records)

@@ -19,7 +19,7 @@ import torch
 from aectorch.runtime import load_checkpoint, run_experiment, save_checkpoint
 from aectorch.coding import EncoderConfig
 from aectorch.framework import JointLearner, LearnerConfig, default_cues
-from aectorch.sim import ActiveDepthEnv, TextureBank
+from aectorch.sim import ActiveDepthEnv, TextureBank, TrialProtocol
 from aectorch.runtime.watchdog import Watchdog, WatchdogConfig, WatchdogError
 from aectorch.runs import Run
 
@@ -173,8 +173,8 @@ def test_watchdog_stops_on_nan_and_keeps_the_last_healthy_checkpoint(tmp_path, t
 
 
 def _record_and_learner():
-    env = ActiveDepthEnv(2, textures=TextureBank.procedural(4, size=(64, 64), seed=0), seed=0,
-                         fixation_iterations=3)
+    env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=3),
+                         textures=TextureBank.procedural(4, size=(64, 64), seed=0), seed=0)
     learner = JointLearner(LearnerConfig(cues=default_cues(encoder=EncoderConfig(num_atoms=16))), generator=torch.Generator().manual_seed(0))
     learner.iteration(env)
     return learner.iteration(env), learner  # the second has TD errors

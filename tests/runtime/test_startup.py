@@ -115,8 +115,9 @@ def test_pyrender_trains_without_pyopengl_platform_in_the_environment(tmp_path, 
     assert run.returncode == 0, run.stderr[-3000:]
     assert "Traceback" not in run.stderr
     # and a script's own `import aectorch` chooses the platform before pyrender needs it
-    code = ("import os, aectorch; from aectorch.sim import ActiveDepthEnv; "
-            "env = ActiveDepthEnv(1, textures=__import__('torch').rand(2, 16, 16), renderer='pyrender'); "
+    code = ("import os, aectorch; from aectorch.sim import ActiveDepthEnv, TrialProtocol; "
+            "env = ActiveDepthEnv(1, protocol=TrialProtocol(renderer='pyrender'), "
+            "textures=__import__('torch').rand(2, 16, 16)); "
             "print(os.environ['PYOPENGL_PLATFORM'], tuple(env.stereo_observation()['window'].shape))")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and out.stdout.split()[0] == "osmesa", out.stderr[-2000:]

@@ -19,7 +19,7 @@ from aectorch.runtime.presets import PAPER_PRESET, ROBUST_VERGENCE, ROLL_PERTURB
 from aectorch.runtime.resources import validate_resources
 from aectorch.runtime import CHECKPOINT_FORMAT, load_checkpoint, load_learner, run_experiment, save_checkpoint
 from aectorch.runs import Run
-from aectorch.sim import ActiveDepthEnv
+from aectorch.sim import ActiveDepthEnv, TrialProtocol
 from aectorch.coding.readouts import code_summary
 from aectorch.control import PAPER_ACTIONS_DEG
 
@@ -408,8 +408,9 @@ def test_keep_best_writes_the_best_training_window_and_evaluates_it(tmp_path, te
     from aectorch.sim import TextureBank
 
     _, learner = load_learner(tmp_path / "best.pt")
-    again = evaluate(learner, TextureBank.from_folder(textures), distances_m=[1.0], batch_size=8,
-                     fixation_iterations=2, shift_iterations=20, yoked_pursuit=True, progress=False)
+    again = evaluate(learner, TextureBank.from_folder(textures),
+                     protocol=TrialProtocol(fixation_iterations=2, shift_iterations=20, yoked_pursuit=True),
+                     distances_m=[1.0], batch_size=8, progress=False)
     assert again["pursuit_mae_deg"] == pytest.approx(summary["evaluation"]["pursuit_mae_deg"])
     # Without keep_best nothing is chosen and the last state is evaluated.
     off = tmp_path / "off"
@@ -439,12 +440,14 @@ def test_depth_calibration_refits_the_evaluated_mlp_on_greedy_training_trials(tm
 
     _, learner = load_learner(tmp_path / "calibrated.pt")
     bank = TextureBank.from_folder(textures)
-    trials = run_trials(learner, bank, distances_m=[1.0, 1.5, 2.0, 2.5, 3.0], batch_size=8,
-                        fixation_iterations=2, shift_iterations=20, yoked_pursuit=True, seed=0)
+    trials = run_trials(learner, bank,
+                        protocol=TrialProtocol(fixation_iterations=2, shift_iterations=20, yoked_pursuit=True),
+                        distances_m=[1.0, 1.5, 2.0, 2.5, 3.0], batch_size=8, seed=0)
     assert trials["depth_error_m"].abs().mean().item() == pytest.approx(done["depth_mae_m_after"], rel=1e-5)
     # The evaluation is of calibrated.pt: evaluating it again gives the same numbers.
-    again = evaluate(learner, bank, distances_m=[1.0], batch_size=8, fixation_iterations=2,
-                     shift_iterations=20, yoked_pursuit=True)
+    again = evaluate(learner, bank,
+                     protocol=TrialProtocol(fixation_iterations=2, shift_iterations=20, yoked_pursuit=True),
+                     distances_m=[1.0], batch_size=8)
     assert again["depth_mae_m"] == pytest.approx(summary["evaluation"]["depth_mae_m"])
     off = run_experiment(_cfg(textures, five, "train.metrics_window=10", "eval.enabled=true",
                               "train.depth_calibration_trials=5"), tmp_path / "off")
@@ -471,7 +474,6 @@ def test_start_spread_draws_the_training_start_states(textures):
 
 def test_the_oculomotor_range_is_on_by_default_and_reaches_the_environments_and_the_evaluation(textures):
     from aectorch.runtime import build_env
-    from aectorch.runtime.builders import trial_protocol
 
     cfg = _cfg(textures)
     assert cfg.env.pan_range_deg == [-45.0, 45.0] and cfg.env.vergence_range_deg == [-2.0, 40.0]
@@ -479,7 +481,7 @@ def test_the_oculomotor_range_is_on_by_default_and_reaches_the_environments_and_
     assert env.pan_range_deg == (-30.0, 30.0) and env.vergence_range_deg == (-1.0, 20.0)
     env.apply_vergence(torch.full((env.num_envs,), -5.0))
     assert torch.allclose(env.vergence_deg, torch.full_like(env.vergence_deg, -1.0))
-    protocol = trial_protocol(_cfg(textures, "env.vergence_range_deg=[-1,20]"))
+    protocol = _cfg(textures, "env.vergence_range_deg=[-1,20]").env.protocol
     assert protocol.vergence_range_deg == (-1.0, 20.0) and protocol.pan_range_deg == (-45.0, 45.0)
     for override, field in (("env.vergence_range_deg=[1,20]", "env.vergence_range_deg must hold 0"),
                             ("env.pan_range_deg=[-60,10]", "env.pan_range_deg must lie within the HOAP-3's"),

@@ -9,7 +9,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from aectorch.sim import ActiveDepthEnv
+from aectorch.sim import ActiveDepthEnv, TrialProtocol
 
 B = 6
 distances = st.lists(st.floats(0.5, 3.5), min_size=B, max_size=B)
@@ -20,8 +20,9 @@ PROPS = settings(max_examples=30, deadline=None)
 @pytest.fixture(scope="module")
 def env() -> ActiveDepthEnv:
     # The whole 0.1 m shift before the first iteration, so fixation 0's first state holds it all.
-    return ActiveDepthEnv(B, textures=torch.rand(3, 32, 32, generator=torch.Generator().manual_seed(0)),
-                          seed=0, dtype=torch.float64, shift_iterations=1, yoked_pursuit=False)
+    return ActiveDepthEnv(B, protocol=TrialProtocol(shift_iterations=1, yoked_pursuit=False),
+                          textures=torch.rand(3, 32, 32, generator=torch.Generator().manual_seed(0)), seed=0,
+                          dtype=torch.float64)
 
 
 def _trial(env, d, left=None):

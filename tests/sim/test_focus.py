@@ -29,7 +29,8 @@ def test_an_eye_out_of_focus_sees_what_anisometropia_of_that_disc_shows(bank):
     """Oracle: the world's defocus of each environment is the perturbation's image blur of the same
     disc (which tests/sim/test_perturbations.py checks against the sharp image convolved with it)."""
     distances = torch.tensor([1.0, 2.0, 3.0])
-    env = ActiveDepthEnv(3, textures=bank, distances_m=[1.0, 2.0, 3.0], fixation_iterations=2, seed=0)
+    env = ActiveDepthEnv(3, protocol=TrialProtocol(fixation_iterations=2), textures=bank, distances_m=[1.0, 2.0, 3.0],
+                         seed=0)
     env.set_trial(torch.tensor([0, 1, 2]), distances)
     focus = torch.stack((1.0 / distances + torch.tensor([2.0, 1.0, 0.5]), 1.0 / distances), -1)  # left eye off
     env.set_focus(focus)
@@ -37,7 +38,8 @@ def test_an_eye_out_of_focus_sees_what_anisometropia_of_that_disc_shows(bank):
     arcmin = DEFAULT_APERTURE_M * torch.tensor([2.0, 1.0, 0.5]) * 180 * 60 / math.pi
     assert abs(float(arcmin[2]) - 27.5) < 0.1  # 16 mm x 0.5 D = 8 mrad
     for b in range(3):
-        alone = ActiveDepthEnv(1, textures=bank, distances_m=[1.0, 2.0, 3.0], fixation_iterations=2, seed=0)
+        alone = ActiveDepthEnv(1, protocol=TrialProtocol(fixation_iterations=2), textures=bank,
+                               distances_m=[1.0, 2.0, 3.0], seed=0)
         alone.set_trial(torch.tensor([b]), distances[b:b + 1])
         alone.set_optics(replace(NEUTRAL, blur_arcmin=(float(arcmin[b]), 0.0)))
         reference = observe(alone)
@@ -50,20 +52,20 @@ def test_an_eye_out_of_focus_sees_what_anisometropia_of_that_disc_shows(bank):
 
 
 def test_a_pinhole_and_eyes_on_the_object_see_todays_images(bank):
-    kwargs = dict(textures=bank, fixation_iterations=2, seed=4)
-    today = observe(ActiveDepthEnv(2, **kwargs))
-    pinhole = ActiveDepthEnv(2, aperture_m=0.0, **kwargs)
+    kwargs = dict(textures=bank, seed=4)
+    today = observe(ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2), **kwargs))
+    pinhole = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2, aperture_m=0.0), **kwargs)
     pinhole.set_focus(0.0)  # focused at infinity, but a pinhole
-    focused = ActiveDepthEnv(2, **kwargs)
+    focused = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2), **kwargs)
     focused.set_focus(1.0 / focused.distance_m[:, None].expand(2, 2))
     for env in (pinhole, focused):
         for name, image in observe(env).items():
             torch.testing.assert_close(image, today[name], rtol=0, atol=1e-6, msg=name)
-    assert not TrialProtocol().moving and ActiveDepthEnv(1, **kwargs).focus_dioptres is None
+    assert not TrialProtocol().moving and ActiveDepthEnv(1, protocol=TrialProtocol(fixation_iterations=2), **kwargs).focus_dioptres is None
 
 
 def test_both_renderers_blur_alike_and_the_focus_resumes(bank):
-    envs = [ActiveDepthEnv(2, textures=bank, renderer=name, fixation_iterations=2, seed=5)
+    envs = [ActiveDepthEnv(2, protocol=TrialProtocol(renderer=name, fixation_iterations=2), textures=bank, seed=5)
             for name in ("torch", "pyrender")]
     try:
         for env in envs:
@@ -73,19 +75,19 @@ def test_both_renderers_blur_alike_and_the_focus_resumes(bank):
             assert (ours[name] - theirs[name]).abs().mean() < 0.01, name
     finally:
         envs[1].close()
-    copy = ActiveDepthEnv(2, textures=bank, fixation_iterations=2, seed=5)
+    copy = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2), textures=bank, seed=5)
     copy.load_state_dict(envs[0].state_dict())
     torch.testing.assert_close(copy.defocus_dioptres, envs[0].defocus_dioptres)
     torch.testing.assert_close(observe(copy)["fine"], ours["fine"])
 
 
 def test_bad_focus_and_aperture_are_refused_by_name(bank):
-    env = ActiveDepthEnv(2, textures=bank, fixation_iterations=2)
+    env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2), textures=bank)
     for bad in (-1.0, torch.ones(3), float("nan")):
         with pytest.raises(ValueError, match="dioptres"):
             env.set_focus(bad)
     with pytest.raises(ValueError, match="aperture_m"):
-        ActiveDepthEnv(1, textures=bank, aperture_m=-0.001)
+        ActiveDepthEnv(1, protocol=TrialProtocol(aperture_m=-0.001), textures=bank)
 
 
 # -- the reward that prefers focus (aectorch.coding.focus) -------------------------------------------
@@ -117,13 +119,14 @@ def test_the_focus_reward_peaks_at_zero_blur_where_the_coding_reward_does_not_on
 
 
 # -- the accommodation cue --------------------------------------------------------------------------
-def _accommodating(**kwargs):
+def _accommodating(**fields):
     textures = torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(2))
-    return ActiveDepthEnv(2, textures=textures, fixation_iterations=3, seed=0, accommodation_start_D=0.0, **kwargs)
+    return ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=3, accommodation_start_D=0.0, **fields),
+                          textures=textures, seed=0)
 
 
 def test_the_accommodation_cue_is_served_only_when_asked_and_moves_both_eyes_focus():
-    plain = ActiveDepthEnv(2, textures=torch.rand(3, 64, 64), fixation_iterations=3, seed=0)
+    plain = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=3), textures=torch.rand(3, 64, 64), seed=0)
     assert "accommodation" not in plain.CUES and plain.end_iteration().extra_errors_deg is None
     env = _accommodating()
     assert list(env.CUES) == ["parallax", "stereo", "accommodation"]

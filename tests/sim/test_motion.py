@@ -96,8 +96,9 @@ def pursue(env, iterations):
 
 
 def test_the_ground_truth_follows_the_object(bank):
-    env = ActiveDepthEnv(2, textures=bank, fixation_iterations=4, shift_m=0.0, distances_m=[1.0, 2.0],
-                         object_speed_deg=(-2.0, 2.0), object_depth_speed_m=(-0.05, 0.0), seed=1)
+    protocol = TrialProtocol(fixation_iterations=4, shift_m=0.0, object_speed_deg=(-2.0, 2.0),
+                             object_depth_speed_m=(-0.05, 0.0))
+    env = ActiveDepthEnv(2, protocol=protocol, textures=bank, distances_m=[1.0, 2.0], seed=1)
     env.set_object_speed(torch.tensor([1.5, -0.5]), torch.tensor([-0.05, 0.0]))
     env.set_trial(torch.tensor([0, 1]), torch.tensor([1.0, 2.0]))
     infos = pursue(env, 8)
@@ -131,8 +132,8 @@ def test_the_ground_truth_follows_the_object(bank):
 
 
 def test_draws_are_within_the_ranges_and_the_state_resumes(bank):
-    kwargs = dict(textures=bank, fixation_iterations=3, object_speed_deg=(0.5, 1.0),
-                  object_depth_speed_m=(-0.02, -0.01), seed=3)
+    kwargs = dict(textures=bank, seed=3, protocol=TrialProtocol(fixation_iterations=3, object_speed_deg=(0.5, 1.0),
+                                                                object_depth_speed_m=(-0.02, -0.01)))
     env = ActiveDepthEnv(4, **kwargs)
     speeds = [env.object_speed.clone()]  # fixations 0 and 1 of two trials
     for _ in range(3):
@@ -158,7 +159,7 @@ def test_draws_are_within_the_ranges_and_the_state_resumes(bank):
 
 def test_the_still_object_is_untouched(bank):
     """The default draws nothing more and renders as it always did: no sideways offset at all."""
-    env = ActiveDepthEnv(2, textures=bank, fixation_iterations=2, seed=0)
+    env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2), textures=bank, seed=0)
     pursue(env, 3)
     assert env.object_speed is None and env.plane_y_m is None and "object_speed" not in env.state_dict()
     torch.testing.assert_close(env.object_distance_m, env.distance_m, rtol=0, atol=0)
@@ -174,7 +175,7 @@ def test_the_still_object_is_untouched(bank):
 ])
 def test_bad_motions_are_refused_by_name(bank, kwargs, match):
     with pytest.raises(ValueError, match=match):
-        ActiveDepthEnv(1, textures=bank, **kwargs)
+        ActiveDepthEnv(1, protocol=TrialProtocol(**kwargs), textures=bank)
     with pytest.raises(ValueError, match="speed_deg"):
         ActiveDepthEnv(1, textures=bank).set_object_speed(torch.ones(3))
     assert TrialProtocol(object_speed_deg=[-1, 1]).moving and not TrialProtocol().moving
@@ -216,8 +217,9 @@ def test_the_environments_of_both_renderers_see_the_moving_object_alike(bank):
     from aectorch.coding.patches import DEFAULT_SCALES, as_scale
 
     scales = [as_scale(s) for s in DEFAULT_SCALES]
-    envs = [ActiveDepthEnv(2, textures=bank, renderer=name, fixation_iterations=3, object_speed_deg=(-2.0, 2.0),
-                           object_depth_speed_m=(-0.05, 0.05), seed=5) for name in ("torch", "pyrender")]
+    envs = [ActiveDepthEnv(2, protocol=TrialProtocol(renderer=name, fixation_iterations=3, object_speed_deg=(-2.0, 2.0),
+                                                     object_depth_speed_m=(-0.05, 0.05)), textures=bank, seed=5)
+            for name in ("torch", "pyrender")]
     try:
         for _ in range(4):
             pairs = []

@@ -21,7 +21,7 @@ from aectorch.runtime import load_checkpoint, run_experiment
 from aectorch.runtime.config import to_experiment_config
 from aectorch.runtime.presets import REARING
 from aectorch.runtime.perturbations import Schedule, resolve_events
-from aectorch.sim import ActiveDepthEnv, pink_noise_images
+from aectorch.sim import ActiveDepthEnv, TrialProtocol, pink_noise_images
 from aectorch.sim.perturbations import (
     NEUTRAL, PERTURBATIONS, Optics, blur_margin, defocus, disc_kernel, make_perturbation, orientation_filter,
     scale_contrast,
@@ -38,8 +38,9 @@ def textures():
     return pink_noise_images(3, 256, 256, generator=torch.Generator().manual_seed(0))
 
 
-def _env(textures, renderer, **kwargs):
-    return ActiveDepthEnv(2, textures=textures, renderer=renderer, distances_m=[1.0], seed=1, **kwargs)
+def _env(textures, renderer, **fields):
+    return ActiveDepthEnv(2, protocol=TrialProtocol(renderer=renderer, **fields), textures=textures, distances_m=[1.0],
+                          seed=1)
 
 
 def _perturbed(env, kind, params, eye=1):
@@ -123,7 +124,8 @@ def test_anisometropia_blurs_one_eye_by_its_disc(textures, renderer):
 
 @pytest.mark.parametrize("renderer", RENDERERS)
 def test_refractive_error_is_the_world_s_defocus_of_one_eye(textures, renderer):
-    env = ActiveDepthEnv(2, textures=textures, renderer=renderer, distances_m=[1.0, 2.5], seed=1)
+    env = ActiveDepthEnv(2, protocol=TrialProtocol(renderer=renderer), textures=textures, distances_m=[1.0, 2.5],
+                         seed=1)
     base = env.stereo_observation(SCALES, window=True)
     obs = _perturbed(env, "refractive_error", {"dioptres": 2.0})
     _unchanged_left(base, obs, renderer)
@@ -148,7 +150,7 @@ def test_refractive_error_adds_to_the_focus_and_needs_an_aperture(textures):
     torch.testing.assert_close(env.defocus_dioptres, torch.stack((-near, 2.0 - near), dim=-1))
     env.set_optics(make_perturbation("refractive_error", {"dioptres": -1.0}).apply(NEUTRAL, 0))
     torch.testing.assert_close(env.defocus_dioptres, torch.stack((-1.0 - near, -near), dim=-1))
-    pinhole = ActiveDepthEnv(2, textures=textures, distances_m=[1.0], seed=1, aperture_m=0.0)
+    pinhole = ActiveDepthEnv(2, protocol=TrialProtocol(aperture_m=0.0), textures=textures, distances_m=[1.0], seed=1)
     with pytest.raises(ValueError, match=r"refraction_D=\(0.0, 2.0\).*aperture_m=0"):
         pinhole.set_optics(make_perturbation("refractive_error", {"dioptres": 2.0}).apply(NEUTRAL, 1))
     env.close(), pinhole.close()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import subprocess
@@ -312,13 +313,17 @@ def test_conflicting_opengl_platform_is_explained():
 # --- ActiveDepthEnv -------------------------------------------------------------------------------
 
 
+def _split(kwargs: dict) -> tuple[dict, dict]:
+    """``kwargs`` as the trial protocol's fields and the environment's other arguments."""
+    names = {f.name for f in dataclasses.fields(TrialProtocol)}
+    return {k: v for k, v in kwargs.items() if k in names}, {k: v for k, v in kwargs.items() if k not in names}
+
+
 def small_env(bank, **kwargs):
-    kwargs.setdefault("fixation_iterations", 3)
-    kwargs.setdefault("seed", 0)
+    fields, options = _split(kwargs)
     # These tests check the geometry step by step: the whole shift at once, pursuit by one eye.
-    kwargs.setdefault("shift_iterations", 1)
-    kwargs.setdefault("yoked_pursuit", False)
-    return ActiveDepthEnv(3, textures=bank, **kwargs)
+    protocol = TrialProtocol(**{"fixation_iterations": 3, "shift_iterations": 1, "yoked_pursuit": False, **fields})
+    return ActiveDepthEnv(3, protocol=protocol, textures=bank, **{"seed": 0, **options})
 
 
 def vergence_step(env, delta):
@@ -536,7 +541,7 @@ def test_env_is_seeded(bank):
 
 def test_env_torch_and_pyrender_observations_match(bank):
     textures = quantised(bank.textures)
-    envs = [ActiveDepthEnv(2, textures=textures, renderer=name, fixation_iterations=2, seed=5)
+    envs = [ActiveDepthEnv(2, protocol=TrialProtocol(renderer=name, fixation_iterations=2), textures=textures, seed=5)
             for name in ("torch", "pyrender")]
     generator = torch.Generator().manual_seed(0)
     for _ in range(5):
@@ -562,9 +567,9 @@ def test_env_torch_and_pyrender_observations_match(bank):
     ],
 )
 def test_env_rejects_bad_configuration(bank, kwargs, error, match):
-    kwargs = {"textures": bank, **kwargs}
+    fields, options = _split({"textures": bank, **kwargs})
     with pytest.raises(error, match=match):
-        ActiveDepthEnv(2, **kwargs)
+        ActiveDepthEnv(2, protocol=TrialProtocol(**fields), **options)
 
 
 def test_env_rejects_bad_calls(bank):
@@ -620,7 +625,8 @@ def test_env_state_dict_resumes_exactly(bank, tmp_path):
     assert (env.iteration, env.fixation) == (twin.iteration, twin.fixation)
     torch.testing.assert_close(env.texture_index, twin.texture_index)
     with pytest.raises(ValueError, match="num_envs"):
-        ActiveDepthEnv(2, textures=bank, fixation_iterations=3).load_state_dict(env.state_dict())
+        other = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=3), textures=bank)
+        other.load_state_dict(env.state_dict())
 
 
 def test_torch_renderer_rejects_out_of_range_texture_indices(scene, head):
@@ -825,8 +831,10 @@ def test_scale_observations_reuse_the_stereo_frame_exactly(bank):
     from aectorch.coding.patches import COARSE, FINE
 
     scales = (COARSE, FINE)
-    env = ActiveDepthEnv(2, textures=bank, fixation_iterations=4, shift_iterations=2, yoked_pursuit=True, seed=1)
-    fresh = ActiveDepthEnv(2, textures=bank, fixation_iterations=4, shift_iterations=2, yoked_pursuit=True, seed=1)
+    env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=4, shift_iterations=2, yoked_pursuit=True),
+                         textures=bank, seed=1)
+    fresh = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=4, shift_iterations=2, yoked_pursuit=True),
+                           textures=bank, seed=1)
     reused = 0
     for it in range(8):
         for e in (env, fresh):
@@ -938,8 +946,8 @@ def test_both_renderers_satisfy_the_renderer_protocol_and_close_closes_both(bank
 
 
 def test_q_is_the_mean_of_each_fixations_last_q_iterations():
-    env = ActiveDepthEnv(3, textures=torch.rand(2, 64, 64, generator=torch.Generator().manual_seed(0)),
-                         fixation_iterations=5, q_iterations=3, seed=0)
+    env = ActiveDepthEnv(3, protocol=TrialProtocol(fixation_iterations=5, q_iterations=3),
+                         textures=torch.rand(2, 64, 64, generator=torch.Generator().manual_seed(0)), seed=0)
     g = torch.Generator().manual_seed(1)
     seen = []
     for _ in range(10):
@@ -950,7 +958,7 @@ def test_q_is_the_mean_of_each_fixations_last_q_iterations():
     expected = torch.cat((torch.stack(seen[2:5]).mean(0), torch.stack(seen[7:10]).mean(0)), -1)
     torch.testing.assert_close(info.q_deg, expected)
     with pytest.raises(ValueError, match="q_iterations"):
-        ActiveDepthEnv(1, textures=torch.rand(1, 8, 8), q_iterations=0)
+        ActiveDepthEnv(1, protocol=TrialProtocol(q_iterations=0), textures=torch.rand(1, 8, 8))
 
 
 # --- the oculomotor range ------------------------------------------------------------------------
@@ -993,9 +1001,11 @@ def test_clamp_eyes_is_the_nearest_pair_within_the_range():
     (dict(pan_range_deg=5.0), r"pan_range_deg must be a \(low, high\) pair"),
 ])
 def test_the_oculomotor_range_rejects_bad_values_by_name(kwargs, match):
-    with pytest.raises(ValueError, match=match):
-        ActiveDepthEnv(1, textures=torch.rand(1, 32, 32), fixation_iterations=2, **kwargs)
-    if "HOAP-3" not in match:  # the protocol checks the range too (the head's joint limits are the environment's)
+    if "HOAP-3" in match:  # the head's joint limits are the environment's: its protocol holds any range
+        protocol = TrialProtocol(**kwargs)
+        with pytest.raises(ValueError, match=match):
+            ActiveDepthEnv(1, protocol=protocol, textures=torch.rand(1, 32, 32))
+    else:
         with pytest.raises(ValueError, match=match):
             TrialProtocol(**kwargs)
 
@@ -1006,17 +1016,19 @@ def test_every_movement_ends_within_the_oculomotor_range_in_both_renderers(rende
     of the eyes put at the bound, and yoked pursuit stops at the pan range; the default range is
     -2 to 40 degrees of vergence and the HOAP-3's +-45 degrees of pan."""
     textures = quantised(torch.rand(2, 64, 64, generator=torch.Generator().manual_seed(3)))
-    options = dict(textures=textures, fixation_iterations=4, renderer=renderer)
-    env = ActiveDepthEnv(3, **options)
+    options = dict(fixation_iterations=4, renderer=renderer)
+    env = ActiveDepthEnv(3, protocol=TrialProtocol(**options), textures=textures)
     assert env.pan_range_deg == (-45.0, 45.0) and env.vergence_range_deg == (-2.0, 40.0)
     env.close()
-    env = ActiveDepthEnv(3, pan_range_deg=(-20.0, 20.0), vergence_range_deg=(-1.0, 10.0), **options)
+    env = ActiveDepthEnv(3, protocol=TrialProtocol(pan_range_deg=(-20.0, 20.0), vergence_range_deg=(-1.0, 10.0),
+                                                   **options),
+                         textures=textures)
     env.set_trial(torch.tensor([0, 1, 0]), torch.tensor([1.0, 2.0, 3.0]))
     env.apply_pursuit(torch.zeros(3))
     env.apply_vergence(torch.tensor([-7.0, 15.0, 0.5]))
     assert torch.allclose(env.vergence_deg, torch.tensor([-1.0, 10.0, 0.5]))
     moved = env.stereo_observation()["window"]
-    bound = ActiveDepthEnv(3, **options)
+    bound = ActiveDepthEnv(3, protocol=TrialProtocol(**options), textures=textures)
     bound.set_trial(torch.tensor([0, 1, 0]), torch.tensor([1.0, 2.0, 3.0]))
     bound.set_pan_deg(torch.tensor([[0.0, -1.0], [0.0, 10.0], [0.0, 0.5]]))
     assert torch.equal(moved, bound.stereo_observation()["window"])

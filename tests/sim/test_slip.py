@@ -7,7 +7,7 @@ import torch
 
 from aectorch.coding import EncoderConfig
 from aectorch.framework import CueConfig, JointLearner, LearnerConfig, default_cues
-from aectorch.sim import ActiveDepthEnv, TextureBank
+from aectorch.sim import ActiveDepthEnv, TextureBank, TrialProtocol
 
 torch.set_num_threads(1)
 
@@ -18,8 +18,9 @@ def bank():
 
 
 def moving_env(bank, b=3, **kwargs):
-    env = ActiveDepthEnv(b, textures=bank, fixation_iterations=4, pursuit_velocity=True, object_speed_deg=(-1.5, 1.5),
-                         object_depth_speed_m=(-0.02, 0.02), **kwargs)
+    protocol = TrialProtocol(fixation_iterations=4, pursuit_velocity=True, object_speed_deg=(-1.5, 1.5),
+                             object_depth_speed_m=(-0.02, 0.02))
+    env = ActiveDepthEnv(b, protocol=protocol, textures=bank, **kwargs)
     env.set_object_speed(torch.tensor([1.0, -0.5, 0.0])[:b], torch.tensor([-0.02, 0.0, 0.01])[:b])
     env.set_trial(torch.arange(b), torch.tensor([1.0, 2.0, 3.0])[:b])
     return env
@@ -89,7 +90,7 @@ def test_the_velocity_resumes_and_the_default_has_none(bank):
                                                      ActiveDepthEnv.state_rows(state, 1, 3)]))
     torch.testing.assert_close(copy.velocity_deg, env.velocity_deg, rtol=0, atol=0)
     torch.testing.assert_close(copy.slip_observation()["window"], env.slip_observation()["window"])
-    plain = ActiveDepthEnv(1, textures=bank, fixation_iterations=2, seed=0)
+    plain = ActiveDepthEnv(1, protocol=TrialProtocol(fixation_iterations=2), textures=bank, seed=0)
     assert "slip" not in plain.CUES and plain.velocity_deg is None
     plain.parallax_observation()
     plain.end_iteration()
@@ -121,11 +122,12 @@ def test_velocity_memory_keeps_the_pursuit_steps_as_velocity(bank):
     lag by position steps alone (a proportional step, the slip cue idle) ends up at the object's
     speed with no lag; without it the lag stays."""
     with pytest.raises(ValueError, match="velocity_memory needs pursuit_velocity"):
-        ActiveDepthEnv(1, textures=bank, velocity_memory=True)
+        TrialProtocol(velocity_memory=True)
     lags = {}
     for memory in (False, True):
-        env = ActiveDepthEnv(1, textures=bank, fixation_iterations=30, shift_m=0.0, pursuit_velocity=True,
-                             velocity_memory=memory, object_speed_deg=(0.0, 1.0))
+        protocol = TrialProtocol(fixation_iterations=30, shift_m=0.0, pursuit_velocity=True, velocity_memory=memory,
+                                 object_speed_deg=(0.0, 1.0))
+        env = ActiveDepthEnv(1, protocol=protocol, textures=bank)
         env.set_object_speed(torch.tensor([1.0]), None)
         env.set_trial(torch.tensor([0]), torch.tensor([2.0]))
         for _ in range(25):

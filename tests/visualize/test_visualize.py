@@ -15,12 +15,12 @@ import torch
 from aectorch.evaluation import run_trials
 from aectorch.coding import EncoderConfig
 from aectorch.framework import JointLearner, LearnerConfig, default_cues
-from aectorch.sim import ActiveDepthEnv, TextureBank
+from aectorch.sim import ActiveDepthEnv, TextureBank, TrialProtocol
 from aectorch.visualize import TrialFrames, animate_trial, record_trial
 from aectorch.visualize.__main__ import main
 
 ROOT = Path(__file__).resolve().parents[2]
-PROTOCOL = {"fixation_iterations": 3, "shift_m": 0.1, "shift_iterations": 2, "yoked_pursuit": True}
+PROTOCOL = TrialProtocol(fixation_iterations=3, shift_m=0.1, shift_iterations=2, yoked_pursuit=True)
 DISTANCE = 1.5
 
 
@@ -34,7 +34,7 @@ def _texture() -> torch.Tensor:
 
 def _unwatched_errors(learner, texture, policy: str) -> tuple[torch.Tensor, torch.Tensor]:
     """The same trial run plainly (no extra observations): every iteration's errors."""
-    env = ActiveDepthEnv(1, textures=texture[None], distances_m=[DISTANCE], seed=0, **PROTOCOL)
+    env = ActiveDepthEnv(1, textures=texture[None], distances_m=[DISTANCE], seed=0, protocol=PROTOCOL)
     env.set_trial(torch.zeros(1, dtype=torch.long), torch.full((1,), DISTANCE))
     learner.forget_transitions()
     saved = learner.generator.get_state()
@@ -53,20 +53,20 @@ def _unwatched_errors(learner, texture, policy: str) -> tuple[torch.Tensor, torc
 
 @pytest.fixture(scope="module")
 def frames() -> TrialFrames:
-    return record_trial(_learner(), _texture(), DISTANCE, **PROTOCOL, texture_name="pink")
+    return record_trial(_learner(), _texture(), DISTANCE, protocol=PROTOCOL, texture_name="pink")
 
 
 @pytest.mark.parametrize("policy, render_scales", [("greedy", True), ("sampled", False)])
 def test_the_watched_trial_is_the_evaluated_trial(policy, render_scales):
     learner, texture = _learner(render_scales=render_scales), _texture()
-    got = record_trial(learner, texture, DISTANCE, **PROTOCOL, policy=policy)
+    got = record_trial(learner, texture, DISTANCE, protocol=PROTOCOL, policy=policy)
     assert len(got) == 6 and got.first.shape == got.second.shape == (6, 128, 128)
     assert got.cue == "stereo" and got.names == ("left", "right") and list(got.errors_deg) == ["pursuit", "vergence"]
     assert got.errors_deg["pursuit"].shape == got.errors_deg["vergence"].shape == (6,)
     assert got.fixation_end.tolist() == [False, False, True] * 2 and got.fixation.tolist() == [0, 0, 0, 1, 1, 1]
     assert 0 <= float(got.first.min()) and float(got.second.max()) <= 1 and not torch.equal(got.first, got.second)
     assert got.distance_m == DISTANCE and np.isnan(got.depth_prediction_m)  # the MLP was never fitted
-    evaluated = run_trials(learner, texture[None], distances_m=[DISTANCE], seed=0, policy=policy, **PROTOCOL)
+    evaluated = run_trials(learner, texture[None], distances_m=[DISTANCE], seed=0, policy=policy, protocol=PROTOCOL)
     for movement, errors in got.errors_deg.items():
         assert torch.equal(evaluated[f"{movement}_deg"][0], errors[got.fixation_end])
     pursuit, vergence = _unwatched_errors(learner, texture, policy)
@@ -75,14 +75,14 @@ def test_the_watched_trial_is_the_evaluated_trial(policy, render_scales):
 
 def test_the_viewer_watches_any_learned_cue_and_a_vergence_only_learner():
     learner = _learner(active_cues=["stereo"])
-    got = record_trial(learner, _texture(), DISTANCE, **PROTOCOL)
+    got = record_trial(learner, _texture(), DISTANCE, protocol=PROTOCOL)
     assert got.cue == "stereo" and float(got.errors_deg["pursuit"].abs().max()) < 1e-4
     both = _learner()
-    parallax = record_trial(both, _texture(), DISTANCE, **PROTOCOL, cue="parallax")
+    parallax = record_trial(both, _texture(), DISTANCE, protocol=PROTOCOL, cue="parallax")
     assert parallax.names == ("left_before", "right")[:1] + ("left",)
     assert torch.equal(parallax.first[0], parallax.first[1])  # the start image is taken once per fixation
     with pytest.raises(ValueError, match="cue must be one of the learner's cues"):
-        record_trial(learner, _texture(), DISTANCE, **PROTOCOL, cue="parallax")
+        record_trial(learner, _texture(), DISTANCE, protocol=PROTOCOL, cue="parallax")
 
 
 def _same(a, b) -> bool:
@@ -101,7 +101,7 @@ def test_the_learner_is_not_modified():
     learner.generator.manual_seed(123)
     torch.rand(3, generator=learner.generator)
     state, generator = copy.deepcopy(learner.state_dict()), learner.generator.get_state()
-    record_trial(learner, _texture(), DISTANCE, **PROTOCOL, policy="sampled", seed=5)
+    record_trial(learner, _texture(), DISTANCE, protocol=PROTOCOL, policy="sampled", seed=5)
     assert _same(state, learner.state_dict())
     assert torch.equal(generator, learner.generator.get_state())
 
