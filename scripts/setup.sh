@@ -117,10 +117,10 @@ say "PyOpenGL: upgrading to >=3.1.7 for OSMesa; pip's warning that pyrender requ
 TV2="$("$VPY" -c 'import importlib.metadata as m; print(m.version("torch"))')"
 [ "$TV" = "$TV2" ] || die "torch changed from $TV to $TV2 during setup; this should not happen"
 
-# --- 7. the fused CPU kernels (pursuit and renderer; aectorch.ops.native), built now rather than on first use
+# --- 7. the fused CPU kernels (coder and renderer; aectorch.ops.native), built now rather than on first use
 # (torch.compile on CPU needs the same C++ compiler.)
 command -v "${CXX:-g++}" >/dev/null 2>&1 || apt_install "compiling CPU kernels (ours and torch.compile's)" g++
-say "kernel: building the fused CPU kernels (pursuit, renderer; cached per machine)"
+say "kernel: building the fused CPU kernels (coder, renderer; cached per machine)"
 "$VPY" -W error::RuntimeWarning -c 'from aectorch.ops import native; native.load()' \
     || say "kernel: could not be built; omp/matching_pursuit will use the pure-torch code (see above)"
 

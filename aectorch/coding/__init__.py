@@ -13,7 +13,7 @@ from aectorch.coding.patches import (
     patch_permutation,
     pyramid_down, reduced_patches, scale_patches, window_patches,
 )
-from aectorch.coding.pursuit import gram_matrix, matching_pursuit, omp, use_backend
+from aectorch.coding.batch_omp import gram_matrix, matching_pursuit, omp, use_backend
 from aectorch.coding.readouts import (
     binocularity_histogram, binocularity_index, code_summary, disparity_histogram, disparity_tuning,
     orientation_histogram, orientation_preference, preferred_disparity,

@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from aectorch._checks import check_int
-from aectorch.coding.pursuit import DEFAULT_BLOCK_SIZE, _validate, gram_matrix, matching_pursuit, omp
+from aectorch.coding.batch_omp import DEFAULT_BLOCK_SIZE, _validate, gram_matrix, matching_pursuit, omp
 from aectorch.coding.sparse_code import SparseCode
 from aectorch.ops.backend import fused_kernels_apply
 
@@ -211,7 +211,7 @@ class SparseDictionary(nn.Module):
         `(DictionaryOutput, features [..., N])` for signals `[..., n_patches, P]`.
 
         The same numbers as ``out = self(signals); self.pooled_activity(out.code, reduction=...)``.
-        Without a graph to build, on CPU all of it (the Gram matrix, the pursuit, the
+        Without a graph to build, on CPU all of it (the Gram matrix, the sparse coding, the
         reconstructions, their errors and the pooling) is one fused kernel (``aectorch::encode``),
         one pass over the signals.
 

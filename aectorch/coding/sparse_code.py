@@ -1,4 +1,4 @@
-"""`SparseCode`: the result of a pursuit, k (index, coefficient) pairs per signal."""
+"""`SparseCode`: the result of OMP or MP, k (index, coefficient) pairs per signal."""
 
 from __future__ import annotations
 
@@ -18,8 +18,8 @@ class SparseCode(NamedTuple):
     A `NamedTuple`, so it is a pytree that `torch.compile`, `torch.func` and
     `torch.utils._pytree` handle without registration.
 
-    Slots are in the order the pursuit chose the atoms. A slot left unused
-    because the pursuit stopped early (the residual was already zero, or the
+    Slots are in the order the coder chose the atoms. A slot left unused
+    because the coder stopped early (the residual was already zero, or the
     next atom was linearly dependent on the chosen ones) has coefficient
     exactly 0 and index 0. Plain matching pursuit may choose one atom twice;
     `to_dense` and `reconstruct` sum repeated atoms.

@@ -1,6 +1,6 @@
 """The fused C++ kernels under the coder and the renderer: their sources, their loader and switches.
 
-``pursuit_cpu.cpp`` holds the coder's operators (``torch.ops.aectorch.pursuit``, ``encode``,
+``coder_cpu.cpp`` holds the coder's operators (``torch.ops.aectorch.sparse_code``, ``encode``,
 ``gram``, the dictionary's steps, ``pair_patches``) and ``render_cpu.cpp`` the renderer's
 (``render_trilinear``, ``pyramid_blur``); `aectorch.ops.native` builds both into one library on
 first use, registers their fake implementations for ``torch.compile`` and sets their threads;
@@ -10,7 +10,7 @@ knowing each other.
 """
 
 from aectorch.ops.backend import BACKENDS, fused_kernels_apply, use_backend
-from aectorch.ops.native import available, get_threads, load, pursuit, set_threads
+from aectorch.ops.native import available, get_threads, load, set_threads, sparse_code
 
-__all__ = ["BACKENDS", "available", "fused_kernels_apply", "get_threads", "load", "pursuit", "set_threads",
+__all__ = ["BACKENDS", "available", "fused_kernels_apply", "get_threads", "load", "set_threads", "sparse_code",
            "use_backend"]

@@ -2,9 +2,9 @@
 
 ``backend="auto"`` (the default) runs a fused kernel wherever it applies: a CPU float32/float64
 tensor and the kernels built (`aectorch.ops.native.load`); ``"native"`` asks for the kernel (the
-pursuits raise a ValueError where it cannot run); ``"torch"`` runs torch's operations everywhere
+coders raise a ValueError where it cannot run); ``"torch"`` runs torch's operations everywhere
 (the CUDA path, differentiable, and the reference the kernels are tested against). `use_backend`
-sets the default for a block of code, so it reaches the pursuits, patches and dictionary steps
+sets the default for a block of code, so it reaches the sparse coders, patches and dictionary steps
 that library code runs for you.
 
 Example:
@@ -47,7 +47,7 @@ def default_backend() -> str:
 def use_backend(backend: str) -> Iterator[None]:
     """Within the block, `omp` and `matching_pursuit` called without ``backend=`` use this one.
 
-    Reaches the pursuits that library code runs for you (`SparseDictionary`,
+    Reaches the sparse coding that library code runs for you (`SparseDictionary`,
     `BinocularEncoder`, `aectorch.JointLearner`), e.g. to compare the fused kernel with torch.
 
     Example:

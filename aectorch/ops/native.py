@@ -1,7 +1,7 @@
-"""The fused CPU kernels (``pursuit_cpu.cpp`` for the coder, ``render_cpu.cpp`` for the renderer), built on first use.
+"""The fused CPU kernels (``coder_cpu.cpp`` for the coder, ``render_cpu.cpp`` for the renderer), built on first use.
 
-`omp` and `matching_pursuit` run on CPU through the operator ``torch.ops.aectorch.pursuit``
-when it is available: one C++ loop per signal instead of ~20-45 tensor ops per pursuit step
+`omp` and `matching_pursuit` run on CPU through the operator ``torch.ops.aectorch.sparse_code``
+when it is available: one C++ loop per signal instead of ~20-45 tensor ops per coding step
 (docs/performance.md measures both). It is compiled once per machine with
 `torch.utils.cpp_extension` (g++ and ninja, both of which `torch.compile` on CPU needs too)
 into a cache folder, keyed by the source, the torch version and the CPU, and loaded from there
@@ -17,14 +17,14 @@ says so every 10 s. The folder is keyed by the sources' content, the flags, torc
 CPU, and the sources are copied into it, so a second checkout (a worktree, a copy in a job's
 scratch space) reuses the same build.
 
-If it cannot be built (no compiler, say), the pursuits fall back to the pure-torch code with one
-warning that says why; results agree within float rounding (tests/coding/test_pursuit.py). Set
+If it cannot be built (no compiler, say), the coders fall back to the pure-torch code with one
+warning that says why; results agree within float rounding (tests/coding/test_batch_omp.py). Set
 ``AECTORCH_NATIVE=0`` to never use it, and ``AECTORCH_CACHE`` to move the cache
 (default ``~/.cache/aectorch``). On x86-64 the kernels are compiled for this CPU
 (``-march=native``); ``AECTORCH_NATIVE_MARCH`` names another target, e.g. ``x86-64-v3`` (AVX2,
 no AVX-512) to measure what a machine without AVX-512 would run (``make bench ISA=avx2``).
 
-The kernels' float32 matrix products (the pursuit's correlations, the Gram matrix) run in oneDNN
+The kernels' float32 matrix products (the coders' correlations, the Gram matrix) run in oneDNN
 (torch's ``mkldnn::_linear_pointwise``), not in torch's ``@`` (MKL on x86): on an AMD CPU with
 AVX-512, MKL runs its AVX2 code and oneDNN about twice as fast (at AVX2 they ran at about the
 same rate; ``benchmarks/test_loop.py`` records both rates). The two libraries sum in different
@@ -57,11 +57,11 @@ from aectorch._checks import check_int
 
 log = logging.getLogger("aectorch")
 
-__all__ = ["available", "get_threads", "load", "pursuit", "set_threads", "SOURCE", "SOURCES"]
+__all__ = ["available", "get_threads", "load", "set_threads", "sparse_code", "SOURCE", "SOURCES"]
 
-#: The C++ source of the pursuit kernel.
-SOURCE = Path(__file__).with_name("pursuit_cpu.cpp")
-#: Every source built into the library: the pursuit and the renderer's trilinear kernel.
+#: The C++ source of the coder's kernels (OMP, MP, the encoder, patches, the dictionary's steps).
+SOURCE = Path(__file__).with_name("coder_cpu.cpp")
+#: Every source built into the library: the coder's and the renderer's trilinear kernel.
 SOURCES = (SOURCE, Path(__file__).with_name("render_cpu.cpp"))
 
 _lock = threading.Lock()
@@ -100,7 +100,7 @@ def _build_dir() -> tuple[str, Path]:
         + torch.__version__.encode() + sys.version.encode() + _cpu_signature().encode()
     ).hexdigest()[:16]
     root = Path(os.environ.get("AECTORCH_CACHE", Path.home() / ".cache" / "aectorch"))
-    return f"aectorch_pursuit_{key}", root / "native" / key
+    return f"aectorch_kernels_{key}", root / "native" / key
 
 
 #: Written into the build folder after a build succeeded: only then is the library loaded
@@ -203,11 +203,11 @@ def _build(name: str, folder: Path, verbose: bool) -> None:
 
 
 def load(verbose: bool = False) -> bool:
-    """Build (once per machine) and load the kernels; True if ``torch.ops.aectorch.pursuit`` works.
+    """Build (once per machine) and load the kernels; True if ``torch.ops.aectorch.sparse_code`` works.
 
     A library already built (for these sources, flags, torch and CPU) is loaded directly, without
     a lock or a compiler; a build holds `_BuildLock`. Never raises: a failure is reported once as a
-    `RuntimeWarning` and the pursuits and the renderer use torch.
+    `RuntimeWarning` and the coders and the renderer use torch.
     """
     with _lock:
         if "ok" in _state:
@@ -258,7 +258,7 @@ def available() -> bool:
 
 
 def _register_fake() -> None:
-    @torch.library.register_fake("aectorch::pursuit")
+    @torch.library.register_fake("aectorch::sparse_code")
     def _(signals, dictionary, gram, k, orthogonal, block):
         m = signals.shape[0]
         return signals.new_empty(m, k, dtype=torch.long), signals.new_empty(m, k)
@@ -303,7 +303,7 @@ def _register_fake() -> None:
         return poses.new_empty(poses.shape[0], poses.shape[1], xs.shape[0])
 
 
-def pursuit(signals: torch.Tensor, dictionary: torch.Tensor, gram: torch.Tensor, k: int,
+def sparse_code(signals: torch.Tensor, dictionary: torch.Tensor, gram: torch.Tensor, k: int,
             orthogonal: bool, block: int) -> tuple[torch.Tensor, torch.Tensor]:
     """``(indices [M, k], coefficients [M, k])`` of MP or OMP on CPU signals `[M, P]`.
 
@@ -311,5 +311,5 @@ def pursuit(signals: torch.Tensor, dictionary: torch.Tensor, gram: torch.Tensor,
         RuntimeError: the kernel could not be built or loaded (see `load`).
     """
     if not load():
-        raise RuntimeError("the fused CPU pursuit kernel is not available (see aectorch.ops.native.load)")
-    return torch.ops.aectorch.pursuit(signals, dictionary, gram, k, orthogonal, block)
+        raise RuntimeError("the fused CPU coder kernel is not available (see aectorch.ops.native.load)")
+    return torch.ops.aectorch.sparse_code(signals, dictionary, gram, k, orthogonal, block)

@@ -30,7 +30,7 @@
 // elements). Threads: OpenMP over rows (aectorch_kernel_threads()); each pixel is independent,
 // so the result depends neither on the threads nor on the block size.
 //
-// Registered as aectorch::render_trilinear (built with the pursuit kernel by
+// Registered as aectorch::render_trilinear (built with the coder's kernels by
 // aectorch.ops.native; its fake implementation for torch.compile lives there too).
 
 #include <ATen/ATen.h>
@@ -48,7 +48,7 @@
 #include <immintrin.h>
 #endif
 
-int aectorch_kernel_threads();  // pursuit_cpu.cpp
+int aectorch_kernel_threads();  // coder_cpu.cpp
 
 namespace {
 

@@ -19,7 +19,7 @@ __all__ = ["available_threads", "build_env", "build_learner", "build_textures", 
 
 def set_threads(threads: int, processes: int = 1) -> None:
     """``train.threads``: N >= 1 gives torch and the fused kernels N threads each; 0 gives the fused
-    kernels (render, pursuit) every core of this process's share and torch's own operations one
+    kernels (rendering, sparse coding) every core of this process's share and torch's own operations one
     (they are too small to pay for a second thread: docs/performance.md)."""
     from aectorch.ops import native
 

@@ -233,7 +233,7 @@ class TrainConfig:
             at the end or on an interruption.
         threads: CPU threads: N >= 1 gives torch (``torch.set_num_threads``) and the fused
             kernels (``aectorch.ops.native.set_threads``) N each; 0 (default) gives the fused
-            kernels (rendering, pursuit) every core this process may use
+            kernels (rendering, sparse coding) every core this process may use
             (``os.sched_getaffinity``, shared among a ``torchrun`` run's processes) and torch's
             own operations one, which measured fastest (docs/performance.md). ``train.py`` sets
             ``OMP_WAIT_POLICY=PASSIVE`` (unless set), so idle threads sleep instead of spinning on

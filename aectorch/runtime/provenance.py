@@ -66,7 +66,7 @@ def provenance(device: str | torch.device) -> dict:
         "device": str(device),
         "threads": torch.get_num_threads(),
         "deterministic_algorithms": torch.are_deterministic_algorithms_enabled(),
-        "native_pursuit_kernel": native.available(),
+        "native_kernels": native.available(),
         "native_kernel_threads": native.get_threads(),
         "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
     }

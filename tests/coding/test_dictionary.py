@@ -155,7 +155,7 @@ def test_forward_shapes_error_and_code(algorithm, lead):
     assert out.reconstruction.shape == (*lead, 20)
     assert out.error.shape == lead
 
-    # the code is exactly that of the pursuit called directly
+    # the code is exactly that of the coder called directly
     direct = CODERS[algorithm](x, d.atoms.detach(), 4)
     assert torch.equal(out.code.indices, direct.indices)
     _close(out.code.coefficients, direct.coefficients, atol=1e-12)
@@ -177,7 +177,7 @@ def test_forward_shapes_error_and_code(algorithm, lead):
 
 @pytest.mark.parametrize("algorithm", ALGORITHMS)
 def test_large_batch_equals_small_pieces(algorithm):
-    """1100 signals (past the CPU block size of the pursuits) code like 100 at a time."""
+    """1100 signals (past the CPU block size of the coders) code like 100 at a time."""
     d = SparseDictionary(30, 20, 4, algorithm, generator=_gen(21), dtype=F64)
     x = _randn(1100, 20, seed=22)
     with torch.no_grad():

@@ -1,7 +1,7 @@
 """Tests for aectorch.coding.encoder: BinocularEncoder and EncoderOutput (paper sec. 2.2-2.3).
 
 Oracles: eqs. (3)-(6) recomputed by hand from `extract_patches`, the dictionaries' atoms and the
-pursuits, torch.optim.SGD for the learning step, and stereo pairs of 1/f textures with a known
+coders, torch.optim.SGD for the learning step, and stereo pairs of 1/f textures with a known
 disparity that the dictionaries must learn to code.
 """
 

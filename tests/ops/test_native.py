@@ -1,7 +1,7 @@
-"""The fused CPU pursuit kernel (aectorch.ops.native): built, used, and replaceable.
+"""The fused CPU kernels (aectorch.ops.native): built, used, and replaceable.
 
 Its results are tested against scikit-learn and the MP reference with every test of
-tests/coding/test_pursuit.py, which runs on both backends."""
+tests/coding/test_batch_omp.py, which runs on both backends."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ from aectorch.ops import native
 
 def test_native_kernel_is_built_and_used():
     # CI and `make test` must exercise the kernel, not silently fall back to torch.
-    assert native.available(), "the fused CPU pursuit kernel did not build (see the warning)"
+    assert native.available(), "the fused CPU kernels did not build (see the warning)"
     d = torch.nn.functional.normalize(torch.randn(30, 60, dtype=torch.float64), dim=0)
     x = torch.randn(5, 30, dtype=torch.float64)
     a = omp(x, d, 4, backend="native")
@@ -65,7 +65,7 @@ print(native.available(), code.indices.shape[-1], "|".join(str(w.message) for w 
 
 @pytest.mark.integration
 @pytest.mark.parametrize("how", ["disabled", "no compiler"])
-def test_without_the_kernel_the_pursuits_fall_back_to_torch(tmp_path, how):
+def test_without_the_kernel_the_coders_fall_back_to_torch(tmp_path, how):
     env = dict(os.environ, AECTORCH_CACHE=str(tmp_path))  # nothing cached: a fresh build
     if how == "disabled":
         env["AECTORCH_NATIVE"] = "0"
@@ -170,7 +170,7 @@ def test_fused_reconstruction_error_gradient_and_pooling_match_torch(algorithm, 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 @pytest.mark.parametrize("lead", [(), (4,), (2, 3)])
 def test_encode_in_one_pass_gives_the_bits_of_the_three_kernels_on_any_number_of_threads(algorithm, dtype, lead):
-    """`SparseDictionary.forward_pooled` (one aectorch::encode call) against the pursuit, then
+    """`SparseDictionary.forward_pooled` (one aectorch::encode call) against the coder, then
     reconstruct_error, then pooled_power: every output bit-identical, with 1, 2 and 3 threads."""
     from torch.profiler import ProfilerActivity, profile
 
@@ -186,7 +186,7 @@ def test_encode_in_one_pass_gives_the_bits_of_the_three_kernels_on_any_number_of
                 plain = d(x)
                 plain_features = d.pooled_activity(plain.code, reduction="mean")
             ops = {e.key for e in prof.key_averages()}
-            assert "aectorch::encode" in ops and not ops & {"aectorch::gram", "aectorch::pursuit",
+            assert "aectorch::encode" in ops and not ops & {"aectorch::gram", "aectorch::sparse_code",
                                                             "aectorch::reconstruct_error", "aectorch::pooled_power"}
             for got, expected in zip((*out.code, out.reconstruction, out.error, features),
                                      (*plain.code, plain.reconstruction, plain.error, plain_features)):

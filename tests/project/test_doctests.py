@@ -30,7 +30,7 @@ MODULES = sorted(
 
 def test_module_discovery_finds_the_modules():
     expected = {
-        "coding.dictionary", "coding.encoder", "coding.patches", "coding.pursuit",
+        "coding.dictionary", "coding.encoder", "coding.patches", "coding.batch_omp",
         "coding.sparse_code", "sim.camera", "sim.env", "sim.hoap3", "sim.render_pyrender",
         "sim.render_torch", "sim.scene", "sim.textures.bank", "sim.textures.procedural",
     }

@@ -76,5 +76,5 @@ def test_the_wheel_ships_the_fused_kernels_sources(tmp_path):
     (wheel,) = (tmp_path / "wheel").glob("*.whl")
     shipped = set(zipfile.ZipFile(wheel).namelist())
     expected = {source.relative_to(root).as_posix() for source in native.SOURCES}
-    assert expected == {"aectorch/ops/pursuit_cpu.cpp", "aectorch/ops/render_cpu.cpp"}
+    assert expected == {"aectorch/ops/coder_cpu.cpp", "aectorch/ops/render_cpu.cpp"}
     assert expected <= shipped, sorted(expected - shipped)

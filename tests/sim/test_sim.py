@@ -889,7 +889,7 @@ def test_pyramid_blur_kernel_gives_the_torch_codes_bits_on_any_number_of_threads
     from scipy.ndimage import correlate1d
 
     from aectorch.ops import native
-    from aectorch.coding.pursuit import use_backend
+    from aectorch.coding.batch_omp import use_backend
     from aectorch.sim.env import pyramid_blur
 
     assert native.available(), "the fused CPU kernels did not build (see the warning)"

@@ -1,17 +1,17 @@
 // Fused CPU kernels of aectorch's greedy pursuits (matching pursuit and Batch-OMP).
 //
-// The torch implementation in aectorch/coding/pursuit.py runs each pursuit step as ~20-45 tensor ops over a
+// The torch implementation in aectorch/coding/batch_omp.py runs each coding step as ~20-45 tensor ops over a
 // [block, N] tile of correlations; on CPU every op pays dispatch overhead and one more pass
-// over the tile. Here one signal's whole pursuit runs in one loop nest while its N correlations
+// over the tile. Here one signal's whole coding runs in one loop nest while its N correlations
 // sit in L1: select (max |alpha|, first index on ties, exactly torch.argmax's rule), record,
 // and update through one (MP) or i (OMP) rows of the Gram matrix, which stays in L2.
 // The correlations X D are a BLAS product per tile of rows (oneDNN for float32, else at::mm), threads
 // split the rows.
 //
-// The algorithm is the one documented in coding/pursuit.py (same stops as scikit-learn's
+// The algorithm is the one documented in coding/batch_omp.py (same stops as scikit-learn's
 // orthogonal_mp_gram); only the order of floating-point sums differs.
 //
-// Registered as the operator aectorch::pursuit so that torch.compile traces it (a fake
+// Registered as the operator aectorch::sparse_code so that torch.compile traces it (a fake
 // implementation for shapes lives in aectorch/ops/native.py).
 
 #include <ATen/ATen.h>
@@ -161,7 +161,7 @@ inline int64_t argmax_abs(const T* a, int64_t n, T* value) {
   return at;
 }
 
-// One pass of a pursuit step, then the next step's selection in the same pass:
+// One pass of a coding step, then the next step's selection in the same pass:
 // alpha[j] = ((alpha[j] - s[0] rows[0][j]) - s[1] rows[1][j]) - ... (the rows in order: the same
 // roundings as `count` separate passes alpha -= s[c] rows[c]), alpha[zero_at] = 0 (none when
 // zero_at < 0), then the index and value of the largest |alpha[j]| with argmax_abs's rule (the
@@ -368,15 +368,15 @@ inline void gram_block(at::Tensor& out, const at::Tensor& d, const at::Tensor& d
   }
 }
 
-// The checks and the contiguous operands of pursuit and encode. Without a gram, `g` is memory for
-// the caller to fill (`gram_block`) before the pursuits read it.
-struct PursuitInputs {
+// The checks and the contiguous operands of sparse_code and encode. Without a gram, `g` is memory for
+// the caller to fill (`gram_block`) before the coders read it.
+struct CoderInputs {
   at::Tensor x, d, g, dt;  // dt: memory for the atoms transposed, [N, P] (pursue fills it)
   int64_t m, n;
   bool gram_given;
 };
 
-PursuitInputs pursuit_inputs(const char* op, const at::Tensor& signals, const at::Tensor& dictionary,
+CoderInputs coder_inputs(const char* op, const at::Tensor& signals, const at::Tensor& dictionary,
                              const std::optional<at::Tensor>& gram, int64_t k) {
   TORCH_CHECK(signals.dim() == 2 && dictionary.dim() == 2 && (!gram.has_value() || gram->dim() == 2),
               op, " expects signals [M, P], dictionary [P, N] and gram [N, N]");
@@ -385,7 +385,7 @@ PursuitInputs pursuit_inputs(const char* op, const at::Tensor& signals, const at
               op, ": signals, dictionary and gram must share one dtype");
   // Detached: the codes are not differentiable (the torch code's support is a constant too), and a
   // worker thread must not see an input that requires grad in an out= product.
-  PursuitInputs in{signals.detach().contiguous(), dictionary.detach().contiguous(), at::Tensor(), at::Tensor(),
+  CoderInputs in{signals.detach().contiguous(), dictionary.detach().contiguous(), at::Tensor(), at::Tensor(),
                    0, 0, gram.has_value()};
   in.m = in.x.size(0);
   in.n = in.d.size(1);
@@ -397,15 +397,15 @@ PursuitInputs pursuit_inputs(const char* op, const at::Tensor& signals, const at
   return in;
 }
 
-// The pursuits of M signals in tiles of rows, inside one OpenMP region: `before` (run by every
+// The sparse codes of M signals in tiles of rows, inside one OpenMP region: `before` (run by every
 // thread; it may hold worksharing loops of its own), then the tiles (each thread takes whole
-// tiles: its own correlations X D, a BLAS product, and each row's pursuit, after which `row_done(row)`
+// tiles: its own correlations X D, a BLAS product, and each row's coding, after which `row_done(row)`
 // runs while the row is in cache), then `after` (likewise). An even number of equal tiles, each at
 // most `block` rows (at least two from 256 rows): two threads get the same work (1568 rows are 4
 // tiles of 392, not 3 of 512 and one of 32). The tiling does not depend on the number of threads,
 // so neither do the codes, whatever the BLAS.
 template <typename T, typename Before, typename RowDone, typename After>
-void pursue(const PursuitInputs& in, int64_t k, bool orthogonal, int64_t block, int64_t* idx, T* coef,
+void pursue(const CoderInputs& in, int64_t k, bool orthogonal, int64_t block, int64_t* idx, T* coef,
             Before&& before, RowDone&& row_done, After&& after) {
   const int64_t m = in.m, n = in.n;
   block = std::max<int64_t>(1, std::min<int64_t>(block, m));
@@ -470,14 +470,14 @@ void pursue(const PursuitInputs& in, int64_t k, bool orthogonal, int64_t block, 
   }
 }
 
-std::tuple<at::Tensor, at::Tensor> pursuit(
+std::tuple<at::Tensor, at::Tensor> sparse_code(
     const at::Tensor& signals, const at::Tensor& dictionary, const at::Tensor& gram, int64_t k,
     bool orthogonal, int64_t block) {
-  const auto in = pursuit_inputs("aectorch::pursuit", signals, dictionary, std::optional<at::Tensor>(gram), k);
+  const auto in = coder_inputs("aectorch::sparse_code", signals, dictionary, std::optional<at::Tensor>(gram), k);
   auto indices = at::zeros({in.m, k}, in.x.options().dtype(at::kLong));
   auto coefficients = at::zeros({in.m, k}, in.x.options());
   if (in.m == 0) return {indices, coefficients};
-  AT_DISPATCH_FLOATING_TYPES(in.x.scalar_type(), "aectorch_pursuit", [&] {
+  AT_DISPATCH_FLOATING_TYPES(in.x.scalar_type(), "aectorch_sparse_code", [&] {
     auto nothing = [] {};
     pursue<scalar_t>(in, k, orthogonal, block, indices.data_ptr<int64_t>(), coefficients.data_ptr<scalar_t>(),
                      nothing, [](int64_t) {}, nothing);
@@ -792,8 +792,8 @@ at::Tensor pooled_power(const at::Tensor& indices, const at::Tensor& coefficient
   return out;
 }
 
-// Encode in one pass: the Gram matrix (unless given; aectorch::gram's blocks), aectorch::pursuit's
-// codes; for each signal, as soon as its pursuit ends (the signal still in cache), reconstruct_error's
+// Encode in one pass: the Gram matrix (unless given; aectorch::gram's blocks), aectorch::sparse_code's
+// codes; for each signal, as soon as its coding ends (the signal still in cache), reconstruct_error's
 // reconstruction and error; after every signal, pooled_power's eq. (3) features of the `groups`
 // consecutive groups of M / groups signals. One OpenMP region instead of four, with the atoms
 // transposed (the reconstructions' rows) inside it rather than by a strided torch copy. The same
@@ -801,7 +801,7 @@ at::Tensor pooled_power(const at::Tensor& indices, const at::Tensor& coefficient
 std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> encode(
     const at::Tensor& signals, const at::Tensor& dictionary, const std::optional<at::Tensor>& gram, int64_t k,
     bool orthogonal, int64_t block, int64_t groups) {
-  auto in = pursuit_inputs("aectorch::encode", signals, dictionary, gram, k);
+  auto in = coder_inputs("aectorch::encode", signals, dictionary, gram, k);
   const int64_t m = in.m, n = in.n, p = in.x.size(1);
   TORCH_CHECK(groups >= 1 && m % groups == 0, "aectorch::encode: groups must be >= 1 and divide the ", m,
               " signals, got ", groups);
@@ -827,7 +827,7 @@ std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor, at::Tensor> encode(
           _Pragma("omp for schedule(static)")  // (its implicit barrier: the Gram matrix is ready)
           for (int64_t b = 0; b < blocks; ++b) gram_block(in.g, in.d, in.dt, b, blocks);
         },
-        [&](int64_t row) {  // (the pursuit's indices always lie in [0, N))
+        [&](int64_t row) {  // (the code's indices always lie in [0, N))
           reconstruct_row(xs + row * p, ts, n, p, idx + row * k, coef + row * k, k, rs + row * p, es + row);
         },
         [&] {
@@ -1050,7 +1050,7 @@ void set_kernel_threads(int64_t threads) {
 int64_t kernel_threads() { return aectorch_kernel_threads(); }
 
 TORCH_LIBRARY(aectorch, m) {
-  m.def("pursuit(Tensor signals, Tensor dictionary, Tensor gram, int k, bool orthogonal, int block)"
+  m.def("sparse_code(Tensor signals, Tensor dictionary, Tensor gram, int k, bool orthogonal, int block)"
         " -> (Tensor, Tensor)");
   m.def("encode(Tensor signals, Tensor dictionary, Tensor? gram, int k, bool orthogonal, int block, int groups)"
         " -> (Tensor, Tensor, Tensor, Tensor, Tensor)");
@@ -1068,7 +1068,7 @@ TORCH_LIBRARY(aectorch, m) {
 }
 
 TORCH_LIBRARY_IMPL(aectorch, CPU, m) {
-  m.impl("pursuit", &pursuit);
+  m.impl("sparse_code", &sparse_code);
   m.impl("encode", &encode);
   m.impl("reconstruct_error", &reconstruct_error);
   m.impl("sparse_gradient", &sparse_gradient);

@@ -28,11 +28,11 @@ Implementation notes (why the code looks the way it does):
   page-faulted tensors cost as much as the arithmetic (docs/performance.md).
   Under ``torch.compile`` and on CUDA the whole batch is one block.
 * On CPU (float32/float64) the default ``backend="auto"`` runs instead the fused C++ kernel
-  ``torch.ops.aectorch.pursuit`` (``pursuit_cpu.cpp``, built on first use by
+  ``torch.ops.aectorch.sparse_code`` (``coder_cpu.cpp``, built on first use by
   `aectorch.ops.native`): the same algorithm, one loop per signal over its correlations
   in L1, 2.5-4x faster than the torch code here (docs/performance.md). ``backend="torch"``
   forces the code above, which is also the CUDA path and the fallback when no compiler is
-  available. The two agree within float rounding (tests/coding/test_pursuit.py).
+  available. The two agree within float rounding (tests/coding/test_batch_omp.py).
 """
 
 from __future__ import annotations
@@ -242,7 +242,7 @@ def _omp_block(
     y = x.new_zeros(k, m)  # coordinates along the orthonormalised chosen atoms
     support = torch.zeros(m, k, dtype=torch.long, device=x.device)
     offsets = torch.zeros(k, m, dtype=torch.long, device=x.device)  # I_j * N
-    live = x.new_ones(m)  # 1 until the pursuit of that signal stops
+    live = x.new_ones(m)  # 1 until the coding of that signal stops
     # Views made once: slicing costs a dispatch per step too.
     triangles = [linv[:i, :i] for i in range(k)]
     rows = [linv[i, : i + 1] for i in range(k)]
@@ -295,8 +295,8 @@ def _run(
     m = x.shape[0]
     if backend != "torch" and native_supports(x):
         block = max(m, 1) if block_size is None else block_size
-        # The operator itself (not native.pursuit, which loads it): torch.compile traces this.
-        code = SparseCode(*torch.ops.aectorch.pursuit(x, dictionary, gram, sparsity, block_fn is _omp_block, block))
+        # The operator itself (not native.sparse_code, which loads it): torch.compile traces this.
+        code = SparseCode(*torch.ops.aectorch.sparse_code(x, dictionary, gram, sparsity, block_fn is _omp_block, block))
     elif m == 0 or x.is_cuda or torch.compiler.is_compiling():
         code = block_fn(x, dictionary, gram, sparsity)
     else:

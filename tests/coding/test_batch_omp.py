@@ -19,7 +19,7 @@ from sklearn.datasets import load_sample_image
 from sklearn.linear_model import orthogonal_mp_gram
 
 from aectorch.coding import SparseCode, gram_matrix, matching_pursuit, omp, use_backend
-from aectorch.coding import pursuit as pursuit_module
+from aectorch.coding import batch_omp as batch_omp_module
 from aectorch.coding import sparse_code as sparse_code_module
 from aectorch.coding.patches import COARSE, FINE, extract_patches
 
@@ -212,7 +212,7 @@ def _check_float32_disagreements(d32, x32, code, ref, k, min_fraction):
             x = x - sub @ np.linalg.lstsq(sub, x, rcond=None)[0]
         c = np.abs(d64.T @ x)
         assert s < len(ours) and s < len(theirs), (
-            f"signal {m}: one pursuit stopped at step {s} and the other did not "
+            f"signal {m}: one coder stopped at step {s} and the other did not "
             f"(ours {ours}, sklearn {theirs}, float64 max|c|^2 = {c.max() ** 2:.3g})"
         )
         a, b = c[ours[s]], c[theirs[s]]
@@ -306,7 +306,7 @@ def test_omp_first_step_exact_ties_match_sklearn(dtype):
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("fn", ALGORITHMS)
 def test_exact_ties_and_ulp_near_ties_select_like_argmax(fn, dtype):
-    # On the tie dictionary both pursuits reduce to: take the largest |x| left, the smallest
+    # On the tie dictionary both coders reduce to: take the largest |x| left, the smallest
     # index on ties; every update is exact, so the whole sequence is exactly known.
     d, x = _tie_dictionary(dtype), _tie_signals(300, seed=5, dtype=dtype)
     code = _run(fn, d, x, K)
@@ -340,7 +340,7 @@ def test_gram_argument_gives_same_result(random_problem, fn):
     plain = fn(x, d, K)
     given_gram = fn(x, d, K, gram=d.t() @ d)
     assert torch.equal(plain.indices, given_gram.indices)
-    # The fused kernels' float32 products run in oneDNN (pursuit_cpu.cpp): torch's product (MKL)
+    # The fused kernels' float32 products run in oneDNN (coder_cpu.cpp): torch's product (MKL)
     # up to rounding, which OMP's solves carry into the coefficients (a few ulps).
     torch.testing.assert_close(plain.coefficients, given_gram.coefficients, rtol=1e-6, atol=1e-6)
     torch.testing.assert_close(gram_matrix(d), d.t() @ d, rtol=1e-6, atol=1e-6)
@@ -498,7 +498,7 @@ def test_sparse_code_gradcheck():
     )
 
 
-def test_pursuit_outputs_are_constants_for_autograd(random_problem):
+def test_codes_are_constants_for_autograd(random_problem):
     d = torch.from_numpy(random_problem["dictionary"]).requires_grad_(True)
     x = torch.from_numpy(random_problem["gauss"][:20]).requires_grad_(True)
     for fn in ALGORITHMS:
@@ -656,7 +656,7 @@ def test_check_false_skips_value_checks(fn):
 
 
 def test_doctests():
-    for module in (pursuit_module, sparse_code_module):
+    for module in (batch_omp_module, sparse_code_module):
         result = doctest.testmod(module, optionflags=doctest.ELLIPSIS)
         assert result.attempted >= 3 and result.failed == 0, module.__name__
 
