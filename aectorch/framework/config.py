@@ -100,6 +100,14 @@ class CueConfig:
             coarse scales' errors barely change within a pixel of the optimum, but leaving them
             out of both cues' rewards (``[fine, full]``) made vergence worse (3 seeds, choosing
             photographs: 0.152 against 0.100 deg; CHANGELOG.md).
+        learn_until: ``None`` (default: the cue learns for the whole run), or the training
+            iteration (>= 0, counted from the run's start) from which the cue learns nothing
+            more: its dictionaries, its agent and the agent's feature statistics stay as they
+            are, while its eye movement goes on acting and the other cues go on learning. A
+            closing plasticity, as the lineage's models decay their actors' rates to 0, but for
+            the whole cue: a policy that stops learning alone does not keep its precision when
+            the code and the statistics under it go on changing
+            (experiments/long_training/README.md).
     """
 
     agent: AgentName = AgentName.ppo
@@ -117,6 +125,7 @@ class CueConfig:
     readout: Readout = Readout.mean
     proprioception: tuple[str, ...] = ()
     reward_scales: tuple[str, ...] = ()
+    learn_until: Optional[int] = None
 
     def __post_init__(self) -> None:
         # Messages name the field as "cue.<field>"; `aectorch.runtime.config.to_experiment_config`
@@ -146,6 +155,8 @@ class CueConfig:
                              f"(empty: all of them), got {list(self.reward_scales)!r}")
         check_real(self.feature_scale, f"{owner}.feature_scale", above=0)
         check_real(self.motor_cost, f"{owner}.motor_cost", minimum=0)
+        if self.learn_until is not None:
+            check_int(self.learn_until, f"{owner}.learn_until", 0)
         self._check_proprioception(owner)
         for name, cls in (("encoder", EncoderConfig), ("nac", ActorCriticConfig), ("ppo", PPOConfig)):
             if isinstance(getattr(self, name), dict):

@@ -155,7 +155,14 @@ class JointLearner(nn.Module):
                 for scale, d in cue.encoder.dictionaries.items()}
 
     # -- the schedule ----------------------------------------------------------------------------
-    def iteration(self, env, *, learn: bool = True, greedy: bool = False, watch: Watch | None = None) -> IterationRecord:
+    def closed_cues(self, iteration: int) -> tuple[str, ...]:
+        """The cues that learn nothing at training iteration ``iteration`` (0-based): those whose
+        ``learn_until`` (`CueConfig`) it has reached."""
+        return tuple(name for name, cue in self.cues.items()
+                     if cue.config.learn_until is not None and iteration >= cue.config.learn_until)
+
+    def iteration(self, env, *, learn: bool = True, greedy: bool = False, watch: Watch | None = None,
+                  closed: tuple[str, ...] = ()) -> IterationRecord:
         """Advance every environment of ``env`` by one iteration (each of its cues' steps).
 
         Args:
@@ -167,6 +174,8 @@ class JointLearner(nn.Module):
             watch: ``watch(cue, observation)`` after each cue's observation (which then holds the
                 whole window as well, ``observation["window"]``): what the viewer and the LeRobot
                 recorder keep.
+            closed: cues that learn nothing this iteration although ``learn`` is true (their
+                plasticity has closed: `closed_cues`); they act as they would.
         """
         missing = [name for name in self.cues if name not in env.CUES]
         if missing:
@@ -185,7 +194,8 @@ class JointLearner(nn.Module):
             if watch is not None:
                 watch(name, observation)
             sensed = env.proprioception(cue.config.proprioception) if cue.config.proprioception else None
-            records[name] = cue.step(observation, learn=learn, greedy=greedy, last=last, proprioception=sensed)
+            records[name] = cue.step(observation, learn=learn and name not in closed, greedy=greedy, last=last,
+                                     proprioception=sensed)
             with stage("env"):
                 env.act(name, records[name].increments_deg)
         with stage("env"):

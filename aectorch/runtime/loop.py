@@ -461,7 +461,8 @@ class TrainingRun:
                     for it in range(self.start, self.total):
                         for callback in self.callbacks:
                             callback.before_iteration(self, it)
-                        record = self.learner.iteration(self.env, watch=watch)  # type: ignore[arg-type]
+                        record = self.learner.iteration(self.env, watch=watch,  # type: ignore[arg-type]
+                                                        closed=self.learner.closed_cues(it))
                         record = self.shard.gather_record(record)  # every process sees the whole batch's record
                         self.metrics.update(record)
                         self.iteration_done = done = it + 1

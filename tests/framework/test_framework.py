@@ -137,6 +137,28 @@ def test_learning_moves_dictionaries_and_policies():
         assert not torch.equal(before[key], after[key]), key
 
 
+def test_a_cue_whose_plasticity_has_closed_learns_nothing_while_the_others_learn():
+    env, learner = make(cue={"learn_until": 2})
+    assert learner.closed_cues(1) == () and learner.closed_cues(2) == ("parallax", "stereo")
+    learner.config.cues["stereo"].learn_until = None  # only the parallax cue closes
+    learner.cues["stereo"].config.learn_until = None
+    assert learner.closed_cues(5) == ("parallax",)
+    learner.iteration(env, closed=learner.closed_cues(0))
+    before = copy.deepcopy(learner.state_dict())
+    for it in range(2, 5):
+        record = learner.iteration(env, closed=learner.closed_cues(it))
+        assert record.cues["parallax"].td_error is None
+    after = learner.state_dict()
+    for key, value in before.items():
+        if isinstance(value, torch.Tensor) and key.startswith("cues.parallax."):
+            assert torch.equal(value, after[key]), key  # the dictionaries, the agent, its statistics
+    assert not torch.equal(before["cues.stereo.encoder.dictionaries.fine.atoms"],
+                           after["cues.stereo.encoder.dictionaries.fine.atoms"])
+    assert not torch.equal(before["cues.stereo.agent.actor_weight"], after["cues.stereo.agent.actor_weight"])
+    with pytest.raises(ValueError, match="cue.learn_until must be"):
+        CueConfig(learn_until=-1)
+
+
 def test_state_dict_round_trip_continues_identically():
     env, learner = make()
     for _ in range(3):
