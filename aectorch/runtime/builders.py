@@ -71,6 +71,7 @@ def build_env(cfg: ExperimentConfig, shard: Shard | None = None) -> ActiveDepthE
         pursuit_start_deg=_start(e.pursuit_start_deg, e.pursuit_start_spread_deg),
         vergence_start_deg=_start(e.vergence_start_deg, e.vergence_start_spread_deg),
         pursuit_start_error_deg=e.pursuit_start_error_deg,
+        layout=e.scene,
         seed=cfg.seed,
         device=e.device,
         dtype=e.torch_dtype,

@@ -26,6 +26,7 @@ from aectorch.sim import (
     DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL, PROCEDURAL_TEXTURES, START_PURSUIT_DEG, START_VERGENCE_DEG, TrialProtocol,
     check_oculomotor_range,
 )
+from aectorch.sim.scene import SceneLayout
 
 __all__ = [
     "EnvConfig",
@@ -125,6 +126,10 @@ class EnvConfig:
             frame against its current one (docs/simulation.md). ``false`` (default): the paper's.
         velocity_memory: with ``pursuit_velocity``, each pursuit step also adds to the pursuit
             velocity (integral action: a lag pursuit keeps catching up on raises the velocity).
+        scene: the world's depth structure, drawn per trial (`aectorch.sim.scene.SceneLayout`, its
+            own table below): a narrower object, moved sideways and slanted, before a background at
+            its own distance and texture. The default is the plain world. Training only: the
+            evaluation's trials are the plain world's.
         device: torch device of the environment and the learner (``"cpu"``, ``"cuda"``, ...).
         dtype: ``"float32"`` or ``"float64"``, of the environment and the learner.
     """
@@ -153,6 +158,7 @@ class EnvConfig:
     vergence_range_deg: list[float] = field(default_factory=lambda: list(DEFAULT_PROTOCOL.vergence_range_deg))
     pursuit_velocity: bool = DEFAULT_PROTOCOL.pursuit_velocity
     velocity_memory: bool = DEFAULT_PROTOCOL.velocity_memory
+    scene: SceneLayout = field(default_factory=SceneLayout)
     device: str = "cpu"
     dtype: DType = DType.float32
 

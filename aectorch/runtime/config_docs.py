@@ -32,6 +32,7 @@ from aectorch.runtime.config import (
 )
 from aectorch.runtime.perturbations import PerturbationEventConfig
 from aectorch.runtime.watchdog import WatchdogConfig
+from aectorch.sim.scene import SceneLayout
 
 __all__ = ["COMMAND", "TABLES", "Table", "attributes", "config_classes", "render", "stale_tables", "undocumented",
            "update"]
@@ -80,7 +81,8 @@ class Table:
 
 #: The tables of docs/training.md, in the page's order.
 TABLES: tuple[Table, ...] = (
-    Table("env", EnvConfig, _defaults(EnvConfig)),
+    Table("env", EnvConfig, _defaults(EnvConfig), exclude=("scene",)),
+    Table("env.scene", SceneLayout, _defaults(SceneLayout)),
     Table("learner", LearnerConfig, _defaults(LearnerConfig), exclude=("cues",)),
     Table("cue", CueConfig, _per_cue(), exclude=("encoder", "nac", "ppo")),
     Table("encoder", EncoderConfig, _per_cue("encoder")),

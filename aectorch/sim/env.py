@@ -59,7 +59,7 @@ from aectorch.sim.motion import check_object_motion, object_place
 from aectorch.sim.oculomotor import check_oculomotor_range, clamp_eyes
 from aectorch.sim.perturbations import (NEUTRAL, Optics, blur_margin, defocus, defocus_each, orientation_filter,
                                         scale_contrast)
-from aectorch.sim.scene import PlaneScene
+from aectorch.sim.scene import Placement, PlaneScene, SceneLayout, axis_point
 from aectorch.sim.protocol import START_PURSUIT_DEG, START_VERGENCE_DEG, TrialProtocol, resolve_protocol
 from aectorch.sim.textures import TextureBank, pink_noise_images
 
@@ -217,7 +217,7 @@ def _native_blur(images: Tensor) -> bool:
 _OBJECT_STATE = {"object_speed": "object_speed", "object_pinned_speed": "_pinned_speed",
                  "object_trial_depth_speed": "_trial_depth_speed", "object_start_target_m": "_start_target_m",
                  "focus_dioptres": "focus_dioptres", "pursuit_velocity_deg": "velocity_deg",
-                 "previous_pans_deg": "_previous_pans"}
+                 "previous_pans_deg": "_previous_pans", "scene_layout": "_layout_draws"}
 
 
 def _window(camera: PinholeCamera, window: str | PixelWindow) -> PixelWindow:
@@ -315,6 +315,16 @@ class ActiveDepthEnv:
         seed: seed of the environment's own generator (textures, distances, start states).
         device, dtype: where and in which float type poses and images live.
         renderer_options: passed on to the pyrender renderer, e.g. ``{"platform": "egl"}``.
+        layout: the world's depth structure (`aectorch.sim.scene.SceneLayout`, drawn per trial:
+            a narrower object moved sideways and slanted, before a background at its own distance
+            and texture); ``None``: the plain world. Its object's pivot stands straight ahead of
+            the left eye's start position, where a fixation from the standard start (pan 0)
+            fixates. **The optimum stays on the object**: the fixation target is where the left
+            eye's axis at its start pan meets the object's plane (slanted, extended past its
+            edges), and the optimal vergence puts the right eye's axis through the point where the
+            left axis meets that plane now, even where the left axis has slipped past the edge
+            onto the background. The trial's distance (the depth's ground truth) is the pivot's.
+            Not with a moving object.
         batch_slice: ``(start, total)``: these B environments are rows ``start .. start + B - 1``
             of a batch of ``total`` split across processes (`aectorch.runtime.distributed`). Every random
             draw is made for the whole batch and this slice kept, so the split batch behaves as
@@ -363,6 +373,7 @@ class ActiveDepthEnv:
         dtype: torch.dtype = torch.float32,
         renderer_options: dict | None = None,
         batch_slice: tuple[int, int] | None = None,
+        layout: SceneLayout | None = None,
     ) -> None:
         check_int(num_envs, "num_envs")
         self.protocol = protocol = resolve_protocol(protocol)
@@ -394,11 +405,21 @@ class ActiveDepthEnv:
         if background is None:
             generator = torch.Generator().manual_seed(20171028)
             background = pink_noise_images(1, 256, 256, generator=generator)[0]
-        self.scene = PlaneScene(self.textures.textures, background)
+        self.layout = SceneLayout() if layout is None else layout
+        if not isinstance(self.layout, SceneLayout):
+            raise TypeError(f"layout must be None or an aectorch.sim.scene.SceneLayout, got {type(layout).__name__}")
+        self.scene = PlaneScene(self.textures.textures, background, **self._layout_scene())
+        self._layout_draws: Tensor | None = None  # [B, 4]: offset, slant, background depth, background texture
         self._world, self.optics, self._optics_tensors = self.scene, NEUTRAL, {}  # perturbations: set_optics
         self._check_background(distances)
         self.distances_m = torch.tensor(distances, dtype=dtype, device=self.device)
         self._init_motion(protocol, distances)
+        if self.layout.draws and (protocol.object_speed_deg != (0.0, 0.0) or protocol.object_depth_speed_m != (0.0, 0.0)):
+            raise ValueError("layout (scene.object_offset_m, slant_deg, background_depth_m, background_texture) cannot "
+                             "be drawn for a moving object (object_speed_deg, object_depth_speed_m): use one of them")
+        if self.layout.background_texture == "bank" and len(self.textures) < 2:
+            raise ValueError("scene.background_texture='bank' draws a texture other than the object's: it needs at "
+                             f"least 2 textures, got {len(self.textures)}")
         self.renderer_name, self._renderer_options = renderer, dict(renderer_options or {})
         self.renderer = make_renderer(
             renderer, self.scene, self.camera, device=self.device, dtype=dtype, **self._renderer_options
@@ -467,10 +488,50 @@ class ActiveDepthEnv:
         u = torch.rand(self._draws, generator=self._generator, dtype=torch.float64)[self._rows]
         return (lo + (hi - lo) * u).to(self.dtype).to(self.device)
 
+    def _layout_scene(self) -> dict:
+        """The `PlaneScene` arguments of the layout: none for the plain world; else the object cut
+        to its side, its pivot straight ahead of the left eye's start, the background's width."""
+        if self.layout.plain:
+            return {}
+        eye = self.head.eye_centres(torch.zeros(1, dtype=self.dtype, device=self.device))[0, 0]
+        return dict(object_extent_m=None if self.layout.object_width_m >= 3.0 else self.layout.object_width_m,
+                    object_center_yz_m=(float(eye[1]), float(eye[2])),
+                    background_width_m=self.layout.background_width_m)
+
+    def _draw_layout(self, index: Tensor) -> None:
+        """Each environment's placement (`SceneLayout`) for a trial of object textures ``index``."""
+        layout, b, rows = self.layout, self._draws, self._rows
+        offset, slant = self._uniform(tuple(layout.object_offset_m)), self._uniform(tuple(layout.slant_deg))
+        depth = self._uniform(tuple(layout.background_depth_m)) if layout.background_depth_m is not None \
+            else torch.full_like(offset, math.nan)
+        behind = torch.full_like(offset, -1.0)
+        if layout.background_texture == "bank":  # any texture but the object's
+            other = torch.randint(len(self.textures) - 1, (b,), generator=self._generator)[rows]
+            behind = (other + (other >= index).long()).to(offset)
+        self._layout_draws = torch.stack((offset, slant, depth, behind), dim=-1)
+
+    def _placement(self) -> dict:
+        """The renderers' ``plane_y_m`` and ``placement`` of this trial's layout (none: plain)."""
+        if self._layout_draws is None:
+            return {}
+        offset, slant, depth, behind = self._layout_draws.unbind(-1)
+        layout = self.layout
+        return dict(plane_y_m=offset, placement=Placement(
+            slant_rad=torch.deg2rad(slant) if layout.slant_deg != [0.0, 0.0] else None,
+            background_x_m=self.plane_x_m + depth if layout.background_depth_m is not None else None,
+            background_index=behind.long() if layout.background_texture == "bank" else None))
+
+    def _slant_rad(self) -> Tensor | None:
+        if self._layout_draws is None or self.layout.slant_deg == [0.0, 0.0]:
+            return None
+        return torch.deg2rad(self._layout_draws[:, 1])
+
     def _new_trial(self) -> None:
         b, rows = self._draws, self._rows
         index = torch.randint(len(self.textures), (b,), generator=self._generator)[rows]
         pick = torch.randint(self.distances_m.numel(), (b,), generator=self._generator)[rows]
+        if self.layout.draws:
+            self._draw_layout(index)
         self.set_trial(index.to(self.device), self.distances_m[pick.to(self.device)])
 
     def set_trial(self, texture_index: Tensor, distance_m: Tensor) -> None:
@@ -717,6 +778,9 @@ class ActiveDepthEnv:
         shift = self._eye_shift()
         if shift is not None:  # the left camera's own place (camera_shift)
             start = start + shift[0]
+        slant = self._slant_rad()
+        if slant is not None and slant.shape == plane_x_m.shape:  # the slanted object's plane (its pivot)
+            return axis_point(start, left_pan_deg, plane_x_m, slant, self.scene.object_center_yz_m[0])
         along = torch.tan(torch.deg2rad(left_pan_deg)) * (plane_x_m - start[:, 0])
         return torch.stack((plane_x_m, start[:, 1] + along, start[:, 2]), dim=-1)
 
@@ -775,7 +839,8 @@ class ActiveDepthEnv:
         """The world's textures filtered to ``bands`` (none: as built); the renderers are rebuilt."""
         world = self._world
         if bands:
-            world = PlaneScene(orientation_filter(world.textures, bands), orientation_filter(world.background, bands))
+            world = replace(world, textures=orientation_filter(world.textures, bands),
+                            background=orientation_filter(world.background, bands))
         self.close()
         self.scene = world
         self.renderer = make_renderer(self.renderer_name, world, self.camera, device=self.device, dtype=self.dtype,
@@ -836,6 +901,13 @@ class ActiveDepthEnv:
         of the eye's axis: :attr:`eye_pan_deg`)."""
         left = self.eye_pan_deg[:, 0] if left_pan_deg is None else left_pan_deg
         shift = self._eye_shift()
+        slant = self._slant_rad()
+        if slant is not None:  # where the left axis meets the slanted object's plane, never the background
+            eye = self.head.eye_centres(self.body_shift_m)[:, 0]
+            point = axis_point(eye if shift is None else eye + shift[0], left, self.plane_x_m, slant,
+                               self.scene.object_center_yz_m[0])
+            return self.head.pursuit_pan_deg(point if shift is None else point - shift[1], self.body_shift_m,
+                                             eye="right")
         if shift is None:
             return self.head.vergence_pan_deg(left, self.plane_x_m, self.body_shift_m)
         # Each camera where camera_shift put it: the left axis from its place, the right eye's pan
@@ -894,7 +966,7 @@ class ActiveDepthEnv:
         # The indices were checked by set_trial: no host sync per frame.
         if scales is None or window:
             out[WINDOW] = self.renderer(poses, plane_x, self.texture_index, self.window, check=False,
-                                        **_sideways(plane_y)).to(self.dtype)
+                                        **_sideways(plane_y), **self._placement()).to(self.dtype)
         if scales is None:
             return out
         # Each scale's crop with one more of its pixels on every side, for the blur.
@@ -902,7 +974,7 @@ class ActiveDepthEnv:
         windows = [(self.camera.central_window(s.crop + 2 * s.downsample), s.downsample // k)
                    for s, k in zip(scales, finer)]
         images = self._scale_renderer_built().render_windows(poses, plane_x, self.texture_index, windows,
-                                                             check=False, **_sideways(plane_y))
+                                                             check=False, **_sideways(plane_y), **self._placement())
         for s, image, k in zip(scales, images, finer):
             out[s.name] = pyramid_blur(_block_mean(image, k), s.levels).to(self.dtype)
         return out
@@ -945,7 +1017,7 @@ class ActiveDepthEnv:
                     raise ValueError(f"the blur of anisometropia ({optics.blur_arcmin[eye]:g} arcmin) needs {margin} "
                                      "px beyond the rendered window, which the image does not hold")
                 image = self.renderer.render_windows(pose, plane_x, self.texture_index, [(grown, 1)],
-                                                     check=False, camera=camera, **_sideways(plane_y))[0]
+                                                     check=False, camera=camera, **_sideways(plane_y), **self._placement())[0]
                 out[WINDOW] = _defocus(image, radius).to(self.dtype)
             if scales is not None:
                 finer = [_finer(s.downsample) for s in scales]
@@ -955,7 +1027,7 @@ class ActiveDepthEnv:
                             s.downsample // k) for s, k, m in zip(scales, finer, margins)]
                 images = self._scale_renderer_built().render_windows(pose, plane_x, self.texture_index,
                                                                      windows, check=False, camera=camera,
-                                                                     **_sideways(plane_y))
+                                                                     **_sideways(plane_y), **self._placement())
                 for s, image, k in zip(scales, images, finer):
                     image = _defocus(_block_mean(image, k), radius / s.downsample)
                     out[s.name] = pyramid_blur(image, s.levels).to(self.dtype)

@@ -31,7 +31,7 @@ from torch import Tensor
 
 from aectorch._checks import check_int
 from aectorch.sim.camera import PinholeCamera, PixelWindow
-from aectorch.sim.scene import PlaneScene
+from aectorch.sim.scene import Placement, PlaneScene
 
 __all__ = ["PyrenderRenderer", "import_pyrender"]
 
@@ -93,8 +93,9 @@ def import_pyrender(platform: str | None = None):
 
 
 def _quad(pyrender, texture: np.ndarray, size_m: tuple[float, float], filter: str = "linear",
-          lod_bias: float = 0.0):
-    """A flat-shaded quad in the plane x = 0 that faces -x, texture column 0 at +y, row 0 at +z."""
+          lod_bias: float = 0.0, cut: tuple[float, float] | None = None):
+    """A flat-shaded quad in the plane x = 0 that faces -x, texture column 0 at +y, row 0 at +z
+    (``cut``: only its central part, half sides these fractions of the whole, `PlaneScene.object_cut`)."""
     width, height = size_m
     w2, h2 = width / 2.0, height / 2.0
     positions = np.array(
@@ -102,6 +103,10 @@ def _quad(pyrender, texture: np.ndarray, size_m: tuple[float, float], filter: st
     )
     # pyrender flips the rows on upload: t = 1 is the top row (row 0) of the image.
     uv = np.array([[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]], dtype=np.float32)
+    if cut is not None:
+        half = np.array([2.0 * cut[0], 2.0 * cut[1]], dtype=np.float32)
+        positions[:, 1:] *= half
+        uv = (0.5 + (uv - 0.5) * half).astype(np.float32)
     normals = np.tile(np.array([[-1.0, 0.0, 0.0]], dtype=np.float32), (4, 1))
     indices = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.uint32)
     from OpenGL.GL import GL_CLAMP_TO_EDGE, GL_LINEAR, GL_LINEAR_MIPMAP_LINEAR
@@ -251,9 +256,13 @@ class PyrenderRenderer:
         background = _to_uint8(scene.background)
         pose = np.eye(4)
         pose[:3, 3] = [scene.background_x_m, *scene.background_center_yz_m]
-        self._gl_scene.add(_quad(pyrender, background, scene.background_size_m, filter, self.lod_bias), pose=pose)
+        self._background_node = self._gl_scene.add(
+            _quad(pyrender, background, scene.background_size_m, filter, self.lod_bias), pose=pose)
         self._texture_nodes: dict[int, Any] = {}  # pyrender Nodes
         self._visible: int | None = None
+        self._backgrounds: dict[int, Any] = {}  # the bank's textures as backgrounds (Placement)
+        self._visible_background: int | None = None
+        self._placed = False  # whether the last call's placement moved the background
         self._camera_node = None
         self._gl_renderer = None
         self._flags = pyrender.RenderFlags.FLAT | pyrender.RenderFlags.SKIP_CULL_FACES
@@ -319,13 +328,30 @@ class PyrenderRenderer:
         node = self._texture_nodes.get(index)
         if node is None:
             texture = _to_uint8(self.scene.textures[index])
-            mesh = _quad(self._pyrender, texture, self.scene.object_size_m, self.filter, self.lod_bias)
+            mesh = _quad(self._pyrender, texture, self.scene.object_size_m, self.filter, self.lod_bias,
+                         self.scene.object_cut)
             node = self._gl_scene.add(mesh, pose=np.eye(4))
             self._texture_nodes[index] = node
         if self._visible is not None:
             self._texture_nodes[self._visible].mesh.is_visible = False
         node.mesh.is_visible = True
         self._visible = index
+
+    def _show_background(self, index: int | None, x_m: float) -> None:
+        """The background: the scene's own (``index`` None) or texture ``index`` of the bank, at ``x_m``."""
+        if index is not None and index not in self._backgrounds:
+            mesh = _quad(self._pyrender, _to_uint8(self.scene.textures[index]), self.scene.background_size_m,
+                         self.filter, self.lod_bias)
+            self._backgrounds[index] = self._gl_scene.add(mesh, pose=np.eye(4))
+            mesh.is_visible = False
+        if index != self._visible_background:
+            old = self._background_node if self._visible_background is None else self._backgrounds[self._visible_background]
+            new = self._background_node if index is None else self._backgrounds[index]
+            old.mesh.is_visible, new.mesh.is_visible = False, True
+            self._visible_background = index
+        pose = np.eye(4)
+        pose[:3, 3] = [x_m, *self.scene.background_center_yz_m]
+        self._gl_scene.set_pose(self._background_node if index is None else self._backgrounds[index], pose)
 
     def _set_camera(self, intrinsics: tuple[float, float, float, float]) -> None:
         fx, fy, cx, cy = intrinsics
@@ -356,6 +382,7 @@ class PyrenderRenderer:
         *,
         check: bool = True,
         plane_y_m: Tensor | None = None,
+        placement: Placement | None = None,
     ) -> Tensor:
         """Render ``[B, ..., h, w]`` images; the arguments are those of :func:`render_planes`.
 
@@ -363,16 +390,18 @@ class PyrenderRenderer:
         checked, since they go to the host anyway.
         """
         window = self.camera.check_window(window)
-        return self.render_windows(poses, plane_x_m, texture_index, [(window, 1)], plane_y_m=plane_y_m)[0]
+        return self.render_windows(poses, plane_x_m, texture_index, [(window, 1)], plane_y_m=plane_y_m,
+                                   placement=placement)[0]
 
     render = __call__
 
     def render_windows(self, poses: Tensor, plane_x_m: Tensor, texture_index: Tensor, windows, *,
                        check: bool = True, camera: PinholeCamera | None = None,
-                       plane_y_m: Tensor | None = None) -> list[Tensor]:
+                       plane_y_m: Tensor | None = None, placement: Placement | None = None) -> list[Tensor]:
         """Render several windows, each on its own pixel grid; see ``TorchPlaneRenderer.render_windows``
         (``camera``: this call's intrinsics, default the renderer's; ``plane_y_m``: the object
-        planes' sideways offsets ``[B]``, a moving object).
+        planes' sideways offsets ``[B]``, a moving object; ``placement``: each environment's slant and
+        background, `aectorch.sim.scene.Placement`).
 
         A window at ``downsample`` d is drawn by a camera whose pixels are ``d / samples`` of this
         one's (``samples x samples`` of them then averaged per pixel).
@@ -383,6 +412,15 @@ class PyrenderRenderer:
         flat_poses = poses.detach().reshape(batch, -1, 4, 4).to("cpu", torch.float64).numpy()
         planes = plane_x_m.detach().to("cpu", torch.float64).numpy()
         sideways = np.zeros(batch) if plane_y_m is None else plane_y_m.detach().to("cpu", torch.float64).numpy()
+        if placement is not None:
+            placement.check(batch, self.scene.num_textures)
+        place = Placement() if placement is None else placement
+        if placement is None and self._placed:  # the scene's own background, where it stands
+            self._show_background(None, self.scene.background_x_m)
+        self._placed = placement is not None
+        host = lambda t, kind=torch.float64: None if t is None else t.detach().to("cpu", kind).tolist()  # noqa: E731
+        slants, behind_x, behind = host(place.slant_rad), host(place.background_x_m), host(place.background_index,
+                                                                                          torch.int64)
         f = camera.focal_px
         pcx, pcy = camera.principal_point
         results = []
@@ -401,7 +439,14 @@ class PyrenderRenderer:
                 node = self._texture_nodes[index[b]]
                 pose = np.eye(4)
                 pose[:3, 3] = [planes[b], y + sideways[b], z]
+                if slants is not None:  # turned about the vertical through the pivot, the centre along it
+                    c, s = np.cos(slants[b]), np.sin(slants[b])
+                    pose[:2, :2] = [[c, -s], [s, c]]
+                    pose[:3, 3] = [planes[b] - s * sideways[b], y + c * sideways[b], z]
                 self._gl_scene.set_pose(node, pose)
+                if placement is not None:
+                    self._show_background(None if behind is None else behind[b],
+                                          self.scene.background_x_m if behind_x is None else behind_x[b])
                 for c in range(flat_poses.shape[1]):
                     self._gl_scene.set_pose(self._camera_node, flat_poses[b, c])
                     out[b, c] = self._draw(renderer, height, width)[:, :, 0]

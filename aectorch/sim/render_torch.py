@@ -27,7 +27,7 @@ from torch import Tensor, nn
 
 from aectorch._checks import check_int
 from aectorch.sim.camera import PinholeCamera, PixelWindow
-from aectorch.sim.scene import PlaneScene
+from aectorch.sim.scene import Placement, PlaneScene
 from aectorch.sim.textures.storage import empty_textures
 
 __all__ = ["FILTERS", "MipmapAtlas", "TorchPlaneRenderer", "mipmap_atlas", "mipmap_levels", "pixel_rays",
@@ -198,6 +198,72 @@ def _plane_coords(o, ry, rz, plane_x, center_yz, size_m):
     return u, v, hit, reach
 
 
+def _checked_placement(placement, batch: int, scene: PlaneScene, check: bool) -> Placement | None:
+    """``placement`` checked (indices only with ``check``), ``None`` where it places nothing."""
+    if placement is None:
+        return None
+    if not isinstance(placement, Placement):
+        raise TypeError(f"placement must be None or an aectorch.sim.scene.Placement, got {type(placement).__name__}")
+    if check:
+        placement.check(batch, scene.num_textures)
+    return None if all(part is None for part in placement) else placement
+
+
+def _object_coords(o, ry, rz, plane_x, plane_y_m, placement, scene):
+    """The object plane's ``(u, v, hit, reach_u, reach_v, cross)`` (see :func:`_slanted_coords`;
+    ``cross`` None on a fronto-parallel plane), its visible square cut out."""
+    slant = None if placement is None else placement.slant_rad
+    if slant is None:
+        centre = scene.object_center_yz_m
+        if plane_y_m is not None:  # a moving object: its centre moved sideways
+            centre = (plane_y_m.to(plane_x.dtype)[:, None, None] + centre[0], centre[1])
+        u, v, hit, reach = _plane_coords(o, ry, rz, plane_x, centre, scene.object_size_m)
+        reach_v, cross = reach, None
+    else:
+        u, v, hit, reach, reach_v, cross = _slanted_coords(
+            o, ry, rz, plane_x, slant.to(plane_x.dtype)[:, None, None], scene.object_center_yz_m, plane_y_m,
+            scene.object_size_m)
+    if scene.object_cut is not None:  # the visible square around the object's centre
+        cut_u, cut_v = scene.object_cut
+        hit = hit & ((u - 0.5).abs() <= cut_u) & ((v - 0.5).abs() <= cut_v)
+    return u, v, hit, reach, reach_v, cross
+
+
+def _background_of(placement, plane_x, layers: int, texture_index, scene):
+    """The background planes' x ``[B, 1, 1]`` and atlas layer (the last one, or ``[B, 1, 1]`` drawn ones)."""
+    background_x, behind = torch.full_like(plane_x, scene.background_x_m), layers - 1
+    if placement is not None and placement.background_x_m is not None:
+        background_x = placement.background_x_m.to(plane_x.dtype)[:, None, None]
+    if placement is not None and placement.background_index is not None:
+        behind = placement.background_index.to(texture_index.device).reshape(-1, 1, 1)
+    return background_x, behind
+
+
+def _slanted_coords(o, ry, rz, plane_x, slant, pivot_yz, offset, size_m):
+    """:func:`_plane_coords` of the object plane turned by ``slant`` about the vertical through
+    ``(plane_x, pivot_yz[0])``, its centre moved along it by ``offset`` (``[B]`` or ``None``).
+
+    Returns ``(u, v, hit, reach_u, reach_v, cross)``, the derivatives the level of detail reads,
+    in the plain plane's form (where both reaches are ``plane_x - ox`` and ``cross`` is 0):
+    ``-du/dry = reach_u / width``, ``-dv/drz = reach_v / height`` and ``-dv/dry = cross``.
+    """
+    width, height = size_m
+    c, s = torch.cos(slant), torch.sin(slant)
+    normal = c * (plane_x - o[..., 0]) + s * (pivot_yz[0] - o[..., 1])  # n . (pivot - eye)
+    den = c + s * ry
+    t = normal / torch.where(den.abs() > 1e-12, den, torch.full_like(den, 1e-12))  # hit = o + t (1, ry, rz)
+    # The hit's coordinate along the plane's horizontal axis e = (-sin, cos, 0) from the pivot.
+    along = -s * (o[..., 0] + t - plane_x) + c * (o[..., 1] + t * ry - pivot_yz[0])
+    if offset is not None:
+        along = along - offset.to(along.dtype)[:, None, None]
+    u = 0.5 - along / width
+    v = 0.5 - (o[..., 2] + t * rz - pivot_yz[1]) / height
+    hit = (t > 0) & (den > 0) & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
+    reach_u = normal / den.square()
+    cross = -reach_u * s * rz / height
+    return u, v, hit, reach_u, t, cross
+
+
 def _sample_atlas(atlas: Tensor, layer: Tensor, u: Tensor, v: Tensor, dtype) -> Tensor:
     """Bilinear lookups at texel coordinates ``(u, v)`` of atlas ``layer`` ``[N, H, W]``, one ``grid_sample``.
 
@@ -272,6 +338,7 @@ def render_planes(
     lod_bias: float = 0.0,
     samples: int = 1,
     plane_y_m: Tensor | None = None,
+    placement: Placement | None = None,
 ) -> Tensor:
     """Render grey images of the plane scene for a batch of cameras.
 
@@ -317,6 +384,9 @@ def render_planes(
             OpenGL's.
         plane_y_m: each environment's object plane moved sideways by this much from
             ``scene.object_center_yz_m`` (world y, metres, ``[B]``; a moving object); ``None``: not moved.
+            With a slanted object (``placement``) the centre moves along the turned plane.
+        placement: each environment's slant and background (:class:`~aectorch.sim.scene.Placement`,
+            a `SceneLayout`'s draws); ``None``: the scene's fronto-parallel object and background.
 
     Returns:
         Intensities in [0, 1]; the object plane occludes the background; pixels whose ray hits
@@ -329,7 +399,7 @@ def render_planes(
     rays = pixel_rays(camera, [(window, downsample)], dtype=poses.dtype, device=poses.device)
     image = render_rays(poses, plane_x_m, texture_index, scene, rays, textures=textures, background=background,
                         atlas=atlas, check=check, filter=filter, lod_bias=lod_bias, samples=samples,
-                        plane_y_m=plane_y_m)
+                        plane_y_m=plane_y_m, placement=placement)
     return image.reshape(image.shape[:-1] + (window.height // downsample, window.width // downsample))
 
 
@@ -350,6 +420,7 @@ def render_rays(
     lod_bias: float = 0.0,
     samples: int = 1,
     plane_y_m: Tensor | None = None,
+    placement: Placement | None = None,
 ) -> Tensor:
     """:func:`render_planes` for the flattened pixels of :func:`pixel_rays`: ``[B, ..., P]``.
 
@@ -360,6 +431,7 @@ def render_rays(
     if filter not in FILTERS:
         raise ValueError(f"filter must be one of {FILTERS}, got {filter!r}")
     check_int(samples, "samples")
+    placement = _checked_placement(placement, batch, scene, check)
     dtype, device = poses.dtype, poses.device
     trilinear = filter == "trilinear"
     if atlas is None:
@@ -373,7 +445,8 @@ def render_rays(
                         f"{'MipmapAtlas (mipmap_atlas)' if trilinear else 'tensor (texture_atlas)'}, "
                         f"got {type(atlas).__name__}")
     mip = atlas if trilinear else None
-    if trilinear and _native_trilinear(poses, mip, textures, background, scene):
+    if trilinear and placement is None and scene.object_extent_m is None \
+            and _native_trilinear(poses, mip, textures, background, scene):
         from aectorch.ops import native  # noqa: F401 - registers the operator
 
         (object_w, object_h), (background_w, background_h) = scene.object_size_m, scene.background_size_m
@@ -400,20 +473,19 @@ def render_rays(
     ry, rz = d[1] * inv, d[2] * inv  # [B, C, P]
 
     plane_x = plane_x_m.to(dtype)[:, None, None]
-    centre = scene.object_center_yz_m
-    if plane_y_m is not None:  # a moving object: its centre moved sideways
-        centre = (plane_y_m.to(dtype)[:, None, None] + centre[0], centre[1])
-    u, v, on_object, reach = _plane_coords(o, ry, rz, plane_x, centre, scene.object_size_m)
+    # cross: a slanted object's dv/dry, for the level of detail (None: fronto-parallel)
+    u, v, on_object, reach, reach_v, cross = _object_coords(o, ry, rz, plane_x, plane_y_m, placement, scene)
+    background_x, behind = _background_of(placement, plane_x, layers, texture_index, scene)
     ub, vb, on_background, reach_b = _plane_coords(
-        o, ry, rz, torch.full_like(plane_x, scene.background_x_m),
-        scene.background_center_yz_m, scene.background_size_m,
+        o, ry, rz, background_x, scene.background_center_yz_m, scene.background_size_m,
     )
     on_object = on_object & ahead
     seen = on_object | (on_background & ahead)
     u = torch.where(on_object, u, ub)
     v = torch.where(on_object, v, vb)
-    # The atlas layer of each sample: object texture or background (the last layer).
-    layer = torch.where(on_object, texture_index.reshape(-1, 1, 1), layers - 1)
+    # The atlas layer of each sample: object texture or background (the last layer, or a texture
+    # of the bank drawn per trial).
+    layer = torch.where(on_object, texture_index.reshape(-1, 1, 1), behind)
     if not trilinear:
         # Continuous texel coordinates clamped to the edge texels' centres (GL_CLAMP_TO_EDGE).
         u = (u * tex_w).clamp_(0.5, tex_w - 0.5)
@@ -423,7 +495,7 @@ def render_rays(
         # Texels per unit of ry (u) and of rz (v) on the plane each pixel reads, times its size.
         (object_w, object_h), (background_w, background_h) = scene.object_size_m, scene.background_size_m
         ku = torch.where(on_object, reach * (tex_w / object_w), reach_b * (tex_w / background_w)) * step
-        kv = torch.where(on_object, reach * (tex_h / object_h), reach_b * (tex_h / background_h)) * step
+        kv = torch.where(on_object, reach_v * (tex_h / object_h), reach_b * (tex_h / background_h)) * step
         # The pixel's sides in texels: the derivatives of (ry, rz) along a column and a row step
         # (up to a common sign, which the symmetric sub-sample pattern does not see).
         r0, r1, r2 = rot[:, :, 0], rot[:, :, 1], rot[:, :, 2]  # rows, each [B, C, 3, 1]
@@ -431,6 +503,10 @@ def render_rays(
         dv_c = kv * (r2[:, :, 0] - rz * r0[:, :, 0]) * inv
         du_r = ku * (ry * r0[:, :, 1] - r1[:, :, 1]) * inv
         dv_r = kv * (rz * r0[:, :, 1] - r2[:, :, 1]) * inv
+        if cross is not None:  # on a slanted object v changes with ry too
+            kc = torch.where(on_object, cross * tex_h, torch.zeros_like(cross)) * step
+            dv_c = dv_c + kc * (r1[:, :, 0] - ry * r0[:, :, 0]) * inv
+            dv_r = dv_r + kc * (ry * r0[:, :, 1] - r1[:, :, 1]) * inv
         rho2 = torch.maximum(du_c.square() + dv_c.square(), du_r.square() + dv_r.square())
         lod = 0.5 * torch.log2(rho2.clamp_min(1e-30)) + (lod_bias - math.log2(samples))
         u, v = u * tex_w, v * tex_h
@@ -553,12 +629,13 @@ class TorchPlaneRenderer(nn.Module):
         check: bool = True,
         downsample: int = 1,
         plane_y_m: Tensor | None = None,
+        placement: Placement | None = None,
     ) -> Tensor:
         """Render ``[B, ..., h, w]`` images; see :func:`render_planes` for the arguments."""
         return render_planes(
             poses, plane_x_m, texture_index, self.scene, self.camera, window, atlas=self._atlas(),
             check=check, downsample=downsample, filter=self.filter, lod_bias=self.lod_bias, samples=self.samples,
-            plane_y_m=plane_y_m,
+            plane_y_m=plane_y_m, placement=placement,
         )
 
     render = forward
@@ -568,7 +645,7 @@ class TorchPlaneRenderer(nn.Module):
 
     def render_windows(self, poses: Tensor, plane_x_m: Tensor, texture_index: Tensor, windows, *,
                        check: bool = True, camera: PinholeCamera | None = None,
-                       plane_y_m: Tensor | None = None) -> list[Tensor]:
+                       plane_y_m: Tensor | None = None, placement: Placement | None = None) -> list[Tensor]:
         """Render several windows, each at its own ``downsample``, in one pass.
 
         Args:
@@ -576,6 +653,7 @@ class TorchPlaneRenderer(nn.Module):
             camera: intrinsics of this call (default the renderer's): a magnified eye
                 (`aectorch.sim.perturbations`, aniseikonia) is a camera of longer focal length.
             plane_y_m: the object planes' sideways offsets ``[B]`` (see :func:`render_planes`).
+            placement: each environment's slant and background (see :func:`render_planes`).
 
         Returns:
             One ``[B, ..., h // downsample, w // downsample]`` image per window.
@@ -590,7 +668,8 @@ class TorchPlaneRenderer(nn.Module):
             if not torch.compiler.is_compiling():
                 self._rays[key] = rays
         flat = render_rays(poses, plane_x_m, texture_index, self.scene, rays, atlas=self._atlas(), check=check,
-                           filter=self.filter, lod_bias=self.lod_bias, samples=self.samples, plane_y_m=plane_y_m)
+                           filter=self.filter, lod_bias=self.lod_bias, samples=self.samples, plane_y_m=plane_y_m,
+                           placement=placement)
         shapes = [(w.height // d, w.width // d) for w, d in windows]
         parts = flat.split([h * w for h, w in shapes], dim=-1)
         return [part.reshape(part.shape[:-1] + shape) for part, shape in zip(parts, shapes)]

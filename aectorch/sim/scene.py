@@ -1,4 +1,10 @@
-"""The scene every environment sees: a fronto-parallel textured object plane and a still background.
+"""The scene every environment sees: a textured object plane and a background plane behind it.
+
+By default the object plane is fronto-parallel and wide enough to fill the coder's crops, and the
+background is one fixed texture at ``x = 8 m`` that the crops never reach. A :class:`SceneLayout`
+gives the world depth structure, drawn per trial (`ActiveDepthEnv`, ``env.scene``): a narrower
+object, moved sideways, slanted about a vertical axis, before a background at its own distance
+with a texture of the bank; the renderers take each trial's draws as a :class:`Placement`.
 
 World frame (URDF/ROS): x forward, y left, z up, origin on the floor under the robot's starting
 position. Both planes are perpendicular to x and face the robot. A texture is mapped onto its
@@ -9,12 +15,14 @@ times the texture's aspect ratio ``H / W``).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from typing import NamedTuple, Optional
 
 import torch
 from torch import Tensor
 
-__all__ = ["PlaneScene", "DEFAULT_EYE_HEIGHT_M"]
+__all__ = ["BACKGROUND_TEXTURES", "DEFAULT_EYE_HEIGHT_M", "Placement", "PlaneScene", "SceneLayout", "axis_point"]
 
 #: Height of HOAP-3's eye centres above the soles at zero pose (see robots/hoap3/README.md).
 DEFAULT_EYE_HEIGHT_M = 0.529
@@ -54,6 +62,9 @@ class PlaneScene:
         background_width_m: width of the background plane (large enough to fill whole frames);
             its height is ``background_width_m * H / W``.
         background_center_yz_m: ``(y, z)`` of the background's centre.
+        object_extent_m: the object's visible part: a square of this side around the object
+            plane's centre, cut from it (its texels as large as on the whole plane; what lies
+            outside it shows the background); ``None`` (default): the whole plane.
 
     Example:
         >>> scene = PlaneScene(torch.rand(3, 64, 64), torch.rand(32, 32))
@@ -68,6 +79,7 @@ class PlaneScene:
     background_x_m: float = 8.0
     background_width_m: float = 30.0
     background_center_yz_m: tuple[float, float] = field(default=(0.0, DEFAULT_EYE_HEIGHT_M))
+    object_extent_m: float | None = None
 
     def __post_init__(self) -> None:
         self.textures = _as_textures(self.textures, "textures", 3)
@@ -84,6 +96,12 @@ class PlaneScene:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and value > 0):
                 raise ValueError(f"PlaneScene: {name} must be a number > 0, got {value!r}")
+        if self.object_extent_m is not None:
+            extent = self.object_extent_m
+            if not (isinstance(extent, (int, float)) and 0 < extent <= min(self.object_size_m)):
+                raise ValueError(f"PlaneScene: object_extent_m must be null or a number in (0, "
+                                 f"{min(self.object_size_m):g}] (the object plane's sides), got {extent!r}")
+            self.object_extent_m = float(extent)
         self.object_center_yz_m = tuple(float(v) for v in self.object_center_yz_m)  # type: ignore[assignment]
         self.background_center_yz_m = tuple(  # type: ignore[assignment]  # (a pair: the field's type)
             float(v) for v in self.background_center_yz_m)
@@ -97,6 +115,15 @@ class PlaneScene:
         """``(width, height)`` of the object plane in metres."""
         h, w = self.textures.shape[-2:]
         return float(self.object_width_m), float(self.object_width_m) * h / w
+
+    @property
+    def object_cut(self) -> tuple[float, float] | None:
+        """The visible part's half sides as fractions of the object plane's ``(width, height)``
+        (``None``: all of it is visible)."""
+        if self.object_extent_m is None:
+            return None
+        width, height = self.object_size_m
+        return 0.5 * self.object_extent_m / width, 0.5 * self.object_extent_m / height
 
     @property
     def background_size_m(self) -> tuple[float, float]:
@@ -150,3 +177,146 @@ class PlaneScene:
                 f"{int(texture_index.min())}..{int(texture_index.max())}"
             )
         return batch
+
+
+class Placement(NamedTuple):
+    """Each environment's object and background where a :class:`SceneLayout` draws them (the
+    renderers' ``placement``). ``None`` leaves a part as :class:`PlaneScene` has it.
+
+    Attributes:
+        slant_rad: ``[B]``: the object plane turned about the vertical axis through its pivot
+            (``x = plane_x_m``, ``y`` the scene's ``object_center_yz_m[0]``) by this angle:
+            its normal toward the eyes becomes ``-(cos a, sin a, 0)``, so a positive slant brings
+            its left side (+y) nearer. The object's centre moves along the turned plane by the
+            renderers' ``plane_y_m``.
+        background_x_m: ``[B]``: world x of each environment's background plane.
+        background_index: ``[B]`` (integers): each environment's background texture, an index
+            into the scene's object textures (``None``: the scene's own background).
+    """
+
+    slant_rad: Tensor | None = None
+    background_x_m: Tensor | None = None
+    background_index: Tensor | None = None
+
+    def check(self, batch: int, num_textures: int) -> None:
+        """Shapes ``[batch]`` and the background indices within ``[0, num_textures)``."""
+        for name in self._fields:
+            value = getattr(self, name)
+            if value is not None and (not isinstance(value, Tensor) or value.shape != (batch,)):
+                raise ValueError(f"placement.{name} must be None or a tensor of shape [B] = [{batch}], got "
+                                 f"{tuple(getattr(value, 'shape', ())) or type(value).__name__}")
+        index = self.background_index
+        if index is not None and (index.dtype not in (torch.int32, torch.int64)
+                                  or bool(((index < 0) | (index >= num_textures)).any())):
+            raise ValueError(f"placement.background_index must be integers in [0, {num_textures}), got {index!r}")
+
+
+def axis_point(eye_m: Tensor, pan_deg: Tensor, plane_x_m: Tensor, slant_rad: Tensor | None,
+               pivot_y_m: float) -> Tensor:
+    """Where an eye's optical axis meets the object plane (slanted, extended past its edges).
+
+    The axis leaves ``eye_m`` horizontally at ``pan_deg`` (positive to the left); the plane passes
+    through ``(plane_x_m, pivot_y_m)`` turned by ``slant_rad`` about the vertical (:class:`Placement`).
+
+    Shape:
+        eye_m: ``[B, 3]``; pan_deg, plane_x_m, slant_rad: ``[B]``; output ``[B, 3]``.
+
+    Example:
+        >>> axis_point(torch.tensor([[0.0, 0.0, 0.5]]), torch.zeros(1), torch.ones(1), None, 0.0)
+        tensor([[1.0000, 0.0000, 0.5000]])
+    """
+    slope = torch.tan(torch.deg2rad(pan_deg))
+    if slant_rad is None:
+        reach = plane_x_m - eye_m[:, 0]
+    else:
+        c, s = torch.cos(slant_rad), torch.sin(slant_rad)
+        reach = (c * (plane_x_m - eye_m[:, 0]) + s * (pivot_y_m - eye_m[:, 1])) / (c + s * slope)
+    return torch.stack((eye_m[:, 0] + reach, eye_m[:, 1] + reach * slope, eye_m[:, 2]), dim=-1)
+
+
+#: Where a layout's background texture comes from: ``"fixed"``, the scene's one background
+#: texture; ``"bank"``, a texture of the bank other than the object's, drawn per trial.
+BACKGROUND_TEXTURES = ("fixed", "bank")
+
+
+def _range(value, name: str, low: float = -math.inf, high: float = math.inf) -> list[float]:
+    """``[low, high]`` of a per-trial draw, checked: two finite numbers, ordered, within ``(low, high)``."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        value = [value, value]
+    try:
+        pair = [float(v) for v in value]
+    except (TypeError, ValueError):
+        pair = []
+    if len(pair) != 2 or not all(math.isfinite(v) for v in pair) or pair[0] > pair[1] \
+            or not (low < pair[0] and pair[1] < high):
+        raise ValueError(f"scene.{name} must be [low, high] with {low:g} < low <= high < {high:g}, got {value!r}")
+    return pair
+
+
+@dataclass
+class SceneLayout:
+    """The world's depth structure, drawn per trial; the defaults are the plain world (a 3 m
+    fronto-parallel object plane that fills every crop, before the fixed background at 8 m).
+
+    The object is a square of side ``object_width_m`` cut from the 3 m textured plane (its
+    texels as large as in the plain world), its pivot straight ahead of the left eye's start
+    position at the trial's distance (where a fixation starting straight ahead fixates), its
+    centre moved sideways along its plane by ``object_offset_m`` and the plane turned about the
+    vertical through the pivot by ``slant_deg`` (positive: its left side nearer); the background
+    stands ``background_depth_m`` behind the pivot with a texture of the bank
+    (``background_texture="bank"``). Every range is drawn uniformly per environment and trial,
+    from the environment's generator, and only when it is not the default (the plain world draws
+    nothing more).
+
+    Attributes:
+        object_width_m: the visible object's side, metres (0 < width <= 3; 3: the whole plane, the
+            plain world's). Narrower, its edges fall inside the coder's windows.
+        object_offset_m: ``[low, high]``, the object centre's sideways offset from the pivot
+            along the object's plane, metres, each smaller than half ``object_width_m`` (the
+            pivot, the fixation target, stays on the object).
+        slant_deg: ``[low, high]``, the object plane's turn about the vertical through the pivot,
+            degrees, within +-60: the disparity varies across a window.
+        background_depth_m: ``null`` (default): the fixed background at x = 8 m. ``[low, high]``
+            (metres, low > 0): the background plane stands this far behind the pivot, drawn per
+            trial, so windows at the object's edges span two depths.
+        background_texture: ``"fixed"`` (the one pink-noise background image) or ``"bank"``
+            (a texture of the training textures other than the object's, drawn per trial).
+        background_width_m: the background plane's width, metres (its height the same for square
+            textures); rays past it see black.
+    """
+
+    object_width_m: float = 3.0
+    object_offset_m: list[float] = field(default_factory=lambda: [0.0, 0.0])
+    slant_deg: list[float] = field(default_factory=lambda: [0.0, 0.0])
+    background_depth_m: Optional[list[float]] = None
+    background_texture: str = "fixed"
+    background_width_m: float = 30.0
+
+    def __post_init__(self) -> None:
+        width = self.object_width_m
+        if isinstance(width, bool) or not isinstance(width, (int, float)) or not 0 < width <= 3.0:
+            raise ValueError(f"scene.object_width_m must be a number in (0, 3] (metres), got {width!r}")
+        self.object_width_m = float(width)
+        half = 0.5 * self.object_width_m
+        self.object_offset_m = _range(self.object_offset_m, "object_offset_m", -half, half)
+        self.slant_deg = _range(self.slant_deg, "slant_deg", -60.0, 60.0)
+        if self.background_depth_m is not None:
+            self.background_depth_m = _range(self.background_depth_m, "background_depth_m", 0.0)
+        if self.background_texture not in BACKGROUND_TEXTURES:
+            raise ValueError(f"scene.background_texture must be one of {BACKGROUND_TEXTURES}, "
+                             f"got {self.background_texture!r}")
+        bw = self.background_width_m
+        if isinstance(bw, bool) or not isinstance(bw, (int, float)) or not bw > 0:
+            raise ValueError(f"scene.background_width_m must be a number > 0 (metres), got {bw!r}")
+        self.background_width_m = float(bw)
+
+    @property
+    def plain(self) -> bool:
+        """Whether this is the plain world (nothing drawn per trial, nothing cut)."""
+        return self == SceneLayout()
+
+    @property
+    def draws(self) -> bool:
+        """Whether trials draw anything (a placement per trial)."""
+        return (self.object_offset_m != [0.0, 0.0] or self.slant_deg != [0.0, 0.0]
+                or self.background_depth_m is not None or self.background_texture != "fixed")
