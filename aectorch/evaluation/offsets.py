@@ -61,6 +61,7 @@ def offset_sweep(
     protocol: TrialProtocol | None = None,
     batch_size: int = EVAL_BATCH_SIZE,
     progress: bool = False,
+    features: bool = False,
 ) -> dict[str, Tensor]:
     """The cue's reward and greedy increment at each offset of its eye movement from the optimum.
 
@@ -72,6 +73,8 @@ def offset_sweep(
         distances_m, protocol, batch_size: as for `aectorch.evaluation.run_trials`; the body is at
             the end of the protocol's shift.
         progress: show a progress bar.
+        features: also return ``features`` ``[N, K, F]``, what the cue's agent is given at each
+            view (before its own normalisation): to take a policy's choice apart by feature.
 
     Returns:
         CPU tensors: ``offsets_deg`` ``[K]``; over the N = textures x distances conditions
@@ -91,6 +94,8 @@ def offset_sweep(
     cue_learner = learner.cues[cue]
     device, dtype = placement(learner)
     out: dict[str, list[Tensor]] = {"reward": [], "increment_deg": [], "expected_increment_deg": []}
+    if features:  # the flag; the loop's views' features are `seen`
+        out["features"] = []
     bar = None
     if progress:
         from tqdm.auto import tqdm
@@ -104,6 +109,7 @@ def offset_sweep(
             env = env_for(stop - start, protocol.fixation_iterations, instant=True)
             movement = env.cue(cue).movement
             rows: dict[str, list[Tensor]] = {key: [] for key in out}
+            keep = "features" in out
             for offset in offsets.tolist():
                 env.set_trial(index[start:stop].to(device), distance[start:stop].to(device=device, dtype=dtype))
                 shifted = torch.full((stop - start,), offset, dtype=dtype, device=device)
@@ -111,12 +117,14 @@ def offset_sweep(
                 coded = cue_learner.encoder.encode(env.observe(cue, scales))
                 sensed = env.proprioception(cue_learner.config.proprioception) \
                     if cue_learner.config.proprioception else None
-                features = cue_learner.features(coded.features, sensed)
-                greedy = cue_learner.agent.act(features, greedy=True, generator=learner.generator)
-                probabilities = cue_learner.agent.log_policy(features).exp()
+                seen = cue_learner.features(coded.features, sensed)
+                greedy = cue_learner.agent.act(seen, greedy=True, generator=learner.generator)
+                probabilities = cue_learner.agent.log_policy(seen).exp()
                 rows["reward"].append(coded.reward)
                 rows["increment_deg"].append(greedy.increments_deg)
                 rows["expected_increment_deg"].append(probabilities @ actions.to(probabilities.dtype))
+                if keep:
+                    rows["features"].append(seen)
                 if bar is not None:
                     bar.update(stop - start)
             for key, values in rows.items():

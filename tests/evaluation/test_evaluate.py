@@ -223,6 +223,14 @@ def test_offset_sweep_reads_the_cues_reward_and_greedy_increment_off_the_optimum
     with torch.no_grad():
         coded = learner.stereo.encoder.encode(env.observe("stereo", learner.stereo.encoder.scales))
     torch.testing.assert_close(sweep["reward"][:, 2], coded.reward.double())
+    # The features the agent was given there, and the policy's mean read out of them again.
+    kept = offset_sweep(learner, bank, cue="stereo", offsets_deg=[-0.5, 0.0, 0.5], distances_m=[2.0], batch_size=2,
+                        features=True)
+    assert "features" not in sweep and kept["features"].shape == (3, 3, learner.stereo.encoder.num_features)
+    torch.testing.assert_close(kept["features"][:, 2], learner.stereo.features(coded.features).double())
+    agent = learner.stereo.agent
+    mean = agent.log_policy(kept["features"].to(agent.actions_deg.dtype)).exp() @ agent.actions_deg
+    torch.testing.assert_close(mean.double(), kept["expected_increment_deg"])
     summary = offset_summary(sweep)
     assert summary["trials"] == 3 and 0 <= summary["reward_peak_within_px"] <= 1
     from aectorch.figures import plot_offsets
