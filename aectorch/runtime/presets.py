@@ -22,7 +22,7 @@ from typing import Any
 
 from aectorch.framework import PAPER_ACTIONS_DEG, default_cues
 
-__all__ = ["ACCOMMODATION", "ADDED_GROUPS", "GROUPS", "GROUP_DEFAULTS", "PAPER_PRESET", "PLASTICITY", "REARING", "REARING_SETTINGS", "ROBUST_VERGENCE", "ROLL_PERTURBATION", "SLIP"]
+__all__ = ["ACCOMMODATION", "ADDED_GROUPS", "GROUPS", "GROUP_DEFAULTS", "LIFELONG", "PAPER_PRESET", "PLASTICITY", "REARING", "REARING_SETTINGS", "ROBUST_VERGENCE", "ROLL_PERTURBATION", "SLIP"]
 
 #: The paper's values (Wong et al. 2017) where they differ from the defaults, applied by
 #: ``preset=paper``: dotted key -> value. What the paper states and the defaults change: its
@@ -100,6 +100,21 @@ ROBUST_VERGENCE: dict[str, Any] = {
     "train.iterations": 4800,
 }
 
+#: Eyes that can train for as long as they see (experiments/long_training), ``+experiment=lifelong``:
+#: the robust_vergence settings, pursuit's training fixations start up to 8 deg off their target
+#: (``pursuit_start_error_deg``), so its policy learns to return from both sides, and the parallax
+#: cue's plasticity closes at 2,400 iterations (``learn_until``: its code, policy and feature
+#: statistics stay as they are from there on, while vergence keeps learning). Pursuit's policy
+#: unlearns the views far from its optimum when it trains on (the study's "What drives the far
+#: steps"); none of the plant changes the study measures touches the left eye, which pursuit alone
+#: sees. 24,000 iterations, ten times the defaults'.
+LIFELONG: dict[str, Any] = {
+    **{key: value for key, value in ROBUST_VERGENCE.items() if key != "train.iterations"},
+    "env.pursuit_start_error_deg": 8.0,
+    "learner.cues.parallax.learn_until": 2400,
+    "train.iterations": 24000,
+}
+
 #: The plasticity regimes a perturbation experiment chooses from (``plasticity=<name>``): name ->
 #: dotted key -> value. ``decay``: today's (the dictionaries' rates decay as tau / (tau + t),
 #: PPO's step is constant); ``floor``: the decaying rates fall no lower than half their start;
@@ -156,7 +171,7 @@ REARING: dict[str, list[dict[str, Any]]] = {
 GROUPS: dict[str, dict[str, dict[str, Any]]] = {
     "preset": {"default": {}, "paper": PAPER_PRESET},
     "experiment": {"roll_perturbation": ROLL_PERTURBATION, "accommodation": ACCOMMODATION, "slip": SLIP,
-                   "robust_vergence": ROBUST_VERGENCE},
+                   "robust_vergence": ROBUST_VERGENCE, "lifelong": LIFELONG},
     "plasticity": PLASTICITY,
     # "normal" adds no events: a run's own perturbations stay.
     "rearing": {name: {**REARING_SETTINGS, **({"perturbations": events} if events else {})}

@@ -15,7 +15,7 @@ import torch
 from omegaconf import OmegaConf
 
 from aectorch.runtime.config import ExperimentConfig, to_experiment_config
-from aectorch.runtime.presets import PAPER_PRESET, ROBUST_VERGENCE, ROLL_PERTURBATION
+from aectorch.runtime.presets import LIFELONG, PAPER_PRESET, ROBUST_VERGENCE, ROLL_PERTURBATION
 from aectorch.runtime.resources import validate_resources
 from aectorch.runtime import CHECKPOINT_FORMAT, load_checkpoint, load_learner, run_experiment, save_checkpoint
 from aectorch.runs import Run
@@ -257,6 +257,7 @@ def test_checkpoint_errors_name_the_path(tmp_path):
     ("+experiment=roll_perturbation", None),
     ("+experiment=slip", None),
     ("+experiment=robust_vergence", None),
+    ("+experiment=lifelong", None),
     ("env.velocity_memory=true", "env.velocity_memory"),
 ])
 def test_config_errors_name_the_field(override, field, textures):
@@ -308,9 +309,13 @@ def test_preset_paper_and_perturbation_fractions():
         paper = to_experiment_config(compose(config_name="train", overrides=["preset=paper", "learner.cues.parallax.encoder.num_atoms=32", "learner.cues.stereo.encoder.num_atoms=32"]))
         roll = to_experiment_config(compose(config_name="train", overrides=["+experiment=roll_perturbation"]))
         robust = to_experiment_config(compose(config_name="train", overrides=["+experiment=robust_vergence"]))
+        lifelong = to_experiment_config(compose(config_name="train", overrides=["+experiment=lifelong"]))
     # the robust_vergence preset too lists only what differs, and sets it
     assert all(_value(default, key) != value for key, value in ROBUST_VERGENCE.items()), ROBUST_VERGENCE
     assert all(_value(robust, key) == value for key, value in ROBUST_VERGENCE.items()), ROBUST_VERGENCE
+    assert all(_value(default, key) != value for key, value in LIFELONG.items()), LIFELONG
+    assert all(_value(lifelong, key) == value for key, value in LIFELONG.items()), LIFELONG
+    assert lifelong.learner.cues["parallax"].learn_until == 2400 and lifelong.learner.cues["stereo"].learn_until is None
     for name, cue in paper.learner.cues.items():
         assert list(cue.actions_deg) == PAPER_PRESET[f"learner.cues.{name}.actions_deg"] == list(PAPER_ACTIONS_DEG)
         assert cue.encoder.num_atoms == 32  # the command line wins
