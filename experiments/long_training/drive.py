@@ -31,7 +31,7 @@ def drive_table(checkpoint: Path, textures: str, cue: str, distances: tuple[floa
     _, learner = load_learner(checkpoint)
     cue_learner = learner.cues[cue]
     agent = cue_learner.agent
-    if not hasattr(agent, "normalize") or not isinstance(agent.policy, torch.nn.Linear):
+    if not hasattr(agent, "normalize") or not isinstance(getattr(agent, "policy", None), torch.nn.Linear):
         raise SystemExit(f"{checkpoint}: the {cue} cue's agent is not a linear PPO policy (agent=ppo, ppo.hidden=0)")
     bank = TextureBank(TextureBank.default("train").textures[:20]) if textures == "train" else \
         TextureBank.from_folder(textures)
