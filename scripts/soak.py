@@ -3,6 +3,7 @@
     .venv/bin/python scripts/soak.py runs/soak                    # 100,000 iterations, defaults
     .venv/bin/python scripts/soak.py runs/soak --iterations 200000  # longer (resumes if it can)
     .venv/bin/python scripts/soak.py runs/soak48k --iterations 48000 env.num_envs=8   # key=value overrides
+    .venv/bin/python scripts/soak.py runs/soak_lifelong --iterations 48000 +experiment=lifelong  # a group's option
 
 Runs `aectorch.runtime.run_experiment` with the default `ExperimentConfig` (the watchdog on,
 in mode ``stop``), except ``train.iterations``, the ``key=value`` overrides given, no final
@@ -173,6 +174,27 @@ def plot(run: Path, path: Path) -> None:
     fig.savefig(path)
 
 
+def is_group(override: str) -> bool:
+    """Whether ``override`` chooses a config group's option (``+experiment=lifelong``, ``preset=paper``)."""
+    from aectorch.runtime.presets import GROUPS
+
+    return override.lstrip("+").split("=", 1)[0] in GROUPS
+
+
+def group_keys(overrides: list[str]) -> list[str]:
+    """The dotted ``key=value`` overrides of the config groups chosen in ``overrides``, in order
+    (``--iterations`` and the other ``key=value`` overrides are applied after them)."""
+    from aectorch.runtime.presets import GROUPS
+
+    keys = []
+    for override in filter(is_group, overrides):
+        group, option = override.lstrip("+").split("=", 1)
+        if option not in GROUPS[group]:
+            raise SystemExit(f"{override}: {group} has the options {sorted(GROUPS[group])}")
+        keys += [f"{key}={json.dumps(value)}" for key, value in GROUPS[group][option].items()]
+    return keys
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("run", type=Path, help="the run folder (resumed when it holds a checkpoint)")
@@ -194,8 +216,9 @@ def main() -> None:
     from aectorch.runtime.config import to_experiment_config
     from aectorch.runtime import run_experiment
 
-    overrides = [f"train.iterations={args.iterations}", "eval.enabled=false", "train.checkpoint_every=1000",
-                 "train.log_every=100", "train.resume=auto", *args.overrides]
+    overrides = [*group_keys(args.overrides), f"train.iterations={args.iterations}", "eval.enabled=false",
+                 "train.checkpoint_every=1000", "train.log_every=100", "train.resume=auto",
+                 *(o for o in args.overrides if not is_group(o))]
     cfg = to_experiment_config(OmegaConf.from_dotlist(overrides))
     args.run.mkdir(parents=True, exist_ok=True)
     memory = (args.run / "memory.jsonl").open("a")

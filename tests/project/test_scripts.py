@@ -31,3 +31,13 @@ def test_soak_report_splits_memory_by_process_and_finds_growth(tmp_path, script)
     # Without provenance the boundary is invisible here (the iterations increase): one process.
     (tmp_path / "provenance.json").unlink()
     assert len(soak.report(tmp_path)["memory_by_process"]) == 1
+
+
+def test_soak_expands_a_config_groups_option_before_the_other_overrides(script):
+    soak = script("soak")
+    keys = soak.group_keys(["+experiment=lifelong", "env.num_envs=8", "preset=paper"])
+    assert "learner.cues.parallax.learn_until=2400" in keys and "env.pursuit_start_error_deg=8.0" in keys
+    assert keys.index("train.iterations=24000") < keys.index("train.iterations=6000")  # the groups in the order given
+    assert not soak.is_group("env.num_envs=8") and soak.is_group("+experiment=lifelong")
+    with pytest.raises(SystemExit, match="experiment has the options"):
+        soak.group_keys(["+experiment=nonsense"])
