@@ -201,6 +201,29 @@ class Run:
         return {line["iteration"]: line for line in self.metrics}
 
     @cached_property
+    def code_readouts(self) -> list[dict]:
+        """``code_readouts.jsonl``'s lines in file order (``train.readout_every``): each
+        ``{"iteration": N, "code": {dictionary: code_summary}}``; ``[]`` when the run has none.
+        A torn last line (a run killed mid-write) is skipped with a warning, as `read_metrics` does."""
+        path = self.path / "code_readouts.jsonl"
+        if not path.is_file():
+            return []
+        lines = [(number, line) for number, line in enumerate(_read_text(path).splitlines(), start=1) if line.strip()]
+        readouts = []
+        for position, (number, line) in enumerate(lines):
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError as exc:
+                if position == len(lines) - 1:
+                    warnings.warn(f"{path}: skipping truncated last line ({exc.msg})", stacklevel=2)
+                    break
+                raise ValueError(f"{path}: line {number} is not valid JSON ({exc.msg})") from exc
+            if not (isinstance(record, dict) and _is_int(record.get("iteration")) and isinstance(record.get("code"), dict)):
+                raise ValueError(f"{path}: line {number} must be an object with an integer 'iteration' and a 'code'")
+            readouts.append(record)
+        return readouts
+
+    @cached_property
     def summary(self) -> dict:
         """``summary.json``: the final training window, timing, best state, perturbation, evaluation."""
         return read_json(self.path / "summary.json")

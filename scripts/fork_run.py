@@ -5,9 +5,9 @@
 The question it answers: "from this state on, what if ...?" (a frozen dictionary, a slower
 actor). The new folder gets the checkpoint, its config with the ``key=value`` overrides (the
 dotted names of ``train.py``; validated like a fresh config, so a bad one stops here naming the
-field) and the source run's ``metrics.jsonl`` up to the checkpoint's iteration; the run then
-continues there exactly like ``train.py train.resume=<new folder> train.iterations=N`` (bit for
-bit, without overrides). The checkpoint's early-stopping record (``best``) is dropped: the fork
+field) and the source run's ``metrics.jsonl`` (and ``code_readouts.jsonl``) up to the checkpoint's
+iteration; the run then continues there exactly like ``train.py train.resume=<new folder>
+train.iterations=N`` (bit for bit, without overrides). The checkpoint's early-stopping record (``best``) is dropped: the fork
 chooses its own best window. The source run is not touched.
 """
 
@@ -41,6 +41,7 @@ def fork(checkpoint: Path, folder: Path, overrides: list[str], iterations: int) 
     from omegaconf import OmegaConf
 
     from aectorch.runtime import checkpoint_config, load_checkpoint, save_checkpoint
+    from aectorch.runtime.outputs import CODE_READOUTS
 
     if folder.exists() and any(folder.iterdir()):
         raise ValueError(f"folder {str(folder)!r} exists and is not empty; forks go to a new folder")
@@ -60,9 +61,9 @@ def fork(checkpoint: Path, folder: Path, overrides: list[str], iterations: int) 
     payload.pop("best", None)
     folder.mkdir(parents=True, exist_ok=True)
     save_checkpoint(folder / "checkpoint.pt", payload)
-    metrics = checkpoint.parent / "metrics.jsonl"
-    if metrics.exists():
-        shutil.copy(metrics, folder / "metrics.jsonl")  # the resume keeps the lines up to the checkpoint
+    for name in ("metrics.jsonl", CODE_READOUTS):  # the resume keeps their lines up to the checkpoint
+        if (checkpoint.parent / name).exists():
+            shutil.copy(checkpoint.parent / name, folder / name)
 
 
 def main(argv: list[str] | None = None) -> int:

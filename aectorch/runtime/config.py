@@ -15,7 +15,7 @@ from typing import Optional
 
 import torch
 
-from aectorch._checks import check_bool, check_choice, check_device, check_distances, check_int, check_real
+from aectorch._checks import check_bool, check_choice, check_device, check_distances, check_int, check_real, is_int
 from aectorch.choices import DType, Eye, RendererName
 from aectorch.evaluation import EVAL_BATCH_SIZE
 from aectorch.framework import LearnerConfig
@@ -237,6 +237,11 @@ class TrainConfig:
             iterations (>= 1).
         checkpoint_every: write ``checkpoint.pt`` every this many iterations (>= 1), and always
             at the end or on an interruption.
+        readout_every: read the code out every this many iterations (>= 1) and at the end: a
+            line ``{"iteration": N, "code": {"<cue>/<scale>": code_summary}}`` per read-out in
+            ``code_readouts.jsonl`` (`aectorch.coding.readouts.code_summary` of each dictionary;
+            `aectorch.runs.Run.code_readouts` reads them). A resume keeps the lines up to its
+            checkpoint. ``null`` (default): none.
         threads: CPU threads: N >= 1 gives torch (``torch.set_num_threads``) and the fused
             kernels (``aectorch.ops.native.set_threads``) N each; 0 (default) gives the fused
             kernels (rendering, sparse coding) every core this process may use
@@ -280,6 +285,7 @@ class TrainConfig:
     overwrite: bool = False
     log_every: int = 25
     checkpoint_every: int = 500
+    readout_every: Optional[int] = None
     threads: int = 0
     progress: bool = True
     figures: bool = True
@@ -297,6 +303,9 @@ class TrainConfig:
             check_int(getattr(self, name), f"{owner}.{name}", minimum)
         for name in ("compile", "overwrite", "progress", "figures", "tensorboard", "deterministic", "keep_best"):
             check_bool(getattr(self, name), f"{owner}.{name}")
+        if self.readout_every is not None and not (is_int(self.readout_every) and self.readout_every >= 1):
+            raise ValueError(f"{owner}.readout_every must be null (no read-outs) or an int >= 1, "
+                             f"got {self.readout_every!r}")
         if self.resume is not None and (not isinstance(self.resume, str) or not self.resume):
             raise ValueError(f"{owner}.resume must be null, auto or a run folder, got {self.resume!r}")
         if self.resume is not None and self.overwrite:

@@ -7,7 +7,7 @@ observations), the metrics, then the callbacks' ``after_iteration``. What a run 
 learning is a :class:`Callback` each (:func:`default_callbacks`): the perturbation events
 (:class:`Perturbations`), the LeRobot recording (:class:`Recording`), the caller's function
 (:class:`EveryIteration`), the watchdog (:class:`WatchdogCheck`), ``metrics.jsonl`` and
-TensorBoard (:class:`MetricsLog`), ``best.pt`` (:class:`BestState`), ``checkpoint.pt``
+TensorBoard (:class:`MetricsLog`), the code's read-outs (:class:`CodeReadouts`), ``best.pt`` (:class:`BestState`), ``checkpoint.pt``
 (:class:`Checkpoints`) and the progress bar (:class:`Progress`).
 
 Interruptions, without copying the learner's state every iteration:
@@ -47,7 +47,7 @@ from aectorch.runtime.perturbations import Schedule
 from aectorch.runtime.provenance import provenance
 from aectorch.runtime.watchdog import Watchdog, WatchdogError
 
-__all__ = ["BestState", "Callback", "Checkpoints", "EveryIteration", "MetricsLog", "Perturbations", "Progress",
+__all__ = ["BestState", "Callback", "Checkpoints", "CodeReadouts", "EveryIteration", "MetricsLog", "Perturbations", "Progress",
            "Recording", "TrainingRun", "WatchdogCheck", "default_callbacks"]
 
 log = logging.getLogger("aectorch")
@@ -237,6 +237,20 @@ class MetricsLog(Callback):
         run.folder.close()
 
 
+class CodeReadouts(Callback):
+    """``train.readout_every``: every that many iterations and at the last, the code is read out
+    (`code_summary` of each dictionary) into a line of the run folder's
+    `aectorch.runtime.outputs.CODE_READOUTS` (main process only)."""
+
+    def __init__(self, every: int) -> None:
+        self.every = every
+
+    def after_iteration(self, run, done, record):
+        if run.folder.main and (done % self.every == 0 or done == run.total):
+            code = {name: code_summary(atoms) for name, atoms in dictionaries(run.learner).items()}
+            run.folder.append_readout({"iteration": done, "code": code})
+
+
 class BestState(Callback):
     """``train.keep_best``: ``best.pt`` holds the state whose full training window had the lowest
     sum of the eye movements' errors; ``run.best`` is its record."""
@@ -320,7 +334,10 @@ def default_callbacks(cfg: ExperimentConfig, main: bool,
         callbacks.append(Recording(cfg.record.lerobot, cfg.record.envs))
     if fn is not None:
         callbacks.append(EveryIteration(fn))
-    callbacks += [WatchdogCheck(), MetricsLog(), BestState(), Checkpoints()]
+    callbacks += [WatchdogCheck(), MetricsLog()]
+    if cfg.train.readout_every is not None:
+        callbacks.append(CodeReadouts(cfg.train.readout_every))
+    callbacks += [BestState(), Checkpoints()]
     if cfg.train.progress and main:
         callbacks.append(Progress())
     return callbacks

@@ -10,7 +10,7 @@ import tempfile
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["CODE_AT_ENDS", "FIGURE_FILES", "LOCK_NAME", "OUTPUTS_LIST", "RUN_FILES", "RunFolder", "RunFolderBusy",
+__all__ = ["CODE_AT_ENDS", "CODE_READOUTS", "FIGURE_FILES", "LOCK_NAME", "OUTPUTS_LIST", "RUN_FILES", "RunFolder", "RunFolderBusy",
            "WriteFailed", "atomic_write", "format_summary", "json_value", "note_output", "write_json"]
 
 #: The file in a run folder whose lock (``flock``) the training process holds.
@@ -19,6 +19,11 @@ LOCK_NAME = ".lock"
 #: The code's read-outs at the perturbation events' ends (`aectorch.runtime.loop.Perturbations`),
 #: which ``summary.json`` reports.
 CODE_AT_ENDS = "code_at_event_ends.json"
+
+#: The code's read-outs every ``train.readout_every`` iterations and at the end
+#: (`aectorch.runtime.loop.CodeReadouts`): one JSON line each, ``{"iteration": N, "code":
+#: {"<cue>/<scale>": code_summary}}``; a resume keeps the lines up to its checkpoint's iteration.
+CODE_READOUTS = "code_readouts.jsonl"
 
 #: The figures a run draws into its ``figures/`` folder (`aectorch.runtime.finish`).
 FIGURE_FILES = ("dictionaries.png", "training.png", "code.png", "perturbation.png", "evaluation.png")
@@ -32,7 +37,7 @@ OUTPUTS_LIST = ".aectorch_outputs.json"
 #: nothing else is left in it) and what :data:`OUTPUTS_LIST` names, and nothing else: a user's own
 #: file stays, and Hydra's ``.hydra/`` and ``train.log`` are Hydra's.
 RUN_FILES = ("checkpoint.pt", "best.pt", "calibrated.pt", "metrics.jsonl", "provenance.json", "config.yaml",
-             "summary.json", "evaluation.json", "tb", "figures", CODE_AT_ENDS)
+             "summary.json", "evaluation.json", "tb", "figures", CODE_AT_ENDS, CODE_READOUTS)
 
 #: The folders among :data:`RUN_FILES` and the files in them that a run writes.
 _RUN_FOLDERS = {"figures": lambda name: name in FIGURE_FILES, "tb": lambda name: name.startswith("events.out.tfevents.")}
@@ -128,6 +133,23 @@ def _quiet_tensorboard_thread() -> None:
     threading.excepthook = excepthook
 
 
+def _keep_lines_until(path: Path, iteration: int) -> None:
+    """Keep the lines of a JSON-lines run file (``{"iteration": ...}`` each) up to ``iteration``
+    (a resume's checkpoint), replacing the file whole or not at all (`atomic_write`): an
+    interrupted resume loses no earlier line. A line torn by a kill mid-write is dropped."""
+    if not path.exists():
+        return
+    kept = []
+    for line in path.read_text().splitlines():
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            continue  # only the last line can be torn, and it is after the checkpoint
+        if record["iteration"] <= iteration:
+            kept.append(line)
+    atomic_write(path, lambda f: f.write("".join(line + "\n" for line in kept)))
+
+
 class RunFolder:
     """The files a run writes into its folder; only the main process (rank 0) writes.
 
@@ -143,6 +165,7 @@ class RunFolder:
             self.path.mkdir(parents=True, exist_ok=True)
             self._acquire()
         self.metrics_path = self.path / "metrics.jsonl"
+        self.readouts_path = self.path / CODE_READOUTS
         self._writer: Any = None  # tensorboard's SummaryWriter once started
 
     @staticmethod
@@ -218,7 +241,8 @@ class RunFolder:
 
     def start(self, config: dict, session: dict, *, resumed_at: int | None, tensorboard: bool) -> None:
         """Write config.yaml and provenance.json (a resume adds its session), start metrics.jsonl
-        (a resume keeps the lines up to its checkpoint's iteration) and TensorBoard."""
+        and :data:`CODE_READOUTS` (a resume keeps their lines up to its checkpoint's iteration) and
+        TensorBoard."""
         if not self.main:
             return
         from omegaconf import OmegaConf
@@ -230,27 +254,15 @@ class RunFolder:
         write_json(provenance_path, {"sessions": sessions + [session]})
         if resumed_at is None:
             self.metrics_path.write_text("")
+            self.readouts_path.unlink(missing_ok=True)
         else:
-            self._truncate_metrics(resumed_at)
+            for path in (self.metrics_path, self.readouts_path):
+                _keep_lines_until(path, resumed_at)
         if tensorboard:
             from torch.utils.tensorboard import SummaryWriter
 
             _quiet_tensorboard_thread()
             self._writer = SummaryWriter(log_dir=str(self.path / "tb"), purge_step=None if resumed_at is None else resumed_at + 1)
-
-    def _truncate_metrics(self, iteration: int) -> None:
-        """Keep the lines up to the checkpoint's iteration; a line torn by a kill mid-write is dropped."""
-        if not self.metrics_path.exists():
-            return
-        kept = []
-        for line in self.metrics_path.read_text().splitlines():
-            try:
-                record = json.loads(line)
-            except json.JSONDecodeError:
-                continue  # only the last line can be torn, and it is after the checkpoint
-            if record["iteration"] <= iteration:
-                kept.append(line)
-        self.metrics_path.write_text("".join(line + "\n" for line in kept))
 
     def open_metrics(self):
         """The metrics.jsonl file, open for appending (``os.devnull`` on other ranks)."""
@@ -288,6 +300,18 @@ class RunFolder:
 
     def write_json(self, name: str, data: dict) -> None:
         write_json(self.path / name, data)
+
+    def append_readout(self, line: dict) -> None:
+        """Append one line to :data:`CODE_READOUTS` (main process only); a failed write raises
+        `WriteFailed` (a torn last line is dropped on resume)."""
+        if not self.main:
+            return
+        try:
+            with self.readouts_path.open("a") as file:
+                file.write(json.dumps(line, allow_nan=True) + "\n")
+        except OSError as err:
+            raise WriteFailed(f"cannot write {self.readouts_path}: {os.strerror(err.errno) if err.errno else err} "
+                              "(is the disk full, or a file-size limit set?); a resume keeps its whole lines") from err
 
 
 def format_summary(summary: dict, run_dir: Path) -> str:
