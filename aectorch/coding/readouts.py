@@ -23,6 +23,9 @@ means removed (:func:`atom_halves`).
   :func:`orientation_histogram` bins it.
 - :func:`principal_components`: PCA of a dictionary's atoms (scores and explained variance), the
   axes of Fig. 2 (:func:`aectorch.figures.plot_dictionaries`).
+- :func:`gabor_binocularity`: the lineage's own binocularity measure (a 2-D Gabor fitted to the
+  dominant half, :func:`aectorch.coding.gabor.fit_gabor`, shown to both halves; Klimmasch et al.
+  2021), beside ours.
 - :func:`code_summary`: all of it for one dictionary as plain, JSON-ready numbers (what a run's
   ``summary.json`` records per dictionary under ``"code"``).
 """
@@ -36,9 +39,13 @@ import torch
 from torch import Tensor
 
 from aectorch._checks import check_int, is_int
+from aectorch.coding.gabor import GABOR_PARAMETERS, GaborFit, fit_gabor
 
 __all__ = [
     "DisparityPreference",
+    "GABOR_PARAMETERS",
+    "GaborBinocularity",
+    "GaborFit",
     "OrientationPreference",
     "atom_halves",
     "check_atoms",
@@ -50,6 +57,8 @@ __all__ = [
     "orientation_preference",
     "orientation_histogram",
     "principal_components",
+    "fit_gabor",
+    "gabor_binocularity",
     "code_summary",
 ]
 
@@ -473,6 +482,62 @@ def principal_components(atoms: Tensor, k: int = 2) -> tuple[Tensor, Tensor]:
     variance = (x * x).sum()
     ratio = s.square() / variance if bool(variance > 0) else torch.zeros_like(s)
     return scores, ratio
+
+
+class GaborBinocularity(NamedTuple):
+    """What :func:`gabor_binocularity` returns, per atom ``[..., N]``.
+
+    Attributes:
+        index: ``(R - L) / (R + L)`` in [-1, 1] (0 for an atom with two zero halves).
+        valid: whether the dominant half's Gabor fit has a relative residual <= ``max_residual``.
+        residual: that fit's relative residual.
+    """
+
+    index: Tensor
+    valid: Tensor
+    residual: Tensor
+
+
+def gabor_binocularity(atoms: Tensor, max_residual: float = 0.2, steps: int = 60) -> GaborBinocularity:
+    """The binocularity index as Klimmasch et al. 2021 (eLife 10:e56212) measure it.
+
+    A 2-D Gabor is fitted to the dominant half of each atom (the half of the larger norm, means
+    removed: :func:`atom_halves`; :func:`fit_gabor`) and shown to both halves: ``L = |<left, G>|``
+    and ``R = |<right, G>|``, and the index is ``(R - L) / (R + L)``, -1 left only, +1 right only.
+    An atom whose fit leaves a relative residual above ``max_residual`` has no Gabor-like
+    receptive field and is not valid (the lineage drops it). Ours, :func:`binocularity_index`,
+    compares the halves' norms instead and needs no fit.
+
+    Args:
+        atoms: ``[..., P, N]``, atoms as columns (see :func:`atom_halves`).
+        max_residual: the largest relative residual of a valid fit (the lineage's 0.2).
+        steps: :func:`fit_gabor`'s steps.
+
+    Returns:
+        A :class:`GaborBinocularity` of ``[..., N]`` tensors.
+
+    Example:
+        >>> y, x = torch.meshgrid(torch.arange(10.0) - 4.5, torch.arange(10.0) - 4.5, indexing="ij")
+        >>> g = (torch.exp(-(x ** 2 + y ** 2) / 8) * torch.cos(2 * math.pi * 0.2 * x)).flatten().double()
+        >>> atoms = torch.stack([torch.cat([g, 0 * g]), torch.cat([g, g]), torch.cat([g, 3 * g])], 1)
+        >>> result = gabor_binocularity(atoms)
+        >>> result.index, result.valid
+        (tensor([-1.0000,  0.0000,  0.5000], dtype=torch.float64), tensor([True, True, True]))
+    """
+    halves = atom_halves(atoms)
+    batch, p = halves.shape[:-3], halves.shape[-1]
+    halves = halves.reshape(-1, 2, p * p)
+    left, right = halves.unbind(-2)
+    dominant = torch.where((right.square().sum(-1) > left.square().sum(-1))[:, None], right, left)
+    fit = fit_gabor(dominant.reshape(-1, p, p), steps=steps)
+    shown = fit.fitted.reshape(-1, 1, p * p)
+    responses = (halves * shown).sum(-1).abs()
+    low, high = responses.unbind(-1)
+    total = low + high
+    index = torch.where(total > 0, (high - low) / torch.where(total > 0, total, torch.ones_like(total)),
+                        torch.zeros_like(total))
+    return GaborBinocularity(index.reshape(batch), (fit.residual <= max_residual).reshape(batch),
+                             fit.residual.reshape(batch))
 
 
 def code_summary(atoms: Tensor, *, binocularity_bins: int = BINOCULARITY_BINS,
