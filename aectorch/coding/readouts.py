@@ -488,12 +488,12 @@ class GaborBinocularity(NamedTuple):
     """What :func:`gabor_binocularity` returns, per atom ``[..., N]``.
 
     Attributes:
-        index: ``(R - L) / (R + L)`` in [-1, 1] (0 for an atom with two zero halves).
+        binocularity: the index ``(R - L) / (R + L)`` in [-1, 1] (0 for an atom with two zero halves).
         valid: whether the dominant half's Gabor fit has a relative residual <= ``max_residual``.
         residual: that fit's relative residual.
     """
 
-    index: Tensor
+    binocularity: Tensor
     valid: Tensor
     residual: Tensor
 
@@ -521,7 +521,7 @@ def gabor_binocularity(atoms: Tensor, max_residual: float = 0.2, steps: int = 60
         >>> g = (torch.exp(-(x ** 2 + y ** 2) / 8) * torch.cos(2 * math.pi * 0.2 * x)).flatten().double()
         >>> atoms = torch.stack([torch.cat([g, 0 * g]), torch.cat([g, g]), torch.cat([g, 3 * g])], 1)
         >>> result = gabor_binocularity(atoms)
-        >>> result.index, result.valid
+        >>> result.binocularity, result.valid
         (tensor([-1.0000,  0.0000,  0.5000], dtype=torch.float64), tensor([True, True, True]))
     """
     halves = atom_halves(atoms)

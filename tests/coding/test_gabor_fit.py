@@ -75,7 +75,7 @@ def test_monocular_binocular_and_scaled_atoms_as_our_index():
     atoms = _atoms((g, 0 * g), (0 * h, h), (g, g), (h, 3 * h), (3 * g, g))
     result = gabor_binocularity(atoms)
     expected = torch.tensor([-1.0, 1.0, 0.0, 0.5, -0.5], dtype=torch.float64)
-    torch.testing.assert_close(result.index, expected, atol=1e-6, rtol=0)
+    torch.testing.assert_close(result.binocularity, expected, atol=1e-6, rtol=0)
     torch.testing.assert_close(binocularity_index(atoms), expected, atol=1e-12, rtol=0)
     assert result.valid.all() and (result.residual < 1e-6).all()
 
@@ -85,16 +85,16 @@ def test_noise_atoms_are_dropped_and_an_empty_atom_is_not_valid():
     atoms[:, 0] = 0.0
     result = gabor_binocularity(atoms)
     assert not result.valid.any()
-    assert result.index[0] == 0 and result.residual[0] == 1
-    assert torch.isfinite(result.index).all() and (result.index.abs() <= 1).all()
+    assert result.binocularity[0] == 0 and result.residual[0] == 1
+    assert torch.isfinite(result.binocularity).all() and (result.binocularity.abs() <= 1).all()
 
 
 def test_batched_atoms_keep_their_shape_and_dtype():
     g = _gabor_np(TRUE[3])
     atoms = _atoms((g, 0.5 * g), (g, -g)).float()
     result = gabor_binocularity(torch.stack([atoms, atoms.flip(-1)]))
-    assert result.index.shape == (2, 2) and result.index.dtype == torch.float32
-    torch.testing.assert_close(result.index[0], torch.tensor([-1 / 3, 0.0]), atol=1e-4, rtol=0)
+    assert result.binocularity.shape == (2, 2) and result.binocularity.dtype == torch.float32
+    torch.testing.assert_close(result.binocularity[0], torch.tensor([-1 / 3, 0.0]), atol=1e-4, rtol=0)
     assert result.valid.all()
 
 
