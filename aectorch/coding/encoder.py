@@ -51,6 +51,13 @@ class EncoderConfig:
         floor: ``None`` (default: the rate decays on), or a fraction in (0, 1]: the decaying rate
             falls no lower than ``floor * lr``, so the code stays plastic (a perturbation
             experiment's choice: `aectorch.runtime.config`, ``plasticity=floor``).
+        close_at: ``None`` (default: no critical period), or the learning step (>= 0) at which a
+            critical period starts to close: from there the rate (after ``decay``) falls linearly
+            to 0 over ``close_over`` steps and stays there (``floor`` still holds it at
+            ``floor * lr``: a residual adult plasticity). The code is shaped by what the eyes see
+            before; a change of the world after it is met by the policies alone (the rearing
+            conditions' choice, :data:`aectorch.runtime.presets.REARING_SETTINGS`).
+        close_over: the steps (>= 0; 0: at once) over which the critical period closes.
         centred: mirror-centred sampling at every scale (`aectorch.coding.patches.Scale`'s
             ``centred``): each pyramid level samples between pixel pairs and the fine scale's
             patch grid sits in the middle of its crop, so the patches of mirrored images are the
@@ -74,6 +81,8 @@ class EncoderConfig:
     decay: Optional[float] = 500.0
     decay_power: float = 1.0
     floor: Optional[float] = None
+    close_at: Optional[int] = None
+    close_over: int = 0
     centred: bool = True
     start: DictionaryStart = DictionaryStart.random
 
@@ -89,14 +98,24 @@ class EncoderConfig:
         check_real(self.decay_power, f"{owner}.decay_power", above=0)
         if self.floor is not None and not (is_real(self.floor) and 0 < self.floor <= 1):
             raise ValueError(f"{owner}.floor must be null or a fraction in (0, 1], got {self.floor!r}")
+        if self.close_at is not None:
+            check_int(self.close_at, f"{owner}.close_at", 0)
+        check_int(self.close_over, f"{owner}.close_over", 0)
         check_bool(self.centred, f"{owner}.centred")
         self.start = check_choice(self.start, f"{owner}.start", DictionaryStart)
 
     def rate(self, steps: int) -> float:
-        """The dictionaries' learning rate after ``steps`` learning steps (``decay``, ``floor``)."""
-        if self.decay is None:
-            return self.lr
-        rate = self.lr * (self.decay / (self.decay + steps)) ** self.decay_power
+        """The dictionaries' learning rate after ``steps`` learning steps (``decay``, the critical
+        period's ``close_at`` and ``close_over``, ``floor``).
+
+        Example:
+            >>> config = EncoderConfig(lr=2.0, decay=None, close_at=100, close_over=50)
+            >>> [config.rate(t) for t in (0, 100, 125, 150, 1000)]
+            [2.0, 2.0, 1.0, 0.0, 0.0]
+        """
+        rate = self.lr if self.decay is None else self.lr * (self.decay / (self.decay + steps)) ** self.decay_power
+        if self.close_at is not None and steps >= self.close_at:
+            rate *= max(0.0, 1.0 - (steps - self.close_at) / self.close_over) if self.close_over else 0.0
         return rate if self.floor is None else max(rate, self.floor * self.lr)
 
     def steps_at(self, fraction: float) -> int:
@@ -304,7 +323,9 @@ class BinocularEncoder(nn.Module):
     def raise_rate(self, fraction: float) -> float:
         """Make the dictionaries plastic again: a decayed rate is raised to ``fraction`` (in (0, 1])
         of ``lr`` by winding the decay's clock back (`EncoderConfig.steps_at`), from where it
-        decays again; a rate above that stays. Returns the rate of the next step."""
+        decays again; a rate above that stays. The clock is also the critical period's: a
+        constant rate's clock goes back to 0, which opens a closed period again. Returns the
+        rate of the next step."""
         if not (is_real(fraction) and 0 < fraction <= 1):
             raise ValueError(f"fraction must be in (0, 1], got {fraction!r}")
         self.steps = min(self.steps, self.config.steps_at(fraction))
@@ -318,11 +339,15 @@ class BinocularEncoder(nn.Module):
         Gradient descent on ``-output.reward.mean()`` (closed form, no graph):
         with B environments this is the mean of the B per-environment updates.
         Equivalent to ``(-output.reward.mean()).backward()`` followed by an SGD
-        step of size ``lr`` (default: :meth:`rate`) and `SparseDictionary.renormalize_`.
+        step of size ``lr`` (default: :meth:`rate`) and `SparseDictionary.renormalize_`; a rate of
+        0 leaves the atoms as they are (and costs nothing).
         ``reduce`` sums over processes that share the batch (`aectorch.runtime.distributed`), so
         the mean runs over all of them.
         """
         lr = self.rate() if lr is None else lr
+        if lr == 0:  # frozen (``lr`` 0, a closed critical period): the atoms stay bit for bit
+            self.steps += 1
+            return self
         learn_together_([self.dictionaries[scale.name] for scale in self.scales], output.patches, output.codes, lr,
                         reduce=reduce)
         self.steps += 1

@@ -23,7 +23,8 @@ of the last iteration), whatever today's defaults are. Later versions of format 
 environment's state its perturbations' ``optics`` and ``first_optics``; a file
 without them gets ``None``, which the environment reads as what it was: no perturbation but the
 roll its ``roll_deg`` holds; and to each cue's config the rates' floors ``encoder.floor`` and
-``nac.actor_floor``, ``None`` (no floor) where absent (:data:`_ADDED_3`); and to ``env`` the
+``nac.actor_floor``, ``None`` (no floor) where absent, and no critical period (``encoder.close_at``
+``None``, ``close_over`` 0) (:data:`_ADDED_3`); and to ``env`` the
 oculomotor range, where absent the eye pan limits alone (``pan_range_deg [-45, 45]``,
 ``vergence_range_deg [-90, 90]``), what such a run did. The config's new
 sections (``perturbations``, ``plasticity``, ``train.recent_window``) get their defaults, which
@@ -162,12 +163,13 @@ def _from_2(payload: dict) -> dict:
 #: Fields that versions of format 3 added, with what a file without them did: the environment's
 #: optics (``None``: the roll of ``roll_deg`` and nothing else), the cues' reconstruction efficiency
 #: and no proprioception (``efficiency``, ``proprioception``), a reward of all their scales (``reward_scales``
-#: empty), learning for the whole run (``learn_until``), their rates without a floor (``encoder.floor``, ``nac.actor_floor``), and the oculomotor range of
+#: empty), learning for the whole run (``learn_until``), their rates without a floor (``encoder.floor``, ``nac.actor_floor``) and without a critical period
+#: (``encoder.close_at``, ``close_over``), and the oculomotor range of
 #: the config's ``env`` (``pan_range_deg``, ``vergence_range_deg``): the eye pan limits alone, no vergence
 #: range but theirs.
 _ADDED_3 = {"env": {"optics": None, "first_optics": None}, "cue": {"efficiency": "reconstruction", "proprioception": [], "reward_scales": [],
                                                                "learn_until": None},
-            "encoder": {"floor": None}, "nac": {"actor_floor": None},
+            "encoder": {"floor": None, "close_at": None, "close_over": 0}, "nac": {"actor_floor": None},
             "config_env": {"pan_range_deg": [-45.0, 45.0], "vergence_range_deg": [-90.0, 90.0]}}
 
 

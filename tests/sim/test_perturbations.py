@@ -478,6 +478,10 @@ def test_every_rearing_condition_runs(tmp_path, folder):
             # Every condition rears a plastic stereo code without the swap symmetry (REARING_SETTINGS).
             stereo = cfg.learner.cues["stereo"]
             assert (stereo.symmetry, stereo.encoder.decay, stereo.encoder.lr, cfg.train.keep_best) == (None, None, 2.0, False)
+            assert (stereo.encoder.close_at, stereo.encoder.close_over) == (1200, 600)  # the critical period
+            # Strabismus as the lineage has it: a vergence range that cannot undo the squint.
+            squint = name.startswith("strabismus")
+            assert list(cfg.env.vergence_range_deg) == ([0.0, 11.4] if squint else [-2.0, 40.0]), name
             kinds = tuple((e["kind"], "end" in e) for e in REARING[name])
             if kinds not in ran:  # one run per kind of events (early and late corrections run alike)
                 ran.add(kinds)
@@ -516,6 +520,27 @@ def test_plasticity_floor_and_raise():
         EncoderConfig(floor=0.0)
     with pytest.raises(ValueError, match="plasticity.raise_to"):
         to_experiment_config({"plasticity": {"raise_to": 2}})
+
+
+def test_a_critical_period_closes_the_code_and_leaves_it_as_it_was():
+    config = EncoderConfig(num_atoms=16, lr=2.0, decay=None, close_at=3, close_over=2)
+    assert [config.rate(t) for t in range(6)] == [2.0, 2.0, 2.0, 2.0, 1.0, 0.0]
+    assert EncoderConfig(lr=2.0, decay=None, close_at=3, floor=0.1).rate(50) == pytest.approx(0.2)  # adult plasticity
+    assert EncoderConfig(lr=0.1, decay=100, close_at=0).rate(0) == 0.0  # closed from the start
+    encoder = BinocularEncoder(config, ["coarse"], generator=torch.Generator().manual_seed(0))
+    images = torch.rand(2, 2, 160, 160, generator=torch.Generator().manual_seed(1))
+    atoms = []
+    for _ in range(7):
+        with torch.no_grad():
+            encoder.learn_(encoder(*images))
+        atoms.append(encoder.dictionaries["coarse"].atoms.detach().clone())
+    assert not torch.equal(atoms[3], atoms[4])  # the last step of the closing period still learns
+    assert all(torch.equal(atoms[4], later) for later in atoms[5:])  # closed: the code stays
+    encoder.raise_rate(1.0)  # raising winds the clock back: the period opens again
+    assert encoder.steps == 0 and encoder.rate() == 2.0
+    for bad, key in (({"close_at": -1}, "close_at"), ({"close_over": 1.5}, "close_over")):
+        with pytest.raises((ValueError, TypeError), match=key):
+            EncoderConfig(**bad)
 
 
 @pytest.mark.integration
