@@ -13,7 +13,7 @@ from typing import Sequence
 from aectorch.report import accommodation, compare, depth, matcher, offsets, tables
 from aectorch.report.adaptation import adaptation_table
 from aectorch.report.tracking import tracking_table
-from aectorch.report.rearing import plot_rearing, rearing_runs, rearing_table
+from aectorch.report.rearing import plot_rearing, plot_rearing_curves, rearing_runs, rearing_table
 from aectorch.report.tails import tails, tails_lines
 from aectorch.runs import EVALUATION, Run, files_read, forget_files_read
 from aectorch.runtime.command import check_output_file
@@ -144,6 +144,8 @@ def _rearing(args) -> list[str]:
     lines = rearing_table(groups, args.cue, args.scales)
     if args.plot is not None:
         lines.append(f"wrote {plot_rearing(groups, args.plot, args.cue)}")
+    if args.curves is not None:
+        lines.append(f"wrote {plot_rearing_curves(groups, args.curves, args.cue)}")
     return lines
 
 
@@ -343,6 +345,8 @@ def _experiment_commands(command) -> None:
     sub.add_argument("--scales", nargs="+", default=None,
                      help="only these dictionaries in the per-dictionary tables (e.g. fine full; default: all)")
     sub.add_argument("--plot", type=Path, default=None, help="also draw the suite's figure into this PNG")
+    sub.add_argument("--curves", type=Path, default=None,
+                     help="also draw the code's read-outs against iterations into this PNG (train.readout_every)")
 
     sub = command("rl", _rl, tables.rl_table)
     sub.add_argument("folder", type=Path, help="the examples' result files")

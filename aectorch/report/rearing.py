@@ -22,8 +22,8 @@ from aectorch.figures import save_figure
 from aectorch.runs import Run
 from aectorch.runtime.presets import REARING
 
-__all__ = ["DOMINANCE", "code_numbers", "rearing_condition", "rearing_runs", "rearing_rows", "rearing_table",
-           "plot_rearing"]
+__all__ = ["DOMINANCE", "code_numbers", "lineage_verdicts", "mean_disparity", "rearing_condition", "rearing_runs",
+           "rearing_rows", "rearing_table", "plot_rearing", "plot_rearing_curves"]
 
 #: An atom is dominated by one eye when its binocularity index is beyond this (Hubel and Wiesel's
 #: ocular-dominance groups 1-2 and 6-7 of seven bins: |index| > 3/7).
@@ -143,6 +143,133 @@ def _code_at_correction(summary: Mapping, cue: str) -> dict:
     return {} if not ends else {k.split("/", 1)[1]: v for k, v in ends[0]["code"].items() if k.startswith(f"{cue}/")}
 
 
+def mean_disparity(readout: Mapping) -> float:
+    """The mean preferred disparity (pixels at the dictionary's scale) of one dictionary's atoms,
+    from its read-out's histogram (`code_summary`'s ``disparity``); NaN without atoms."""
+    disparity = readout["disparity"]
+    total = sum(disparity["counts"])
+    return sum(c * d for c, d in zip(disparity["counts"], disparity["disparities_px"])) / total if total else math.nan
+
+
+#: The verdicts' thresholds: the lineage's strabismus (the issue's bar: at some scale at least
+#: half the atoms dominated, at least 15 % by each eye); monocular deprivation (at some scale at
+#: least half the atoms dominated by the open eye, at most 5 % by the closed one); normal rearing
+#: (at every scale at most 10 % dominated); a shifted disparity preference (the mean preferred
+#: disparity at least 1 px of the scale from normal rearing's); a lean (a signed mean index
+#: beyond 0.05 towards the sharp eye); orientation rearing (the reared band's share at least
+#: twice normal rearing's).
+THRESHOLDS = {"strabismus_dominated": 0.5, "strabismus_each": 0.15, "monocular_open": 0.5, "monocular_closed": 0.05,
+              "normal_dominated": 0.10, "disparity_shift_px": 1.0, "lean": 0.05, "orientation_ratio": 2.0}
+
+
+def _means(rows: Sequence[dict], name: str, key: str = "code") -> dict[str, dict[str, float]]:
+    """Per scale, the mean over ``name``'s runs of each :func:`code_numbers` value (``key``:
+    ``code`` at the end, ``at_correction``); empty without such runs."""
+    mine = [r[key] for r in rows if r["condition"] == name and r[key]]
+    return {scale: {k: _mean([m[scale][k] for m in mine]) for k in mine[0][scale]} for scale in mine[0]} if mine else {}
+
+
+def lineage_verdicts(groups: Mapping[str, Sequence[Run]], cue: str = "stereo") -> list[dict]:
+    """For each result of the AEC lineage the suite can check, whether the runs agree:
+    ``{"result", "source", "numbers", "agrees"}`` (``agrees`` None where a condition it needs did
+    not run). Means over the seeds; the thresholds are :data:`THRESHOLDS`."""
+    rows = rearing_rows(groups, cue)
+    t, out = THRESHOLDS, []
+
+    def add(result, source, needs, judge):
+        if not all(any(r["condition"] == n for r in rows) for n in needs):
+            out.append({"result": result, "source": source, "numbers": "not run", "agrees": None})
+            return
+        numbers, agrees = judge()
+        out.append({"result": result, "source": source, "numbers": numbers, "agrees": agrees})
+
+    def normal():
+        code = _means(rows, "normal")
+        worst = max(code, key=lambda s: code[s]["left"] + code[s]["right"])
+        dominated = code[worst]["left"] + code[worst]["right"]
+        return f"most dominated scale {worst}: {100 * dominated:.0f} % of atoms", dominated <= t["normal_dominated"]
+
+    def monocular():
+        code = _means(rows, "monocular")
+        best = max(code, key=lambda s: code[s]["left"])
+        c = code[best]
+        return (f"{best}: {100 * c['left']:.0f} % dominated by the open (left) eye, {100 * c['right']:.0f} % by the "
+                "closed", c["left"] >= t["monocular_open"] and c["right"] <= t["monocular_closed"])
+
+    def strabismus():
+        code = _means(rows, "strabismus")
+        best = max(code, key=lambda s: min(code[s]["left"], code[s]["right"]))
+        c = code[best]
+        return (f"{best}: {100 * (c['left'] + c['right']):.0f} % dominated ({100 * c['left']:.0f} % left, "
+                f"{100 * c['right']:.0f} % right)",
+                c["left"] + c["right"] >= t["strabismus_dominated"] and min(c["left"], c["right"]) >= t["strabismus_each"])
+
+    def strabismus_3deg():
+        shifts = {}
+        for scale in rows[0]["code_raw"]:
+            shifted = _mean([mean_disparity(r["code_raw"][scale]) for r in rows if r["condition"] == "strabismus_3deg"])
+            normal = _mean([mean_disparity(r["code_raw"][scale]) for r in rows if r["condition"] == "normal"])
+            shifts[scale] = shifted - normal
+        best = max(shifts, key=lambda s: abs(shifts[s]))
+        code = _means(rows, "strabismus_3deg")
+        dominated = max(c["left"] + c["right"] for c in code.values())
+        cells = ", ".join(f"{scale} {shift:+.2f}" for scale, shift in shifts.items())
+        return (f"mean preferred disparity against normal rearing (px of the scale): {cells}; at most "
+                f"{100 * dominated:.0f} % dominated",
+                abs(shifts[best]) >= t["disparity_shift_px"] and dominated < t["strabismus_dominated"])
+
+    def suppression():
+        code = _means(rows, "anisometropia_late", "at_correction")
+        fine = {s: c for s, c in code.items() if s in ("fine", "full")} or code
+        lean = min(c["mean_index"] for c in fine.values())
+        cells = ", ".join(f"{s} {c['mean_index']:+.2f}" for s, c in fine.items())
+        return f"mean index while blurred (before the late correction): {cells}", lean <= -t["lean"]
+
+    def recovery():
+        early, late = _means(rows, "anisometropia_early"), _means(rows, "anisometropia_late")
+        scales = [s for s in early if s in ("fine", "full")] or list(early)
+        lean_early = min(early[s]["mean_index"] for s in scales)
+        lean_late = min(late[s]["mean_index"] for s in scales)
+        vergence = {n: _mean([r["vergence_eval"] for r in rows if r["condition"] == n])
+                    for n in ("normal", "anisometropia_early", "anisometropia_late")}
+        return (f"mean index at the end, early / late: {lean_early:+.2f} / {lean_late:+.2f}; vergence MAE normal / "
+                f"early / late {vergence['normal']:.3f} / {vergence['anisometropia_early']:.3f} / "
+                f"{vergence['anisometropia_late']:.3f} deg",
+                lean_early > -t["lean"] and lean_late <= -t["lean"])
+
+    def orientation():
+        normal, parts, agrees = _means(rows, "normal"), [], True
+        for name, key in (("vertical", "vertical"), ("horizontal", "horizontal")):
+            code = _means(rows, name)
+            ratio = max(code[s][key] / max(normal[s][key], 1e-9) for s in code)
+            parts.append(f"{name}: up to {ratio:.1f}x normal's share")
+            agrees &= ratio >= t["orientation_ratio"]
+        return "; ".join(parts), agrees
+
+    add("normal rearing: mostly binocular atoms", "Klimmasch et al. 2021, Fig. 4", ["normal"], normal)
+    add("monocular deprivation: atoms dominated by the open eye", "Klimmasch et al. 2021, Fig. 4", ["monocular"],
+        monocular)
+    add("strabismus (10 deg): most atoms monocular, both eyes", "Klimmasch et al. 2021, Fig. 4", ["strabismus"],
+        strabismus)
+    add("strabismus (3 deg): a shifted disparity preference, not monocularity", "Klimmasch et al. 2021, Methods",
+        ["strabismus_3deg", "normal"], strabismus_3deg)
+    add("anisometropia: the blurred eye suppressed at the fine scales", "Eckmann et al. 2020; Klimmasch et al. 2021",
+        ["anisometropia_late"], suppression)
+    add("anisometropia: recovery if corrected early, not late", "Klimmasch et al. 2021",
+        ["anisometropia_early", "anisometropia_late", "normal"], recovery)
+    add("orientation rearing: preferences shift to the reared band", "Klimmasch et al. 2021",
+        ["vertical", "horizontal", "normal"], orientation)
+    return out
+
+
+def _verdict_table(groups: Mapping[str, Sequence[Run]], cue: str) -> list[str]:
+    lines = ["", "| the lineage's result | source | here (means over the seeds) | agrees |", "|---|---|---|---|"]
+    for v in lineage_verdicts(groups, cue):
+        mark = {True: "yes", False: "no", None: "-"}[v["agrees"]]
+        lines.append(f"| {v['result']} | {v['source']} | {v['numbers']} | {mark} |")
+    return lines
+
+
 def rearing_rows(groups: Mapping[str, Sequence[Run]], cue: str = "stereo") -> list[dict]:
     """One row per run: its condition and seed, its training time, :func:`code_numbers` of each of
     ``cue``'s dictionaries (``"code"``, ``"initial"`` of its start and ``"at_correction"`` as the
@@ -193,8 +320,9 @@ def rearing_table(groups: Mapping[str, Sequence[Run]], cue: str = "stereo",
     correction's read-out (the short training window when the blurred eye is corrected, and at
     the end) and the training time; then, for the runs that read it, the code at the correction
     (as the perturbation left it) against the code at the end. Cells are means over the seeds
-    (smallest-largest); the random start's mean index is in square brackets. The last line is the
-    suite's total training time (``summary.json``'s ``train_seconds`` summed over the runs).
+    (smallest-largest); the random start's mean index is in square brackets. Then
+    :func:`lineage_verdicts`: each lineage result, the numbers that test it, and whether they agree.
+    The last line is the suite's total training time (``summary.json``'s ``train_seconds`` summed over the runs).
     ``scales`` keeps only those dictionaries in the per-dictionary tables (default: all)."""
     rows = rearing_rows(groups, cue)
     known = {scale for r in rows for scale in r["code"]}
@@ -225,6 +353,7 @@ def rearing_table(groups: Mapping[str, Sequence[Run]], cue: str = "stereo",
                      f"{_cell([r['vergence_window'] for r in mine])} | {fix} | "
                      f"{_cell([r['train_seconds'] for r in mine], '.0f')} |")
     lines += _correction_code_table(rows, groups, cue, keep)
+    lines += _verdict_table(groups, cue)
     total = sum(r["train_seconds"] for r in rows)
     lines += ["", f"suite: {len(rows)} runs, training {total / 60:.1f} min in all ({total:.0f} s; "
               f"summary.json's train_seconds summed)"]
@@ -337,3 +466,49 @@ def _correction_panel(ax, rows: Sequence[dict], names: Sequence[str]) -> None:
     ax.set_title("recovery after the correction (dots: seeds)", fontsize=9)
     if fixed:
         ax.legend(fontsize=7)
+
+
+def plot_rearing_curves(groups: Mapping[str, Sequence[Run]], path: str | os.PathLike, cue: str = "stereo") -> Path:
+    """The code's read-outs against training iterations (``train.readout_every``,
+    `aectorch.runs.Run.code_readouts`): per ``cue`` dictionary (column) the share of the atoms
+    dominated by one eye (|index| > 3/7; top) and the mean absolute binocularity index (bottom),
+    one line per condition (the mean over its seeds). Whether a condition's code has converged
+    by the end of the suite is read here.
+
+    Raises:
+        ValueError: no run of ``groups`` has read-outs (run the suite with ``train.readout_every``).
+    """
+    import numpy as np
+    from matplotlib.figure import Figure
+
+    curves: dict[str, dict[str, tuple[list, list, list]]] = {}
+    for name, runs in groups.items():
+        per_run = [run.code_readouts for run in runs]
+        per_run = [lines for lines in per_run if lines]
+        if not per_run:
+            continue
+        iterations = sorted(set.intersection(*({line["iteration"] for line in lines} for lines in per_run)))
+        for scale in (k for k in per_run[0][0]["code"] if k.startswith(f"{cue}/")):
+            dominated, index = [], []
+            for it in iterations:
+                numbers = [code_numbers(next(line for line in lines if line["iteration"] == it)["code"][scale])
+                           for lines in per_run]
+                dominated.append(np.mean([n["left"] + n["right"] for n in numbers]))
+                index.append(np.mean([n["mean_abs_index"] for n in numbers]))
+            curves.setdefault(scale, {})[name] = (iterations, dominated, index)
+    if not curves:
+        raise ValueError("no run of the suite has code read-outs (code_readouts.jsonl): run it with "
+                         "train.readout_every=N")
+    fig = Figure(figsize=(3.2 * len(curves) + 1, 5.4), layout="constrained")
+    axes = fig.subplots(2, len(curves), squeeze=False, sharex=True)
+    for j, (scale, lines) in enumerate(curves.items()):
+        for name, (iterations, dominated, index) in lines.items():
+            axes[0, j].plot(iterations, 100 * np.asarray(dominated), label=name, linewidth=1.2)
+            axes[1, j].plot(iterations, index, label=name, linewidth=1.2)
+        axes[0, j].set_title(scale, fontsize=9)
+        axes[1, j].set_xlabel("training iteration", fontsize=8)
+    axes[0, 0].set_ylabel("atoms dominated by one eye (%)", fontsize=8)
+    axes[1, 0].set_ylabel("mean |binocularity index|", fontsize=8)
+    axes[0, -1].legend(fontsize=6)
+    fig.suptitle("Rearing: the code read out during training (means over the seeds)")
+    return save_figure(fig, path, dpi=100)

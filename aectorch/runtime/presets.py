@@ -22,7 +22,7 @@ from typing import Any
 
 from aectorch.framework import PAPER_ACTIONS_DEG, default_cues
 
-__all__ = ["ACCOMMODATION", "ADDED_GROUPS", "GROUPS", "GROUP_DEFAULTS", "LIFELONG", "PAPER_PRESET", "PLASTICITY", "REARING", "REARING_SETTINGS", "ROBUST_VERGENCE", "ROLL_PERTURBATION", "SLIP"]
+__all__ = ["ACCOMMODATION", "ADDED_GROUPS", "GROUPS", "GROUP_DEFAULTS", "LIFELONG", "PAPER_PRESET", "PLASTICITY", "REARING", "REARING_CONDITION_SETTINGS", "REARING_SETTINGS", "ROBUST_VERGENCE", "ROLL_PERTURBATION", "SLIP", "STRABISMUS_VERGENCE_RANGE_DEG"]
 
 #: The paper's values (Wong et al. 2017) where they differ from the defaults, applied by
 #: ``preset=paper``: dotted key -> value. What the paper states and the defaults change: its
@@ -129,25 +129,42 @@ PLASTICITY: dict[str, dict[str, Any]] = {
 
 #: What every rearing condition (``rearing=<name>``, ``normal`` included) sets besides its events:
 #: dotted key -> value. A stereo code that can be reared: no swap symmetry (it forces the
-#: binocularity histogram to be symmetric) and a constant dictionary rate 20x the default's start
-#: (with the default decaying 0.1, the atoms end within a cosine of 0.996-0.999 of their random
-#: start and no histogram moves; docs/sensory-coding.md, "Rearing", has the measurements). The
-#: evaluation reads the final state (no ``best.pt``: a window chosen under the reared eyes is not
-#: what rearing left).
+#: binocularity histogram to be symmetric) and a constant dictionary rate of 16, 160x the
+#: default's start (with the default decaying 0.1, the atoms end within a cosine of 0.996-0.999 of
+#: their random start and no histogram moves; a strabismic code needs about 16 x 2,400 of rate
+#: times iterations to turn monocular). A critical period: the rate closes linearly from iteration
+#: 1,200 to 0 at 1,800 (half and three quarters of the suite's 2,400 iterations), so a world
+#: changed before it reshapes the code and one changed after it meets the code it left. A world
+#: of natural-image statistics, the dead-leaves textures (occluding discs, sharp edges): on the
+#: default 1/f noise textures, which are Gaussian, no basis is better than another and a code
+#: of two uncorrelated halves stays binocular. docs/sensory-coding.md, "Rearing", has the
+#: measurements behind each. The evaluation reads the final state (no ``best.pt``: a window
+#: chosen under the reared eyes is not what rearing left); the code is read out every 100
+#: iterations (`python -m aectorch.report rearing --curves`).
 REARING_SETTINGS: dict[str, Any] = {
     "learner.cues.stereo.symmetry": None,
     "learner.cues.stereo.encoder.decay": None,
-    "learner.cues.stereo.encoder.lr": 2.0,
+    "learner.cues.stereo.encoder.lr": 16.0,
+    "learner.cues.stereo.encoder.close_at": 1200,
+    "learner.cues.stereo.encoder.close_over": 600,
+    "env.textures": "dead-leaves",
     "train.keep_best": False,
+    "train.readout_every": 100,
 }
+
+#: The lineage's vergence range under strabismus (Klimmasch et al. 2021): 0 to 11.4 deg of
+#: commanded vergence, so that the squinting eye cannot be turned back onto the object.
+STRABISMUS_VERGENCE_RANGE_DEG = [0.0, 11.4]
 
 #: The rearing conditions of the AEC lineage (Klimmasch et al. 2021, Eckmann et al. 2020), each a
 #: list of perturbation events over the whole run (``rearing=<name>``, which also sets
-#: :data:`REARING_SETTINGS`; the evaluation afterwards sees with normal eyes): name -> events.
+#: :data:`REARING_SETTINGS` and the condition's :data:`REARING_CONDITION_SETTINGS`; the evaluation
+#: afterwards sees with normal eyes): name -> events.
 REARING: dict[str, list[dict[str, Any]]] = {
     "normal": [],
     "monocular": [{"kind": "monocular_deprivation", "start": 0, "eye": "right", "params": {"contrast": 0.0}}],
     "strabismus": [{"kind": "strabismus", "start": 0, "eye": "right", "params": {"deg": 10.0}}],
+    "strabismus_3deg": [{"kind": "strabismus", "start": 0, "eye": "right", "params": {"deg": 3.0}}],
     "anisometropia_early": [{"kind": "anisometropia", "start": 0, "end": 0.25, "eye": "right",
                              "params": {"arcmin": 120.0}, "label": "right eye blurred, corrected early"}],
     "anisometropia_late": [{"kind": "anisometropia", "start": 0, "end": 0.75, "eye": "right",
@@ -164,6 +181,16 @@ REARING: dict[str, list[dict[str, Any]]] = {
     "horizontal": [{"kind": "orientation_rearing", "start": 0, "params": {"orientation": "horizontal"}}],
 }
 
+#: What a condition sets besides :data:`REARING_SETTINGS`: name -> dotted key -> value. Strabismus
+#: as the lineage has it: the vergence range :data:`STRABISMUS_VERGENCE_RANGE_DEG`, which cannot
+#: undo the squint (at 10 deg inward the eyes converge at least 10 deg while the objects at 1-3 m
+#: need 1.15-3.44 deg: at least 6.6 deg of disparity, wider than a fine or full patch, 3.6 and
+#: 1.8 deg; at 3 deg up to 1.9 deg, the objects nearer than 1.15 m reachable).
+REARING_CONDITION_SETTINGS: dict[str, dict[str, Any]] = {
+    "strabismus": {"env.vergence_range_deg": STRABISMUS_VERGENCE_RANGE_DEG},
+    "strabismus_3deg": {"env.vergence_range_deg": STRABISMUS_VERGENCE_RANGE_DEG},
+}
+
 
 #: Every config group of ``train.py`` (`aectorch.runtime.store.register_configs` registers them):
 #: group -> option -> the dotted keys it sets. A resume compares a group given on its command line
@@ -174,8 +201,8 @@ GROUPS: dict[str, dict[str, dict[str, Any]]] = {
                    "robust_vergence": ROBUST_VERGENCE, "lifelong": LIFELONG},
     "plasticity": PLASTICITY,
     # "normal" adds no events: a run's own perturbations stay.
-    "rearing": {name: {**REARING_SETTINGS, **({"perturbations": events} if events else {})}
-                for name, events in REARING.items()},
+    "rearing": {name: {**REARING_SETTINGS, **REARING_CONDITION_SETTINGS.get(name, {}),
+                       **({"perturbations": events} if events else {})} for name, events in REARING.items()},
 }
 
 #: Each group's option when the command line names none (``None``: the group is not applied).

@@ -22,6 +22,9 @@ def _atoms(seed: int, eye: str | None) -> torch.Tensor:
         atoms[16:] = 0
     elif eye == "right":
         atoms[:16] = 0
+    elif eye == "split":  # half the atoms of each eye only
+        atoms[16:, :8] = 0
+        atoms[:16, 8:] = 0
     return atoms
 
 
@@ -60,8 +63,29 @@ def test_the_table_reads_each_condition_from_its_runs(tmp_path, capsys):
     assert out[4].startswith("| anisometropia_early (1) | stereo/fine |")
     assert out[8] == "| normal (2) | 0.150 (0.100-0.200) | 1.000 (0.500-1.500) | - | 105 (100-110) |"
     assert out[10] == "| anisometropia_early (1) | 0.100 | 0.500 | 2.000 -> 0.300 | 130 |"
-    assert out[12] == "suite: 4 runs, training 7.7 min in all (460 s; summary.json's train_seconds summed)"
-    assert out[13] == f"wrote {plot}" and plot.stat().st_size > 10_000
+    suite = out.index("suite: 4 runs, training 7.7 min in all (460 s; summary.json's train_seconds summed)")
+    assert out[suite + 1] == f"wrote {plot}" and plot.stat().st_size > 10_000
+    verdicts = out[out.index("| the lineage's result | source | here (means over the seeds) | agrees |") + 2:suite - 1]
+    assert len(verdicts) == 7 and verdicts[0].startswith("| normal rearing: mostly binocular atoms |")
+    assert verdicts[0].endswith("| yes |") and verdicts[1].endswith("| yes |")  # binocular; the open eye's
+    assert verdicts[2].endswith("| not run | - |")  # no strabismus run
+
+
+def test_the_verdicts_test_each_lineage_result_against_its_numbers(tmp_path):
+    from aectorch.report.rearing import lineage_verdicts
+
+    _run(tmp_path / "normal_s0", "normal", 0, None, 1.0)
+    _run(tmp_path / "strabismus_s0", "strabismus", 0, "split", 1.0)
+    _run(tmp_path / "monocular_s0", "monocular", 0, "right", 1.0)  # dominated by the closed eye
+    _run(tmp_path / "strabismus_3deg_s0", "strabismus_3deg", 0, None, 1.0)
+    verdicts = {v["result"].split(":")[0]: v for v in lineage_verdicts(rearing_runs(tmp_path))}
+    assert verdicts["normal rearing"]["agrees"] is True
+    assert verdicts["strabismus (10 deg)"]["agrees"] is True
+    assert verdicts["strabismus (10 deg)"]["numbers"] == "fine: 100 % dominated (50 % left, 50 % right)"
+    assert verdicts["monocular deprivation"]["agrees"] is False
+    # The 3 deg squint's atoms are the normal run's: no shift of the disparity preference.
+    assert verdicts["strabismus (3 deg)"]["agrees"] is False and "fine +0.00" in verdicts["strabismus (3 deg)"]["numbers"]
+    assert verdicts["orientation rearing"]["agrees"] is None
 
 
 def test_the_code_at_the_correction_is_read_beside_the_code_at_the_end(tmp_path, capsys):

@@ -477,7 +477,7 @@ def test_every_rearing_condition_runs(tmp_path, folder):
             assert len(cfg.events()) == len(REARING[name])
             # Every condition rears a plastic stereo code without the swap symmetry (REARING_SETTINGS).
             stereo = cfg.learner.cues["stereo"]
-            assert (stereo.symmetry, stereo.encoder.decay, stereo.encoder.lr, cfg.train.keep_best) == (None, None, 2.0, False)
+            assert (stereo.symmetry, stereo.encoder.decay, stereo.encoder.lr, cfg.train.keep_best) == (None, None, 16.0, False)
             assert (stereo.encoder.close_at, stereo.encoder.close_over) == (1200, 600)  # the critical period
             # Strabismus as the lineage has it: a vergence range that cannot undo the squint.
             squint = name.startswith("strabismus")
