@@ -110,8 +110,8 @@ class EncoderConfig:
 
         Example:
             >>> config = EncoderConfig(lr=2.0, decay=None, close_at=100, close_over=50)
-            >>> [config.rate(t) for t in (0, 100, 125, 150, 1000)]
-            [2.0, 2.0, 1.0, 0.0, 0.0]
+            >>> tuple(config.rate(t) for t in (0, 100, 125, 150, 1000))
+            (2.0, 2.0, 1.0, 0.0, 0.0)
         """
         rate = self.lr if self.decay is None else self.lr * (self.decay / (self.decay + steps)) ** self.decay_power
         if self.close_at is not None and steps >= self.close_at:

@@ -22,7 +22,7 @@ from aectorch.figures import save_figure
 from aectorch.runs import Run
 from aectorch.runtime.presets import REARING
 
-__all__ = ["DOMINANCE", "code_numbers", "lineage_verdicts", "mean_disparity", "rearing_condition", "rearing_runs",
+__all__ = ["DOMINANCE", "LINEAGE_RESULTS", "THRESHOLDS", "code_numbers", "lineage_verdicts", "mean_disparity", "rearing_condition", "rearing_runs",
            "rearing_rows", "rearing_table", "plot_rearing", "plot_rearing_curves"]
 
 #: An atom is dominated by one eye when its binocularity index is beyond this (Hubel and Wiesel's
@@ -169,96 +169,103 @@ def _means(rows: Sequence[dict], name: str, key: str = "code") -> dict[str, dict
     return {scale: {k: _mean([m[scale][k] for m in mine]) for k in mine[0][scale]} for scale in mine[0]} if mine else {}
 
 
+def _judge_normal(rows: Sequence[dict]) -> tuple[str, bool]:
+    code = _means(rows, "normal")
+    worst = max(code, key=lambda s: code[s]["left"] + code[s]["right"])
+    dominated = code[worst]["left"] + code[worst]["right"]
+    return f"most dominated scale {worst}: {100 * dominated:.0f} % of atoms", dominated <= THRESHOLDS["normal_dominated"]
+
+
+def _judge_monocular(rows: Sequence[dict]) -> tuple[str, bool]:
+    code = _means(rows, "monocular")
+    best = max(code, key=lambda s: code[s]["left"])
+    c = code[best]
+    return (f"{best}: {100 * c['left']:.0f} % dominated by the open (left) eye, {100 * c['right']:.0f} % by the closed",
+            c["left"] >= THRESHOLDS["monocular_open"] and c["right"] <= THRESHOLDS["monocular_closed"])
+
+
+def _judge_strabismus(rows: Sequence[dict]) -> tuple[str, bool]:
+    code = _means(rows, "strabismus")
+    best = max(code, key=lambda s: min(code[s]["left"], code[s]["right"]))
+    c = code[best]
+    return (f"{best}: {100 * (c['left'] + c['right']):.0f} % dominated ({100 * c['left']:.0f} % left, "
+            f"{100 * c['right']:.0f} % right)", c["left"] + c["right"] >= THRESHOLDS["strabismus_dominated"]
+            and min(c["left"], c["right"]) >= THRESHOLDS["strabismus_each"])
+
+
+def _judge_small_strabismus(rows: Sequence[dict]) -> tuple[str, bool]:
+    def disparity(name, scale):
+        return _mean([mean_disparity(r["code_raw"][scale]) for r in rows if r["condition"] == name])
+
+    shifts = {scale: disparity("strabismus_3deg", scale) - disparity("normal", scale) for scale in rows[0]["code_raw"]}
+    best = max(shifts, key=lambda s: abs(shifts[s]))
+    dominated = max(c["left"] + c["right"] for c in _means(rows, "strabismus_3deg").values())
+    cells = ", ".join(f"{scale} {shift:+.2f}" for scale, shift in shifts.items())
+    return (f"mean preferred disparity against normal rearing (px of the scale): {cells}; at most "
+            f"{100 * dominated:.0f} % dominated",
+            abs(shifts[best]) >= THRESHOLDS["disparity_shift_px"] and dominated < THRESHOLDS["strabismus_dominated"])
+
+
+def _fine(code: Mapping[str, dict]) -> dict[str, dict]:
+    """The fine and full dictionaries of ``code`` (all of them when it has neither)."""
+    return {s: c for s, c in code.items() if s in ("fine", "full")} or dict(code)
+
+
+def _judge_suppression(rows: Sequence[dict]) -> tuple[str, bool]:
+    fine = _fine(_means(rows, "anisometropia_late", "at_correction"))
+    cells = ", ".join(f"{s} {c['mean_index']:+.2f}" for s, c in fine.items())
+    return (f"mean index while blurred (before the late correction): {cells}",
+            min(c["mean_index"] for c in fine.values()) <= -THRESHOLDS["lean"])
+
+
+def _judge_recovery(rows: Sequence[dict]) -> tuple[str, bool]:
+    early = min(c["mean_index"] for c in _fine(_means(rows, "anisometropia_early")).values())
+    late = min(c["mean_index"] for c in _fine(_means(rows, "anisometropia_late")).values())
+    vergence = [_mean([r["vergence_eval"] for r in rows if r["condition"] == n])
+                for n in ("normal", "anisometropia_early", "anisometropia_late")]
+    return (f"mean index at the end, early / late: {early:+.2f} / {late:+.2f}; vergence MAE normal / early / late "
+            f"{' / '.join(f'{v:.3f}' for v in vergence)} deg", early > -THRESHOLDS["lean"] and late <= -THRESHOLDS["lean"])
+
+
+def _judge_orientation(rows: Sequence[dict]) -> tuple[str, bool]:
+    normal, parts, agrees = _means(rows, "normal"), [], True
+    for name in ("vertical", "horizontal"):
+        code = _means(rows, name)
+        ratio = max(code[s][name] / max(normal[s][name], 1e-9) for s in code)
+        parts.append(f"{name}: up to {ratio:.1f}x normal's share")
+        agrees &= ratio >= THRESHOLDS["orientation_ratio"]
+    return "; ".join(parts), agrees
+
+
+#: The lineage's results the suite checks: (result, source, the conditions it needs, its judge).
+LINEAGE_RESULTS = (
+    ("normal rearing: mostly binocular atoms", "Klimmasch et al. 2021, Fig. 4", ("normal",), _judge_normal),
+    ("monocular deprivation: atoms dominated by the open eye", "Klimmasch et al. 2021, Fig. 4", ("monocular",),
+     _judge_monocular),
+    ("strabismus (10 deg): most atoms monocular, both eyes", "Klimmasch et al. 2021, Fig. 4", ("strabismus",),
+     _judge_strabismus),
+    ("strabismus (3 deg): a shifted disparity preference, not monocularity", "Klimmasch et al. 2021, Methods",
+     ("strabismus_3deg", "normal"), _judge_small_strabismus),
+    ("anisometropia: the blurred eye suppressed at the fine scales", "Eckmann et al. 2020; Klimmasch et al. 2021",
+     ("anisometropia_late",), _judge_suppression),
+    ("anisometropia: recovery if corrected early, not late", "Klimmasch et al. 2021",
+     ("anisometropia_early", "anisometropia_late", "normal"), _judge_recovery),
+    ("orientation rearing: preferences shift to the reared band", "Klimmasch et al. 2021",
+     ("vertical", "horizontal", "normal"), _judge_orientation),
+)
+
+
 def lineage_verdicts(groups: Mapping[str, Sequence[Run]], cue: str = "stereo") -> list[dict]:
-    """For each result of the AEC lineage the suite can check, whether the runs agree:
-    ``{"result", "source", "numbers", "agrees"}`` (``agrees`` None where a condition it needs did
-    not run). Means over the seeds; the thresholds are :data:`THRESHOLDS`."""
+    """For each result of the AEC lineage the suite can check (:data:`LINEAGE_RESULTS`), whether
+    the runs agree: ``{"result", "source", "numbers", "agrees"}`` (``agrees`` None and the numbers
+    "not run" where a condition it needs did not run). Means over the seeds; the thresholds are
+    :data:`THRESHOLDS`."""
     rows = rearing_rows(groups, cue)
-    t, out = THRESHOLDS, []
-
-    def add(result, source, needs, judge):
-        if not all(any(r["condition"] == n for r in rows) for n in needs):
-            out.append({"result": result, "source": source, "numbers": "not run", "agrees": None})
-            return
-        numbers, agrees = judge()
+    ran = {r["condition"] for r in rows}
+    out = []
+    for result, source, needs, judge in LINEAGE_RESULTS:
+        numbers, agrees = judge(rows) if set(needs) <= ran else ("not run", None)
         out.append({"result": result, "source": source, "numbers": numbers, "agrees": agrees})
-
-    def normal():
-        code = _means(rows, "normal")
-        worst = max(code, key=lambda s: code[s]["left"] + code[s]["right"])
-        dominated = code[worst]["left"] + code[worst]["right"]
-        return f"most dominated scale {worst}: {100 * dominated:.0f} % of atoms", dominated <= t["normal_dominated"]
-
-    def monocular():
-        code = _means(rows, "monocular")
-        best = max(code, key=lambda s: code[s]["left"])
-        c = code[best]
-        return (f"{best}: {100 * c['left']:.0f} % dominated by the open (left) eye, {100 * c['right']:.0f} % by the "
-                "closed", c["left"] >= t["monocular_open"] and c["right"] <= t["monocular_closed"])
-
-    def strabismus():
-        code = _means(rows, "strabismus")
-        best = max(code, key=lambda s: min(code[s]["left"], code[s]["right"]))
-        c = code[best]
-        return (f"{best}: {100 * (c['left'] + c['right']):.0f} % dominated ({100 * c['left']:.0f} % left, "
-                f"{100 * c['right']:.0f} % right)",
-                c["left"] + c["right"] >= t["strabismus_dominated"] and min(c["left"], c["right"]) >= t["strabismus_each"])
-
-    def strabismus_3deg():
-        shifts = {}
-        for scale in rows[0]["code_raw"]:
-            shifted = _mean([mean_disparity(r["code_raw"][scale]) for r in rows if r["condition"] == "strabismus_3deg"])
-            normal = _mean([mean_disparity(r["code_raw"][scale]) for r in rows if r["condition"] == "normal"])
-            shifts[scale] = shifted - normal
-        best = max(shifts, key=lambda s: abs(shifts[s]))
-        code = _means(rows, "strabismus_3deg")
-        dominated = max(c["left"] + c["right"] for c in code.values())
-        cells = ", ".join(f"{scale} {shift:+.2f}" for scale, shift in shifts.items())
-        return (f"mean preferred disparity against normal rearing (px of the scale): {cells}; at most "
-                f"{100 * dominated:.0f} % dominated",
-                abs(shifts[best]) >= t["disparity_shift_px"] and dominated < t["strabismus_dominated"])
-
-    def suppression():
-        code = _means(rows, "anisometropia_late", "at_correction")
-        fine = {s: c for s, c in code.items() if s in ("fine", "full")} or code
-        lean = min(c["mean_index"] for c in fine.values())
-        cells = ", ".join(f"{s} {c['mean_index']:+.2f}" for s, c in fine.items())
-        return f"mean index while blurred (before the late correction): {cells}", lean <= -t["lean"]
-
-    def recovery():
-        early, late = _means(rows, "anisometropia_early"), _means(rows, "anisometropia_late")
-        scales = [s for s in early if s in ("fine", "full")] or list(early)
-        lean_early = min(early[s]["mean_index"] for s in scales)
-        lean_late = min(late[s]["mean_index"] for s in scales)
-        vergence = {n: _mean([r["vergence_eval"] for r in rows if r["condition"] == n])
-                    for n in ("normal", "anisometropia_early", "anisometropia_late")}
-        return (f"mean index at the end, early / late: {lean_early:+.2f} / {lean_late:+.2f}; vergence MAE normal / "
-                f"early / late {vergence['normal']:.3f} / {vergence['anisometropia_early']:.3f} / "
-                f"{vergence['anisometropia_late']:.3f} deg",
-                lean_early > -t["lean"] and lean_late <= -t["lean"])
-
-    def orientation():
-        normal, parts, agrees = _means(rows, "normal"), [], True
-        for name, key in (("vertical", "vertical"), ("horizontal", "horizontal")):
-            code = _means(rows, name)
-            ratio = max(code[s][key] / max(normal[s][key], 1e-9) for s in code)
-            parts.append(f"{name}: up to {ratio:.1f}x normal's share")
-            agrees &= ratio >= t["orientation_ratio"]
-        return "; ".join(parts), agrees
-
-    add("normal rearing: mostly binocular atoms", "Klimmasch et al. 2021, Fig. 4", ["normal"], normal)
-    add("monocular deprivation: atoms dominated by the open eye", "Klimmasch et al. 2021, Fig. 4", ["monocular"],
-        monocular)
-    add("strabismus (10 deg): most atoms monocular, both eyes", "Klimmasch et al. 2021, Fig. 4", ["strabismus"],
-        strabismus)
-    add("strabismus (3 deg): a shifted disparity preference, not monocularity", "Klimmasch et al. 2021, Methods",
-        ["strabismus_3deg", "normal"], strabismus_3deg)
-    add("anisometropia: the blurred eye suppressed at the fine scales", "Eckmann et al. 2020; Klimmasch et al. 2021",
-        ["anisometropia_late"], suppression)
-    add("anisometropia: recovery if corrected early, not late", "Klimmasch et al. 2021",
-        ["anisometropia_early", "anisometropia_late", "normal"], recovery)
-    add("orientation rearing: preferences shift to the reared band", "Klimmasch et al. 2021",
-        ["vertical", "horizontal", "normal"], orientation)
     return out
 
 
