@@ -508,10 +508,15 @@ def plot_rearing_curves(groups: Mapping[str, Sequence[Run]], path: str | os.Path
                          "train.readout_every=N")
     fig = Figure(figsize=(3.2 * len(curves) + 1, 5.4), layout="constrained")
     axes = fig.subplots(2, len(curves), squeeze=False, sharex=True)
+    from matplotlib import colormaps
+
+    palette = colormaps["tab20"]
+    colour = {name: palette((2 * k) % 20 + (2 * k) // 20) for k, name in enumerate(groups)}  # one per condition
     for j, (scale, lines) in enumerate(curves.items()):
         for name, (iterations, dominated, index) in lines.items():
-            axes[0, j].plot(iterations, 100 * np.asarray(dominated), label=name, linewidth=1.2)
-            axes[1, j].plot(iterations, index, label=name, linewidth=1.2)
+            style = {"label": name, "linewidth": 1.2, "color": colour[name]}
+            axes[0, j].plot(iterations, 100 * np.asarray(dominated), **style)
+            axes[1, j].plot(iterations, index, **style)
         axes[0, j].set_title(scale, fontsize=9)
         axes[1, j].set_xlabel("training iteration", fontsize=8)
     axes[0, 0].set_ylabel("atoms dominated by one eye (%)", fontsize=8)
