@@ -119,19 +119,8 @@ def read_metrics(path: str | os.PathLike) -> list[dict]:
         [{'iteration': 1, 'pursuit_mae_deg': 2.5}]
     """
     path = Path(path)
-    lines = [(number, line.strip()) for number, line in enumerate(_read_text(path).splitlines(), start=1)]
-    lines = [(number, line) for number, line in lines if line]
     records: list[dict] = []
-    for position, (number, line) in enumerate(lines):
-        try:
-            record = json.loads(line)
-        except json.JSONDecodeError as exc:
-            if position == len(lines) - 1:
-                warnings.warn(f"{path}: skipping truncated last line {number} ({exc.msg})", stacklevel=2)
-                break
-            raise ValueError(f"{path}: line {number} is not valid JSON ({exc.msg})") from exc
-        if not isinstance(record, dict):
-            raise ValueError(f"{path}: line {number} must be a JSON object, got {type(record).__name__}")
+    for number, record in _json_lines(path):
         if not _is_int(record.get("iteration")):
             raise ValueError(f"{path}: line {number} needs an integer 'iteration', got {record.get('iteration')!r}")
         # (a line holds numbers, null for an undefined one, and lists of names: the events acting)
@@ -141,6 +130,30 @@ def read_metrics(path: str | os.PathLike) -> list[dict]:
             raise ValueError(f"{path}: line {number}'s {bad[0]!r} must be a number, got {record[bad[0]]!r}")
         records.append(record)
     return records
+
+
+def _json_lines(path: Path) -> list[tuple[int, dict]]:
+    """A JSON-lines file's objects with their line numbers, blank lines skipped; a torn last
+    line (a run killed mid-write) is skipped with a warning (``stacklevel`` 3: the reader's caller).
+
+    Raises:
+        ValueError: a line before the last is not JSON, or a line is not a JSON object.
+    """
+    lines = [(number, line.strip()) for number, line in enumerate(_read_text(path).splitlines(), start=1)]
+    lines = [(number, line) for number, line in lines if line]
+    out = []
+    for position, (number, line) in enumerate(lines):
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError as exc:
+            if position == len(lines) - 1:
+                warnings.warn(f"{path}: skipping truncated last line {number} ({exc.msg})", stacklevel=3)
+                break
+            raise ValueError(f"{path}: line {number} is not valid JSON ({exc.msg})") from exc
+        if not isinstance(record, dict):
+            raise ValueError(f"{path}: line {number} must be a JSON object, got {type(record).__name__}")
+        out.append((number, record))
+    return out
 
 
 class Run:
@@ -208,17 +221,9 @@ class Run:
         path = self.path / "code_readouts.jsonl"
         if not path.is_file():
             return []
-        lines = [(number, line) for number, line in enumerate(_read_text(path).splitlines(), start=1) if line.strip()]
         readouts = []
-        for position, (number, line) in enumerate(lines):
-            try:
-                record = json.loads(line)
-            except json.JSONDecodeError as exc:
-                if position == len(lines) - 1:
-                    warnings.warn(f"{path}: skipping truncated last line ({exc.msg})", stacklevel=2)
-                    break
-                raise ValueError(f"{path}: line {number} is not valid JSON ({exc.msg})") from exc
-            if not (isinstance(record, dict) and _is_int(record.get("iteration")) and isinstance(record.get("code"), dict)):
+        for number, record in _json_lines(path):
+            if not (_is_int(record.get("iteration")) and isinstance(record.get("code"), dict)):
                 raise ValueError(f"{path}: line {number} must be an object with an integer 'iteration' and a 'code'")
             readouts.append(record)
         return readouts
