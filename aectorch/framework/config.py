@@ -108,6 +108,15 @@ class CueConfig:
             the whole cue: a policy that stops learning alone does not keep its precision when
             the code and the statistics under it go on changing
             (experiments/long_training/README.md).
+        reopen_drop: ``None`` (default: a closed cue stays closed), or a fraction (> 0): a cue
+            closed by ``learn_until`` learns again when the mean of its coding reward over the
+            last ``reopen_window`` iterations falls below its level since it closed (the mean
+            over the first ``reopen_window`` closed iterations) by more than this fraction of
+            that level (`aectorch.framework.plasticity`). A plasticity that settles while the
+            plant stays as it is and reopens when it changes.
+        reopen_window: iterations (>= 1) each level is a mean over.
+        reopen_for: iterations (>= 1) a reopened cue learns before it closes again and takes its
+            level anew.
     """
 
     agent: AgentName = AgentName.ppo
@@ -126,6 +135,9 @@ class CueConfig:
     proprioception: tuple[str, ...] = ()
     reward_scales: tuple[str, ...] = ()
     learn_until: Optional[int] = None
+    reopen_drop: Optional[float] = None
+    reopen_window: int = 200
+    reopen_for: int = 2400
 
     def __post_init__(self) -> None:
         # Messages name the field as "cue.<field>"; `aectorch.runtime.config.to_experiment_config`
@@ -157,6 +169,13 @@ class CueConfig:
         check_real(self.motor_cost, f"{owner}.motor_cost", minimum=0)
         if self.learn_until is not None:
             check_int(self.learn_until, f"{owner}.learn_until", 0)
+        if self.reopen_drop is not None:
+            check_real(self.reopen_drop, f"{owner}.reopen_drop", above=0)
+            if self.learn_until is None:
+                raise ValueError(f"{owner}.reopen_drop reopens a cue closed by {owner}.learn_until, which is null; "
+                                 f"give {owner}.learn_until=N or {owner}.reopen_drop=null")
+        check_int(self.reopen_window, f"{owner}.reopen_window", 1)
+        check_int(self.reopen_for, f"{owner}.reopen_for", 1)
         self._check_proprioception(owner)
         for name, cls in (("encoder", EncoderConfig), ("nac", ActorCriticConfig), ("ppo", PPOConfig)):
             if isinstance(getattr(self, name), dict):

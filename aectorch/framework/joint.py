@@ -36,6 +36,7 @@ from torch import Tensor, nn
 from aectorch.depth.learner import DepthLearner
 from aectorch.framework.config import LearnerConfig
 from aectorch.framework.cue import CueLearner
+from aectorch.framework.plasticity import Plasticity, Reopening
 from aectorch.framework.shard import Shard
 from aectorch.profiling import stage
 
@@ -123,6 +124,9 @@ class JointLearner(nn.Module):
         self.cues = nn.ModuleDict({
             name: CueLearner(config.cues[name], encoders[name], agents[name], generator=self.generator, shard=shard)
             for name in names})
+        #: when each cue learns (``learn_until``, ``reopen_drop``): plain state, saved by the
+        #: training loop beside the module's (``checkpoint["plasticity"]``)
+        self.plasticity = Plasticity({name: config.cues[name] for name in names})
         self.depth_learner = DepthLearner(
             config.depth_hidden, every_trials=config.depth_every_trials, max_samples=config.depth_max_samples,
             max_epochs=config.depth_max_epochs, generator=self.generator, device=device, dtype=dtype)
@@ -157,9 +161,18 @@ class JointLearner(nn.Module):
     # -- the schedule ----------------------------------------------------------------------------
     def closed_cues(self, iteration: int) -> tuple[str, ...]:
         """The cues that learn nothing at training iteration ``iteration`` (0-based): those whose
-        ``learn_until`` (`CueConfig`) it has reached."""
-        return tuple(name for name, cue in self.cues.items()
-                     if cue.config.learn_until is not None and iteration >= cue.config.learn_until)
+        ``learn_until`` (`CueConfig`) it has reached, unless their coding reward has reopened them
+        (``reopen_drop``; `plasticity`, fed by the training loop through `observe_rewards`)."""
+        return self.plasticity.closed(iteration)
+
+    def observe_rewards(self, iteration: int, record: IterationRecord) -> list[Reopening]:
+        """Show the closing schedule (`plasticity`) training iteration ``iteration``'s record;
+        returns the cues that learn again from the next iteration on."""
+        if not self.plasticity.configs:
+            return []
+        rewards = {name: float(c.reward.double().mean()) for name, c in record.cues.items()
+                   if name in self.plasticity.configs}
+        return self.plasticity.observe(iteration, rewards)
 
     def iteration(self, env, *, learn: bool = True, greedy: bool = False, watch: Watch | None = None,
                   closed: tuple[str, ...] = ()) -> IterationRecord:

@@ -416,6 +416,8 @@ class TrainingRun:
         restore(self.metrics, checkpoint["metrics"], path, "metrics")
         if "watchdog" in checkpoint:
             restore(self.watchdog, checkpoint["watchdog"], path, "watchdog")
+        if "plasticity" in checkpoint:  # (older checkpoints: a schedule that never reopened)
+            self.learner.plasticity.load_state_dict(checkpoint["plasticity"])
         self.start = int(checkpoint["iteration"])
         self.best = dict(checkpoint.get("best") or self.best)
         self.initial = checkpoint["initial_dictionaries"]
@@ -439,6 +441,7 @@ class TrainingRun:
                 "env": type(self.env).join_states(envs),
                 "metrics": self.metrics.state_dict(),
                 "watchdog": self.watchdog.state_dict(),
+                "plasticity": copy.deepcopy(self.learner.plasticity.state_dict()),
             })
         return self._state[1]
 
@@ -482,6 +485,9 @@ class TrainingRun:
                                                         closed=self.learner.closed_cues(it))
                         record = self.shard.gather_record(record)  # every process sees the whole batch's record
                         self.metrics.update(record)
+                        for event in self.learner.observe_rewards(it, record):
+                            if self.folder.main:
+                                log.info("%s", event.message())
                         self.iteration_done = done = it + 1
                         for callback in self.callbacks:
                             callback.after_iteration(self, done, record)

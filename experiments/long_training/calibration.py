@@ -1,7 +1,8 @@
 """Self-calibration: a run whose plant changed part-way against a run trained in the changed plant from its start.
 
     .venv/bin/python experiments/long_training/calibration.py \
-        "roll 10 deg=runs/cal_roll10_s0:runs/calscratch_roll10_s0" ... --change 2400 [--json out.json [--update]]
+        "roll 10 deg=runs/cal_roll10_s0:runs/calscratch_roll10_s0" ... --change 2400 [--cue stereo]
+        [--json out.json [--update]]
 
 Each ``LABEL=ADAPTED:SCRATCH`` pair: ADAPTED was trained in the unchanged plant to ``--change``, then on
 in the changed one (``scripts/fork_run.py`` with a perturbation event at ``--change``); SCRATCH was
@@ -10,7 +11,8 @@ Read from each run's ``metrics.jsonl``: the short window (``train.recent_window`
 fixation ends) at each run's end, the ratio adapted / scratch for vergence and depth (the target: at
 most 1.2), the iterations after the change until the adapted window, past its peak (the window
 still holds fixations from before the change at first), comes within 1.2x of the scratch run's final
-one (``-``: never), and pursuit's short window just before the change (the
+one (``-``: never), with ``--cue C`` the iterations after the change until the cue C, closed
+before it, learns again (``reopen_drop``), and pursuit's short window just before the change (the
 adapted run's first window after it, the change's first 125 iterations) and at the end: whether the
 movement the change does not act on stays where it was. ``--update`` keeps the other labels an
 existing ``--json`` file holds (the pairs given replace theirs), so changes measured at different
@@ -40,9 +42,17 @@ def _last(rows: list[dict], key: str, run: Path) -> float:
     return float(values[-1])
 
 
-def pair(adapted: Path, scratch: Path, change: int) -> dict:
+def relearned(rows: list[dict], change: int, cue: str) -> int | None:
+    """Iterations after ``change`` until ``cue`` learns again (the first logged window with its TD
+    error; a closed cue logs none), ``None`` if it never does: when a closed cue reopened
+    (``reopen_drop``), to the logging interval."""
+    return next((r["iteration"] - change for r in rows
+                 if r["iteration"] > change and r.get(f"{cue}/td_error") is not None), None)
+
+
+def pair(adapted: Path, scratch: Path, change: int, cue: str | None = None) -> dict:
     a, s = _rows(adapted), _rows(scratch)
-    out = {}
+    out: dict = {} if cue is None else {"relearned_after": relearned(a, change, cue)}
     for movement, key in (("vergence", "vergence_recent_deg"), ("depth", "depth_recent_m"),
                           ("pursuit", "pursuit_recent_deg")):
         final_a, final_s = _last(a, key, adapted), _last(s, key, scratch)
@@ -59,6 +69,9 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("pairs", nargs="+", metavar="LABEL=ADAPTED:SCRATCH")
     parser.add_argument("--change", type=int, required=True, help="the iteration of the adapted runs' change")
+    parser.add_argument("--cue", default=None,
+                        help="a cue closed before the change (learn_until): add how many iterations after the "
+                             "change it learned again (reopen_drop), '-' if never")
     parser.add_argument("--json", type=Path)
     parser.add_argument("--update", action="store_true", help="keep the other labels of an existing --json file")
     args = parser.parse_args(argv)
@@ -73,16 +86,18 @@ def main(argv: list[str] | None = None) -> None:
         for run in (adapted, scratch):
             if not Path(run, "metrics.jsonl").is_file():
                 parser.error(f"{label}: {run!r} holds no metrics.jsonl")
-        results[label] = pair(Path(adapted), Path(scratch), args.change)
+        results[label] = pair(Path(adapted), Path(scratch), args.change, args.cue)
     print("| change | vergence: adapted / scratch (deg) | ratio | iterations to 1.2x | depth: adapted / scratch (m) "
-          "| ratio | iterations to 1.2x | pursuit: at the change / end / scratch (deg) |")
-    print("|---|---|---|---|---|---|---|---|")
+          "| ratio | iterations to 1.2x | pursuit: at the change / end / scratch (deg) |"
+          + (f" {args.cue} learns again after (iterations) |" if args.cue else ""))
+    print("|---|---|---|---|---|---|---|---|" + ("---|" if args.cue else ""))
     for label, r in results.items():
         v, d, p = r["vergence"], r["depth"], r["pursuit"]
         cell = lambda x: "-" if x is None else str(x)  # noqa: E731
         print(f"| {label} | {v['adapted']:.3f} / {v['scratch']:.3f} | {v['ratio']:.2f} | {cell(v['iterations_to_1.2x'])} "
               f"| {d['adapted']:.3f} / {d['scratch']:.3f} | {d['ratio']:.2f} | {cell(d['iterations_to_1.2x'])} "
-              f"| {p['first_after_change']:.3f} / {p['adapted']:.3f} / {p['scratch']:.3f} |")
+              f"| {p['first_after_change']:.3f} / {p['adapted']:.3f} / {p['scratch']:.3f} |"
+              + (f" {cell(r['relearned_after'])} |" if args.cue else ""))
     if args.json:
         kept = {}
         if args.update and args.json.is_file():

@@ -92,6 +92,12 @@ def test_calibration_compares_the_adapted_run_with_the_scratch_run_from_the_wind
     assert out["vergence"]["ratio"] == pytest.approx(1.05)
     assert out["vergence"]["iterations_to_1.2x"] == 40  # 0.22 <= 0.24 at 140, past the peak at 120 (not 110)
     assert out["depth"]["ratio"] == pytest.approx(0.5) and out["pursuit"]["first_after_change"] == 0.1
+    assert "relearned_after" not in out
+    # --cue: when a cue closed before the change learns again (its TD error logged again)
+    adapted[3]["stereo/td_error"] = 0.02
+    (tmp_path / "a" / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in adapted))
+    assert calibration.pair(tmp_path / "a", tmp_path / "s", change=100, cue="stereo")["relearned_after"] == 30
+    assert calibration.pair(tmp_path / "a", tmp_path / "s", change=100, cue="parallax")["relearned_after"] is None
     # a run without a short window (no event) is refused, naming the file and the key
     write(tmp_path / "plain", [{"iteration": 10, "vergence_mae_deg": 0.1}])
     with pytest.raises(SystemExit, match="vergence_recent_deg"):
