@@ -107,11 +107,17 @@ ROBUST_VERGENCE: dict[str, Any] = {
 #: statistics stay as they are from there on, while vergence keeps learning). Pursuit's policy
 #: unlearns the views far from its optimum when it trains on (the study's "What drives the far
 #: steps"); none of the plant changes the study measures touches the left eye, which pursuit alone
-#: sees. 24,000 iterations, ten times the defaults'.
+#: sees. 24,000 iterations, ten times the defaults'. A run continued past them (``train.resume=...
+#: train.iterations=48000``) closes the stereo cue too, which then learns again only when its coding
+#: reward falls 10 % below its level since closing (``reopen_drop``: a change of the plant) for
+#: 2,400 iterations: vergence on photographs keeps its 24,000-iteration state instead of unlearning
+#: it, and re-learns a roll or a vertical misalignment of the right eye.
 LIFELONG: dict[str, Any] = {
     **{key: value for key, value in ROBUST_VERGENCE.items() if key != "train.iterations"},
     "env.pursuit_start_error_deg": 8.0,
     "learner.cues.parallax.learn_until": 2400,
+    "learner.cues.stereo.learn_until": 24000,
+    "learner.cues.stereo.reopen_drop": 0.1,
     "train.iterations": 24000,
 }
 

@@ -97,6 +97,8 @@ def test_calibration_compares_the_adapted_run_with_the_scratch_run_from_the_wind
     adapted[3]["stereo/td_error"] = 0.02
     (tmp_path / "a" / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in adapted))
     assert calibration.pair(tmp_path / "a", tmp_path / "s", change=100, cue="stereo")["relearned_after"] == 30
+    assert calibration.reward_fall([{"iteration": 90, "stereo/reward": -1.0}, {"iteration": 110, "stereo/reward": -1.3},
+                                    {"iteration": 300, "stereo/reward": -5.0}], 100, "stereo") == pytest.approx(0.3)
     assert calibration.pair(tmp_path / "a", tmp_path / "s", change=100, cue="parallax")["relearned_after"] is None
     # a run without a short window (no event) is refused, naming the file and the key
     write(tmp_path / "plain", [{"iteration": 10, "vergence_mae_deg": 0.1}])
@@ -110,6 +112,9 @@ def test_calibration_compares_the_adapted_run_with_the_scratch_run_from_the_wind
     assert stored["roll"] == {"kept": True} and stored["tilt"]["vergence"]["adapted"] == 0.21
     calibration.main(["tilt=" + f"{tmp_path / 'a'}:{tmp_path / 's'}", "--change", "100", "--json", str(table)])
     assert list(json.loads(table.read_text())) == ["tilt"]
+    calibration.main(["tilt, seed 0=" + f"{tmp_path / 'a'}:{tmp_path / 's'}", "--change", "100",
+                      "--plot", str(tmp_path / "cal.png")])
+    assert (tmp_path / "cal.png").stat().st_size > 1000
     with pytest.raises(SystemExit):
         calibration.main(["tilt=" + f"{tmp_path / 'a'}:{tmp_path / 's'}", "--change", "100", "--update"])
 

@@ -315,7 +315,9 @@ def test_preset_paper_and_perturbation_fractions():
     assert all(_value(robust, key) == value for key, value in ROBUST_VERGENCE.items()), ROBUST_VERGENCE
     assert all(_value(default, key) != value for key, value in LIFELONG.items()), LIFELONG
     assert all(_value(lifelong, key) == value for key, value in LIFELONG.items()), LIFELONG
-    assert lifelong.learner.cues["parallax"].learn_until == 2400 and lifelong.learner.cues["stereo"].learn_until is None
+    parallax, stereo = lifelong.learner.cues["parallax"], lifelong.learner.cues["stereo"]
+    assert parallax.learn_until == 2400 and parallax.reopen_drop is None
+    assert stereo.learn_until == 24000 and stereo.reopen_drop == 0.1  # settles past the run, reopens on a fall
     for name, cue in paper.learner.cues.items():
         assert list(cue.actions_deg) == PAPER_PRESET[f"learner.cues.{name}.actions_deg"] == list(PAPER_ACTIONS_DEG)
         assert cue.encoder.num_atoms == 32  # the command line wins
