@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import inspect
 import json
-import os
 import sys
 from pathlib import Path
 from typing import Sequence
@@ -13,10 +12,9 @@ from typing import Sequence
 from aectorch.report import accommodation, compare, depth, matcher, offsets, tables
 from aectorch.report.adaptation import adaptation_table
 from aectorch.report.tracking import tracking_table
-from aectorch.report.rearing import plot_rearing, plot_rearing_curves, rearing_runs, rearing_table
 from aectorch.report.tails import tails, tails_lines
-from aectorch.runs import EVALUATION, Run, files_read, forget_files_read
-from aectorch.runtime.command import check_output_file
+from aectorch.report.command import run_command
+from aectorch.runs import EVALUATION, Run
 from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL
 
 __all__ = ["main"]
@@ -137,16 +135,6 @@ def _accommodation_policy(args) -> list[str]:
     from aectorch.runtime import load_learner
 
     return accommodation.policy_table(load_learner(args.checkpoint)[1], args.textures)
-
-
-def _rearing(args) -> list[str]:
-    groups = rearing_runs(*args.folder)
-    lines = rearing_table(groups, args.cue, args.scales)
-    if args.plot is not None:
-        lines.append(f"wrote {plot_rearing(groups, args.plot, args.cue)}")
-    if args.curves is not None:
-        lines.append(f"wrote {plot_rearing_curves(groups, args.curves, args.cue)}")
-    return lines
 
 
 def _threads(count: int) -> None:
@@ -338,16 +326,6 @@ def _experiment_commands(command) -> None:
     sub.add_argument("checkpoint", type=Path, help="a run's checkpoint.pt trained with the accommodation cue")
     sub.add_argument("--textures", type=int, default=8, help="the first this many test textures")
 
-    sub = command("rearing", _rearing, rearing_table)
-    sub.add_argument("folder", type=Path, nargs="+",
-                     help="the suite's sweep folders (python train.py -m ... hydra.sweep.dir=...)")
-    sub.add_argument("--cue", default="stereo", help="the cue whose dictionaries are read out (default: stereo)")
-    sub.add_argument("--scales", nargs="+", default=None,
-                     help="only these dictionaries in the per-dictionary tables (e.g. fine full; default: all)")
-    sub.add_argument("--plot", type=Path, default=None, help="also draw the suite's figure into this PNG")
-    sub.add_argument("--curves", type=Path, default=None,
-                     help="also draw the code's read-outs against iterations into this PNG (train.readout_every)")
-
     sub = command("rl", _rl, tables.rl_table)
     sub.add_argument("folder", type=Path, help="the examples' result files")
     sub.add_argument("--own", type=Path, nargs="*", default=[], help="the project's own runs")
@@ -358,27 +336,7 @@ def _experiment_commands(command) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one command; a missing file, a bad file or a bad argument prints one ``error:`` line
     and exits with status 2 (``AECTORCH_DEBUG=1`` shows the traceback)."""
-    args = _parser().parse_args(argv)
-    forget_files_read()
-    try:
-        for key in ("json", "plot", "out", "cache"):  # the outputs, before any work
-            if getattr(args, key, None) is not None:
-                check_output_file(getattr(args, key), f"--{key}", makes_folder=True)
-        lines = args.run(args)
-    except (OSError, KeyError, ValueError, TypeError, AttributeError, IndexError, ArithmeticError) as err:
-        if os.environ.get("AECTORCH_DEBUG", "") not in ("", "0"):
-            raise
-        message = str(err.args[0] if isinstance(err, KeyError) and err.args else err).strip()
-        message = message.splitlines()[0] if message else ""
-        read = [str(path) for path in files_read()]
-        if read and not any(path in message for path in read):
-            # A value not of the shape aectorch writes (a hand-edited or damaged file): name the files.
-            message = (f"cannot use {', '.join(read)}: {type(err).__name__}: {message} (a value of another "
-                       "type or a missing entry: is a file damaged or hand-edited?)")
-        print(f"error: {message} (AECTORCH_DEBUG=1 for the traceback)", file=sys.stderr)
-        return 2
-    print("\n".join(lines))
-    return 0
+    return run_command(_parser(), argv)
 
 
 if __name__ == "__main__":

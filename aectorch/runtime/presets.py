@@ -146,7 +146,7 @@ PLASTICITY: dict[str, dict[str, Any]] = {
 #: of two uncorrelated halves stays binocular. docs/sensory-coding.md, "Rearing", has the
 #: measurements behind each. The evaluation reads the final state (no ``best.pt``: a window
 #: chosen under the reared eyes is not what rearing left); the code is read out every 100
-#: iterations (`python -m aectorch.report rearing --curves`).
+#: iterations (`experiments/rearing/report.py --curves`).
 REARING_SETTINGS: dict[str, Any] = {
     "learner.cues.stereo.symmetry": None,
     "learner.cues.stereo.encoder.decay": None,

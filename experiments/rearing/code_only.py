@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from aectorch.coding import BinocularEncoder  # noqa: E402
 from aectorch.coding.readouts import binocularity_index  # noqa: E402
-from aectorch.report.rearing import DOMINANCE  # noqa: E402
+from report import DOMINANCE  # noqa: E402  (this folder's report.py)
 from aectorch.sim.textures.bank import TextureBank  # noqa: E402
 
 SIDE = 160

@@ -3,7 +3,7 @@
     PYTHONPATH=. .venv/bin/python experiments/rearing/gabor.py runs/rearing2a runs/rearing2b \
         --json experiments/rearing/gabor.json
 
-For every run of the suite (`aectorch.report.rearing.rearing_runs`) and stereo dictionary, from the
+For every run of the suite (`report.rearing_runs`, this folder's) and stereo dictionary, from the
 run's final ``checkpoint.pt``: our index (`binocularity_index`, the halves' norms) and the
 lineage's (`gabor_binocularity`: a 2-D Gabor fitted to the dominant half and shown to both,
 Klimmasch et al. 2021; fits with a relative residual above 0.2 are not valid). Per condition and
@@ -24,7 +24,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from aectorch.coding.readouts import binocularity_index, gabor_binocularity  # noqa: E402
-from aectorch.report.rearing import DOMINANCE, rearing_runs  # noqa: E402
+from report import DOMINANCE, rearing_runs  # noqa: E402  (this folder's report.py)
 from aectorch.runtime import load_checkpoint  # noqa: E402
 
 PREFIX = "cues.stereo.encoder.dictionaries."

@@ -26,7 +26,8 @@ from aectorch.runs import Run
 from aectorch.runtime import RunExists, load_checkpoint, run_experiment
 from aectorch.runtime.presets import REARING
 from tests.runtime.test_distributed import _single
-from tests.report.test_report_rearing import _run as _rearing_run
+from tests.end_to_end.test_rearing_report import _run as _rearing_run
+from tests.end_to_end.test_rearing_report import main as rearing_report
 from tests.runtime.test_train import QUIET, TINY, _cfg, textures  # noqa: F401  (the fixture)
 
 
@@ -262,7 +263,7 @@ def test_report_rearing_names_an_unfinished_job_instead_of_leaving_its_condition
     (sweep / "1").mkdir()
     OmegaConf.save(OmegaConf.create({"seed": 0, "perturbations": REARING["monocular"]}), sweep / "1" / "config.yaml")
     (sweep / "1" / "metrics.jsonl").write_text('{"iteration": 2}\n')
-    assert report(["rearing", str(sweep)]) == 2
+    assert rearing_report([str(sweep)]) == 2
     line = _error_line(capsys.readouterr().err)
     assert f"{sweep} holds unfinished runs (1: no summary.json)" in line, line
 

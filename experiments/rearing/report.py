@@ -1,26 +1,37 @@
-"""The rearing suite as one table and one figure (``python -m aectorch.report rearing <sweep folder>``).
+"""The rearing suite as one table and one figure: the rearing study's report.
 
-The suite is ``python train.py -m seed=0,1,2 rearing=normal,monocular,...`` (docs/sensory-coding.md,
-"Rearing"): one run folder per condition and seed. Each run's condition is read from its own
+    .venv/bin/python experiments/rearing/report.py runs/rearing2a runs/rearing2b ... [--scales fine full]
+        [--cue stereo] [--plot rearing.png] [--curves curves.png]
+
+The suite is ``python train.py -m seed=0,1,2 rearing=normal,monocular,...`` (README.md here, "The
+suite"): one run folder per condition and seed. Each run's condition is read from its own
 ``config.yaml``: the run's ``perturbations`` are those of one of the conditions of
 :data:`aectorch.runtime.presets.REARING`. Everything else comes from its ``summary.json``, through
 `aectorch.runs.Run`: the learned code's read-outs (`aectorch.coding.readouts.code_summary`, per
 dictionary), the evaluation (normal eyes, the final state), the final training window and the
 read-outs of the correction (the corrected conditions' event ends: the vergence, and the code as
-the perturbation left it, `aectorch.runtime.loop.Perturbations`), and the training time.
+the perturbation left it, `aectorch.runtime.loop.Perturbations`), and the training time. A missing
+file, an unfinished run or a bad argument prints one ``error:`` line and exits with status 2
+(`aectorch.report.command.run_command`, as ``python -m aectorch.report`` does).
 """
 
 from __future__ import annotations
 
+import argparse
+import inspect
 import math
 import os
 import statistics
+import sys
 from pathlib import Path
 from typing import Mapping, Sequence
 
-from aectorch.figures import save_figure
-from aectorch.runs import Run
-from aectorch.runtime.presets import REARING
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run as a script from a checkout
+
+from aectorch.figures import save_figure  # noqa: E402
+from aectorch.report.command import run_command  # noqa: E402
+from aectorch.runs import Run  # noqa: E402
+from aectorch.runtime.presets import REARING  # noqa: E402
 
 __all__ = ["DOMINANCE", "LINEAGE_RESULTS", "THRESHOLDS", "code_numbers", "lineage_verdicts", "mean_disparity", "rearing_condition", "rearing_runs",
            "rearing_rows", "rearing_table", "plot_rearing", "plot_rearing_curves"]
@@ -524,3 +535,38 @@ def plot_rearing_curves(groups: Mapping[str, Sequence[Run]], path: str | os.Path
     axes[0, -1].legend(fontsize=6)
     fig.suptitle("Rearing: the code read out during training (means over the seeds)")
     return save_figure(fig, path, dpi=100)
+
+
+def _report(args) -> list[str]:
+    groups = rearing_runs(*args.folder)
+    lines = rearing_table(groups, args.cue, args.scales)
+    if args.plot:
+        lines.append(f"wrote {plot_rearing(groups, args.plot, args.cue)}")
+    if args.curves:
+        lines.append(f"wrote {plot_rearing_curves(groups, args.curves, args.cue)}")
+    return lines
+
+
+def parser() -> argparse.ArgumentParser:
+    """The command line: its help is `rearing_table`'s docstring."""
+    out = argparse.ArgumentParser(prog="experiments/rearing/report.py", description=inspect.cleandoc(rearing_table.__doc__),
+                                  formatter_class=argparse.RawDescriptionHelpFormatter)
+    out.set_defaults(run=_report)
+    out.add_argument("folder", type=Path, nargs="+",
+                     help="the suite's sweep folders (python train.py -m ... hydra.sweep.dir=...)")
+    out.add_argument("--cue", default="stereo", help="the cue whose dictionaries are read out (default: stereo)")
+    out.add_argument("--scales", nargs="+", default=None,
+                     help="only these dictionaries in the per-dictionary tables (e.g. fine full; default: all)")
+    out.add_argument("--plot", type=Path, default=None, help="also draw the suite's figure into this PNG")
+    out.add_argument("--curves", type=Path, default=None,
+                     help="also draw the code's read-outs against iterations into this PNG (train.readout_every)")
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Print the suite's tables (and draw its figures); 0, or 2 after one ``error:`` line."""
+    return run_command(parser(), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,4 +1,4 @@
-"""python -m aectorch.report rearing: the rearing suite's table and figure, on constructed run folders."""
+"""experiments/rearing/report.py: the rearing suite's table and figure, on constructed run folders."""
 
 from __future__ import annotations
 
@@ -10,9 +10,13 @@ import torch
 from omegaconf import OmegaConf
 
 from aectorch.coding.readouts import code_summary
-from aectorch.report.__main__ import main
-from aectorch.report.rearing import code_numbers, rearing_condition, rearing_runs
 from aectorch.runtime.presets import REARING
+
+from tests.end_to_end import study_module
+
+report = study_module("rearing", "report")
+main, code_numbers, rearing_condition, rearing_runs = (report.main, report.code_numbers, report.rearing_condition,
+                                                       report.rearing_runs)
 
 
 def _atoms(seed: int, eye: str | None) -> torch.Tensor:
@@ -54,7 +58,7 @@ def test_the_table_reads_each_condition_from_its_runs(tmp_path, capsys):
     _run(tmp_path / "anisometropia_early_s0", "anisometropia_early", 0, None, 130.0, correction=(2.0, 0.3))
     (tmp_path / "unfinished").mkdir()  # no summary.json: not a run of the suite
     plot = tmp_path / "out" / "rearing.png"
-    assert main(["rearing", str(tmp_path), "--plot", str(plot)]) == 0
+    assert main([str(tmp_path), "--plot", str(plot)]) == 0
     out = capsys.readouterr().out.splitlines()
     # Conditions in REARING's order, one row per stereo dictionary; the left-eye atoms are all
     # left-dominated, with index exactly -1.
@@ -72,7 +76,7 @@ def test_the_table_reads_each_condition_from_its_runs(tmp_path, capsys):
 
 
 def test_the_verdicts_test_each_lineage_result_against_its_numbers(tmp_path):
-    from aectorch.report.rearing import lineage_verdicts
+    lineage_verdicts = report.lineage_verdicts
 
     _run(tmp_path / "normal_s0", "normal", 0, None, 1.0)
     _run(tmp_path / "strabismus_s0", "strabismus", 0, "split", 1.0)
@@ -95,7 +99,7 @@ def test_the_code_at_the_correction_is_read_beside_the_code_at_the_end(tmp_path,
              eye_at_correction="left")
     plot = tmp_path / "rearing.png"
     _run(tmp_path / "later" / "refractive_early_s2", "refractive_early", 2, None, 100.0, correction=(1.0, 0.2))
-    assert main(["rearing", str(tmp_path), str(tmp_path / "later"), "--plot", str(plot)]) == 0  # two sweeps
+    assert main([str(tmp_path), str(tmp_path / "later"), "--plot", str(plot)]) == 0  # two sweeps
     out = capsys.readouterr().out.splitlines()
     at = out.index("| condition (runs) | dictionary | at the correction -> at the end: mean abs. binocularity index "
                    "| mean index | left-dominated % | right-dominated % |")
@@ -112,9 +116,9 @@ def test_a_run_of_no_condition_is_named(tmp_path, capsys):
     folder = _run(tmp_path / "odd", "normal", 0, None, 1.0)
     OmegaConf.save(OmegaConf.create({"perturbations": [{"kind": "roll", "start": 0, "eye": "right",
                                                         "params": {"deg": 3.0}}]}), folder / "config.yaml")
-    assert main(["rearing", str(tmp_path)]) == 2
+    assert main([str(tmp_path)]) == 2
     assert "are those of no rearing condition" in capsys.readouterr().err
-    assert main(["rearing", str(tmp_path / "missing")]) == 2
+    assert main([str(tmp_path / "missing")]) == 2
     _run(tmp_path / "again" / "normal_s0", "normal", 0, None, 1.0)
     with pytest.raises(ValueError, match="runs of the same condition and seed"):
         rearing_runs(tmp_path / "again", tmp_path / "again")
@@ -138,11 +142,17 @@ def test_scales_keep_only_those_dictionaries(tmp_path, capsys):
     summary = json.loads((folder / "summary.json").read_text())
     summary["code"]["stereo/full"] = code_summary(_atoms(5, None))
     (folder / "summary.json").write_text(json.dumps(summary))
-    assert main(["rearing", str(tmp_path)]) == 0
+    assert main([str(tmp_path)]) == 0
     every = capsys.readouterr().out.splitlines()
     assert [line.split(" | ")[1] for line in every[2:4]] == ["stereo/fine", "stereo/full"]
-    assert main(["rearing", str(tmp_path), "--scales", "full"]) == 0
+    assert main([str(tmp_path), "--scales", "full"]) == 0
     only = capsys.readouterr().out.splitlines()
     assert only[2] == every[3] and only[3] == "" and only[5:] == every[6:]  # the other tables unchanged
-    assert main(["rearing", str(tmp_path), "--scales", "coarse"]) == 2
+    assert main([str(tmp_path), "--scales", "coarse"]) == 2
     assert "scales: ['coarse'] are not among the 'stereo' cue's dictionaries ['fine', 'full']" in capsys.readouterr().err
+
+
+def test_the_report_s_examples_hold():
+    import doctest
+
+    assert doctest.testmod(report).failed == 0
