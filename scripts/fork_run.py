@@ -14,6 +14,7 @@ chooses its own best window. The source run is not touched.
 from __future__ import annotations
 
 import argparse
+import logging
 import shutil
 import sys
 from pathlib import Path
@@ -85,7 +86,22 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     cfg = to_experiment_config({"train": {"resume": str(args.folder), "iterations": args.iterations,
                                           "progress": not args.no_progress}})
-    run_experiment(cfg, args.folder)
+    # The library's messages (resuming, a closed cue reopening, the watchdog) as plain lines on
+    # stderr, around the progress bar, as train.py shows them.
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    logger = logging.getLogger("aectorch")
+    handlers, level = logger.handlers[:], logger.level
+    logger.handlers[:] = [handler]
+    logger.setLevel(logging.INFO)
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
+    try:
+        with logging_redirect_tqdm(loggers=[logger]):
+            run_experiment(cfg, args.folder)
+    finally:  # (called in-process, as the tests do, the caller's logging is left as it was)
+        logger.handlers[:] = handlers
+        logger.setLevel(level)
     return 0
 
 

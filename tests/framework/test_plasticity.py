@@ -5,6 +5,7 @@ state rides in every checkpoint, so a resumed run reopens where the uninterrupte
 from __future__ import annotations
 
 import copy
+import logging
 
 import pytest
 
@@ -77,13 +78,15 @@ def test_bad_reopening_settings_are_refused_naming_the_field(bad, match):
 
 
 @pytest.mark.integration
-def test_a_resumed_run_reopens_and_learns_as_the_uninterrupted_one(tmp_path, textures):
+def test_a_resumed_run_reopens_and_learns_as_the_uninterrupted_one(tmp_path, textures, caplog):
     # A threshold so small that any fall of the reward reopens the stereo cue, for 2 iterations.
     settings = ["train.iterations=14", "train.checkpoint_every=4", "learner.cues.stereo.learn_until=3",
                 "learner.cues.stereo.reopen_drop=1e-9", "learner.cues.stereo.reopen_window=1",
                 "learner.cues.stereo.reopen_for=2"]
     whole = tmp_path / "whole"
+    caplog.set_level(logging.INFO, logger="aectorch")
     run_experiment(_cfg(textures, *settings), whole)
+    assert "stereo: the coding reward fell" in caplog.text and "it learns again from iteration" in caplog.text
     expected = load_checkpoint(whole / "checkpoint.pt")
     reopened = [r["iteration"] for r in expected["plasticity"]["reopenings"]]
     assert any(it >= 8 for it in reopened), f"no reopening after the checkpoint (at {reopened}): the test proves nothing"
