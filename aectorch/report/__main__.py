@@ -10,7 +10,6 @@ from pathlib import Path
 from typing import Sequence
 
 from aectorch.report import accommodation, compare, depth, matcher, offsets, tables
-from aectorch.report.adaptation import adaptation_table
 from aectorch.report.tracking import tracking_table
 from aectorch.report.tails import tails, tails_lines
 from aectorch.report.command import run_command
@@ -111,10 +110,6 @@ def _code(args) -> list[str]:
                              readout=args.readout)
         lines.append(f"wrote {args.plot}")
     return lines
-
-
-def _adaptation(args) -> list[str]:
-    return adaptation_table([Run(run) for run in args.runs], args.change, args.before)
 
 
 def _tracking(args) -> list[str]:
@@ -292,12 +287,6 @@ def _experiment_commands(command) -> None:
     sub.add_argument("--cue", default=None, help="only this cue's dictionaries (e.g. stereo)")
     sub.add_argument("--plot", type=Path, default=None, help="also draw one read-out's histograms side by side")
     sub.add_argument("--readout", default="binocularity", choices=("binocularity", "disparity", "orientation"))
-
-    sub = command("adaptation", _adaptation, adaptation_table)
-    sub.add_argument("runs", nargs="+", type=Path, help="run folders")
-    sub.add_argument("--change", type=int, required=True, help="the iteration the first event acts from")
-    sub.add_argument("--before", type=Path, default=None,
-                     help="the unperturbed run's checkpoint at the change (forked runs)")
 
     sub = command("tracking", _tracking, tracking_table)
     sub.add_argument("runs", nargs="+", type=Path, help="run folders")

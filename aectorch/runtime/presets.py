@@ -46,7 +46,7 @@ PAPER_PRESET: dict[str, Any] = {
 #: The paper's perturbation experiment (section 4, Fig. 4), ``+experiment=roll_perturbation``:
 #: the right eye rolled 7 deg at iteration 1200 (0.4 of a 3000-iteration run), the left eye too
 #: at 2400 (0.8), both until the end: the one-eye stretch is long enough for the recovery
-#: (docs/results.md, "Adaptation to a roll", says why this angle and this length).
+#: (experiments/roll_adaptation/README.md says why this angle and this length).
 ROLL_PERTURBATION: dict[str, Any] = {
     "perturbations": [
         {"kind": "roll", "start": 0.4, "eye": "right", "params": {"deg": 7.0}, "label": "right eye rolled"},

@@ -277,22 +277,6 @@ def test_rl_tabulates_the_clients_and_active_depth(tmp_path, capsys):
     assert "| SB3 PPO, MultiDiscrete | scaled | test textures | 1 | 1.000 [1.00] | 3.000 | 0.500 [0.50] | 2.000 | 10 |" in out
 
 
-def test_adaptation_tabulates_the_recovery_of_each_error(tmp_path, capsys):
-    run = tmp_path / "rolled"
-    run.mkdir()
-    (run / "config.yaml").write_text("train:\n  recent_window: 128\n")
-    values = [0.1, 0.1, 0.5, 0.3, 0.11, 0.1, 0.4, 0.4]
-    within = [1.0, 0.96, 0.2, 0.6, 0.97, 0.99, 0.5, 0.5]
-    lines = [{"iteration": 10 * i, "vergence_recent_deg": v, "vergence_recent_1px": w, "pursuit_recent_deg": 0.1,
-              "pursuit_recent_1px": 1.0, "depth_recent_m": 0.05} for i, (v, w) in enumerate(zip(values, within))]
-    (run / "metrics.jsonl").write_text("".join(json.dumps(line) + "\n" for line in lines))
-    assert main(["adaptation", str(run), "--change", "10"]) == 0
-    out = capsys.readouterr().out.splitlines()
-    assert len(out) == 5 and out[2].startswith("| rolled | vergence | 0.100 | 0.500 (5.0x, 20) | 30 | 0.400 |")
-    assert main(["adaptation", str(tmp_path / "missing"), "--change", "10"]) == 2
-    assert "no such folder" in capsys.readouterr().err
-
-
 def test_accommodation_gives_each_groups_mean_and_sd(tmp_path, capsys):
     def run(name, vergence, mae_D=None):
         folder = tmp_path / name

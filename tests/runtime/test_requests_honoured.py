@@ -28,6 +28,7 @@ from aectorch.runtime.presets import REARING
 from tests.runtime.test_distributed import _single
 from tests.end_to_end.test_rearing_report import _run as _rearing_run
 from tests.end_to_end.test_rearing_report import main as rearing_report
+from tests.end_to_end.test_roll_adaptation_report import main as adaptation_report
 from tests.runtime.test_train import QUIET, TINY, _cfg, textures  # noqa: F401  (the fixture)
 
 
@@ -276,7 +277,7 @@ def test_report_adaptation_refuses_a_change_outside_the_run(tmp_path, capsys, ch
     lines = [{"iteration": i, "vergence_recent_deg": 0.1, "pursuit_recent_deg": 0.1, "depth_recent_m": 0.01}
              for i in range(10, 110, 10)]
     (run / "metrics.jsonl").write_text("".join(json.dumps(line) + "\n" for line in lines))
-    assert report(["adaptation", str(run), "--change", change]) == 2
+    assert adaptation_report([str(run), "--change", change]) == 2
     line = _error_line(capsys.readouterr().err)
     assert f"--change {change} is outside {run}'s logged iterations (10 to 100)" in line, line
 

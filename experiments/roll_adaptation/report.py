@@ -1,17 +1,30 @@
-"""The recovery read-out of perturbed runs as one table (``python -m aectorch.report adaptation``)."""
+"""The recovery read-out of perturbed runs as one table: the roll-adaptation study's report.
+
+    .venv/bin/python experiments/roll_adaptation/report.py RUN... --change N [--before CHECKPOINT]
+
+(README.md here says what it measured.) A missing file, a change outside a run's logged iterations
+or a bad argument prints one ``error:`` line and exits with status 2
+(`aectorch.report.command.run_command`, as ``python -m aectorch.report`` does).
+"""
 
 from __future__ import annotations
 
+import argparse
+import inspect
+import sys
 from pathlib import Path
 from typing import Sequence
 
 import torch
 
-from aectorch.evaluation import adaptation
-from aectorch.evaluation.summary import WITHIN_DEG
-from aectorch.runs import Run
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run as a script from a checkout
 
-__all__ = ["adaptation_table", "before_line"]
+from aectorch.evaluation import adaptation  # noqa: E402
+from aectorch.evaluation.summary import WITHIN_DEG  # noqa: E402
+from aectorch.report.command import run_command  # noqa: E402
+from aectorch.runs import Run  # noqa: E402
+
+__all__ = ["adaptation_table", "before_line", "main"]
 
 
 def before_line(checkpoint: Path, recent: int) -> dict:
@@ -51,7 +64,7 @@ def _f(value, spec: str = ".3f") -> str:
 
 
 def adaptation_table(runs: Sequence[Run], change: int, before: Path | None = None) -> list[str]:
-    """The recovery read-out of perturbed runs (docs/results.md, "Adaptation to a roll").
+    """The recovery read-out of perturbed runs (experiments/roll_adaptation/README.md).
 
     For each run: `aectorch.evaluation.adaptation` of its ``metrics.jsonl`` around the change at
     ``--change`` (the learner iteration its first event acts from) to the run's end, for vergence,
@@ -73,3 +86,29 @@ def adaptation_table(runs: Sequence[Run], change: int, before: Path | None = Non
                         f"{_f(e.get('within_1px_before'), '.2f')} / {_f(e.get('within_1px_min'), '.2f')} | "
                         f"{_f(e.get('iterations_to_95pct'), 'd')} |")
     return rows
+
+
+def _report(args) -> list[str]:
+    return adaptation_table([Run(run) for run in args.runs], args.change, args.before)
+
+
+def parser() -> argparse.ArgumentParser:
+    """The command line: its help is `adaptation_table`'s docstring."""
+    out = argparse.ArgumentParser(prog="experiments/roll_adaptation/report.py",
+                                  description=inspect.cleandoc(adaptation_table.__doc__),
+                                  formatter_class=argparse.RawDescriptionHelpFormatter)
+    out.set_defaults(run=_report)
+    out.add_argument("runs", nargs="+", type=Path, help="run folders")
+    out.add_argument("--change", type=int, required=True, help="the iteration the first event acts from")
+    out.add_argument("--before", type=Path, default=None,
+                     help="the unperturbed run's checkpoint at the change (forked runs)")
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Print the table; 0, or 2 after one ``error:`` line."""
+    return run_command(parser(), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
