@@ -47,10 +47,10 @@ class Reopening:
 
 @dataclass
 class _CueState:
-    closed_at: int | None = None  # the iteration of the last closing (None: never closed yet)
+    closed_at: int | None = None  # the iteration the cue last closed at (None while it learns)
     open_until: int | None = None  # learning again until this iteration (a reopening)
     baseline: float | None = None  # the mean reward over the window after the last closing
-    window: deque = field(default_factory=deque)  # the last rewards (per iteration, mean over B)
+    window: deque = field(default_factory=deque)  # the last rewards since closing (per iteration, mean over B)
 
 
 class Plasticity:
@@ -97,16 +97,14 @@ class Plasticity:
                 continue
             state = self._state(name)
             if name not in closed:
-                state.window.clear()
+                state.closed_at = None
                 continue
-            if state.closed_at is None or (state.open_until is not None and state.closed_at < state.open_until):
-                state.closed_at, state.baseline = iteration, None  # closing now: a new level to take
-                state.window.clear()
+            if state.closed_at is None:  # closing now: a new level to take
+                state.closed_at, state.baseline = iteration, None
+                state.window = deque(maxlen=config.reopen_window)
             if config.reopen_drop is None:
                 continue
             state.window.append(float(rewards[name]))
-            if len(state.window) > config.reopen_window:
-                state.window.popleft()
             if len(state.window) < config.reopen_window:
                 continue
             level = sum(state.window) / len(state.window)
@@ -118,7 +116,6 @@ class Plasticity:
                 event = Reopening(name, iteration, state.baseline, level, state.open_until)
                 self.reopenings.append(event)
                 out.append(event)
-                state.window.clear()
         return out
 
     def state_dict(self) -> dict:
@@ -130,5 +127,5 @@ class Plasticity:
         for name, saved in state.get("states", {}).items():
             if name in self.cues:
                 self.states[name] = _CueState(saved["closed_at"], saved["open_until"], saved["baseline"],
-                                              deque(saved["window"]))
+                                              deque(saved["window"], maxlen=self.cues[name].reopen_window))
         self.reopenings = [Reopening(**r) for r in state.get("reopenings", [])]

@@ -441,7 +441,7 @@ class TrainingRun:
                 "env": type(self.env).join_states(envs),
                 "metrics": self.metrics.state_dict(),
                 "watchdog": self.watchdog.state_dict(),
-                "plasticity": copy.deepcopy(self.learner.plasticity.state_dict()),
+                "plasticity": self.learner.plasticity.state_dict(),  # (made anew: plain numbers, no references)
             })
         return self._state[1]
 
