@@ -22,3 +22,29 @@ def study_module(study: str, name: str) -> ModuleType:
         sys.modules[key] = module  # (dataclasses and doctest look the module up by name)
         spec.loader.exec_module(module)
     return sys.modules[key]
+
+
+ROOT = EXPERIMENTS.parent
+#: The tiny run the studies' scripts are tested with (a few seconds of training).
+TINY = ["env.num_envs=4", "env.fixation_iterations=2", "env.distances_m=[1.0,2.0]",
+        "learner.cues.parallax.encoder.num_atoms=16", "learner.cues.stereo.encoder.num_atoms=16",
+        "learner.depth_every_trials=10", "train.tensorboard=false"]
+
+
+def run_script(*args: str):
+    """``python <args>`` from the repository's root, its output captured."""
+    import subprocess
+
+    return subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=600)
+
+
+def noise_images(folder: Path, count: int, size: int, seed: int, prefix: str = "t") -> Path:
+    """``folder`` (made) with ``count`` PNGs of uniform grey noise, ``size`` px square."""
+    import numpy as np
+    from PIL import Image
+
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    for i in range(count):
+        Image.fromarray((rng.random((size, size)) * 255).astype(np.uint8)).save(folder / f"{prefix}{i}.png")
+    return folder

@@ -4,37 +4,21 @@ two stages, each evaluated, the same command again doing nothing, and the curves
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
-from pathlib import Path
 
-import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
-STUDY = ROOT / "experiments" / "long_training"
-TINY = ["env.num_envs=4", "env.fixation_iterations=2", "env.distances_m=[1.0,2.0]",
-        "learner.cues.parallax.encoder.num_atoms=16", "learner.cues.stereo.encoder.num_atoms=16",
-        "learner.depth_every_trials=10", "train.tensorboard=false"]
+from tests.end_to_end import EXPERIMENTS, TINY, noise_images, run_script
 
-
-def _call(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=600)
+STUDY = EXPERIMENTS / "long_training"
 
 
 @pytest.mark.integration
 def test_stages_train_evaluate_each_stage_and_curves_read_them(tmp_path):
-    from PIL import Image
-
-    photos = tmp_path / "photos"
-    photos.mkdir()
-    rng = np.random.default_rng(3)
-    for i in range(2):
-        Image.fromarray((rng.random((48, 48)) * 255).astype(np.uint8)).save(photos / f"p{i}.png")
+    photos = noise_images(tmp_path / "photos", 2, 48, seed=3, prefix="p")
     run = tmp_path / "runs" / "tiny_s0"
     command = [str(STUDY / "stages.py"), str(run), "--seed", "0", "--stages", "4,8", "--eval", f"choose={photos}",
                "--depths", "1.0", *TINY]
-    done = _call(*command)
+    done = run_script(*command)
     assert done.returncode == 0, done.stdout + done.stderr
     assert "tiny_s0: stage 8 done" in done.stdout
     for stage in (4, 8):
@@ -43,10 +27,10 @@ def test_stages_train_evaluate_each_stage_and_curves_read_them(tmp_path):
         assert result["iteration"] == stage and result["trials"] == 2
     # the same command again: every stage is there, nothing is trained or evaluated again
     before = {p.name: p.stat().st_mtime_ns for p in run.iterdir()}
-    again = _call(*command)
+    again = run_script(*command)
     assert again.returncode == 0 and {p.name: p.stat().st_mtime_ns for p in run.iterdir()} == before
     figure, numbers = tmp_path / "curves.png", tmp_path / "curves.json"
-    shown = _call(str(STUDY / "curves.py"), f"a={run}", f"b={run},{run}", "--sets", "choose", "--plot", str(figure),
+    shown = run_script(str(STUDY / "curves.py"), f"a={run}", f"b={run},{run}", "--sets", "choose", "--plot", str(figure),
                   "--json", str(numbers))
     assert shown.returncode == 0, shown.stderr
     rows = [line for line in shown.stdout.splitlines() if line.startswith("| a |") or line.startswith("| b |")]
@@ -63,7 +47,7 @@ def test_stages_refuse_bad_arguments_before_any_work(tmp_path):
                           (["--stages", "4", "--eval", "choose"], "NAME=FOLDER"),
                           (["--stages", "4", "--eval", f"choose={tmp_path / 'none'}"], "no such folder"),
                           (["--stages", "4", "seed"], "key=value")):
-        done = _call(str(STUDY / "stages.py"), str(tmp_path / "run"), *args)
+        done = run_script(str(STUDY / "stages.py"), str(tmp_path / "run"), *args)
         assert done.returncode == 2 and message in done.stderr, done.stderr
         assert not (tmp_path / "run").exists()
 

@@ -4,30 +4,20 @@ crops alone, and the lineage's binocularity measure beside ours on a tiny reared
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
-from pathlib import Path
 
-import numpy as np
 import pytest
 import torch
 
-ROOT = Path(__file__).resolve().parents[2]
-STUDY = ROOT / "experiments" / "rearing"
-TINY = ["env.num_envs=4", "env.fixation_iterations=2", "env.distances_m=[1.0,2.0]",
-        "learner.cues.parallax.encoder.num_atoms=16", "learner.cues.stereo.encoder.num_atoms=16",
-        "learner.depth_every_trials=10", "train.tensorboard=false", "train.iterations=4", "eval.enabled=false"]
+from tests.end_to_end import EXPERIMENTS, TINY, noise_images, run_script
 
-
-def _call(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=600)
+STUDY = EXPERIMENTS / "rearing"
 
 
 @pytest.mark.integration
 def test_the_code_learned_from_crops_alone_is_read_out_for_both_texture_sets(tmp_path):
     out = tmp_path / "code_only.json"
-    done = _call(str(STUDY / "code_only.py"), "--steps", "2", "--every", "1", "--num-textures", "2",
-                 "--json", str(out))
+    done = run_script(str(STUDY / "code_only.py"), "--steps", "2", "--every", "1", "--num-textures", "2",
+                      "--json", str(out))
     assert done.returncode == 0, done.stdout + done.stderr
     results = json.loads(out.read_text())["results"]
     assert len(results) == 2 and all([row["step"] for row in rows] == [0, 1, 2] for rows in results.values())
@@ -37,18 +27,13 @@ def test_the_code_learned_from_crops_alone_is_read_out_for_both_texture_sets(tmp
 
 @pytest.mark.integration
 def test_gabor_reads_a_reared_run_with_both_measures(tmp_path):
-    from PIL import Image
-
-    photos = tmp_path / "textures"
-    photos.mkdir()
-    rng = np.random.default_rng(0)
-    for i in range(2):
-        Image.fromarray((rng.random((64, 64)) * 255).astype(np.uint8)).save(photos / f"t{i}.png")
+    photos = noise_images(tmp_path / "textures", 2, 64, seed=0)
     run = tmp_path / "suite" / "monocular_s0"
-    done = _call("train.py", "rearing=monocular", f"env.textures={photos}", *TINY, f"hydra.run.dir={run}")
+    done = run_script("train.py", "rearing=monocular", f"env.textures={photos}", *TINY, "train.iterations=4",
+                      "eval.enabled=false", f"hydra.run.dir={run}")
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
     out = tmp_path / "gabor.json"
-    done = _call(str(STUDY / "gabor.py"), str(tmp_path / "suite"), "--json", str(out))
+    done = run_script(str(STUDY / "gabor.py"), str(tmp_path / "suite"), "--json", str(out))
     assert done.returncode == 0, done.stdout + done.stderr
     assert "| monocular (1) | stereo/fine |" in done.stdout
     table = json.loads(out.read_text())
