@@ -9,7 +9,7 @@ from aectorch.coding.dictionary import (
 )
 from aectorch.coding.encoder import BinocularEncoder, EncoderConfig, EncoderOutput
 from aectorch.coding.patches import (
-    COARSE, DEFAULT_SCALES, FINE, FULL, WIDE, WINDOW, FovealPatches, Scale, extract_patches, patch_energy,
+    COARSE, DEFAULT_SCALES, FINE, FULL, WIDE, WINDOW, FovealPatches, Scale, extract_patches, fovea_weights, patch_energy,
     patch_permutation,
     pyramid_down, reduced_patches, scale_patches, window_patches,
 )
@@ -46,6 +46,7 @@ __all__ = [
     "omp",
     "orientation_histogram",
     "orientation_preference",
+    "fovea_weights",
     "patch_energy",
     "patch_permutation",
     "pooled_activity",

@@ -22,7 +22,7 @@ from aectorch._checks import check_bool, check_choice, check_finite, check_int, 
 from aectorch.choices import Algorithm, DictionaryStart, Pooling
 from aectorch.coding.dictionary import DictionaryOutput, SparseDictionary, learn_together_
 from aectorch.coding.patches import (
-    DEFAULT_SCALES, WINDOW, Scale, as_scale, patch_permutation, scale_patches, window_patches,
+    DEFAULT_SCALES, WINDOW, Scale, as_scale, fovea_weights, patch_permutation, scale_patches, window_patches,
 )
 
 __all__ = ["BinocularEncoder", "EncoderConfig", "EncoderOutput", "SYMMETRIES"]
@@ -66,6 +66,15 @@ class EncoderConfig:
             measured on a trained learner, the features of a mirrored pair then differ from the
             permuted features by 14-60 % (by scale), so the mirrored transitions the symmetry
             learns from are not the real ones.
+        fovea_px: ``None`` (default: every patch counts alike, the lineage), or the standard
+            deviation (> 0) in full-resolution pixels of a foveal weighting: each patch counts by a
+            Gaussian of its centre's distance from the crop's centre (`fovea_weights`, mean 1 per
+            scale) in the reward (its normalised error times the weight) and in the pooled
+            features (its patch vector scaled by the square root of the weight, which scales its
+            squared coefficients by the weight and leaves its code, which atoms, unchanged). The
+            dictionaries learn from every patch alike. Where a window spans several depths, the
+            centre's surface then dominates what the policy sees and is rewarded for
+            (experiments/stereo_pairs/README.md).
         start: the dictionaries' first atoms: ``"random"`` (Gaussian, the default) or
             ``"binocular"`` (Gaussian, each atom's second image half a copy of its first: every
             atom starts tuned to zero disparity, so the first code is best where the two images
@@ -85,6 +94,7 @@ class EncoderConfig:
     close_over: int = 0
     centred: bool = True
     start: DictionaryStart = DictionaryStart.random
+    fovea_px: Optional[float] = None
 
     def __post_init__(self) -> None:
         owner = "encoder"
@@ -103,6 +113,8 @@ class EncoderConfig:
         check_int(self.close_over, f"{owner}.close_over", 0)
         check_bool(self.centred, f"{owner}.centred")
         self.start = check_choice(self.start, f"{owner}.start", DictionaryStart)
+        if self.fovea_px is not None and not (is_real(self.fovea_px) and self.fovea_px > 0):
+            raise ValueError(f"{owner}.fovea_px must be null or a number of pixels > 0, got {self.fovea_px!r}")
 
     def rate(self, steps: int) -> float:
         """The dictionaries' learning rate after ``steps`` learning steps (``decay``, the critical
@@ -233,6 +245,11 @@ class BinocularEncoder(nn.Module):
                 offset += d.num_atoms
             permutation = torch.cat(parts)
         self.register_buffer("feature_permutation", permutation, persistent=False)
+        # The square roots of the foveal weights, one buffer per scale [num_patches] (derived, not saved).
+        self.fovea = cfg.fovea_px is not None
+        for s in self.scales:
+            root = fovea_weights(s, float(cfg.fovea_px), dtype=dtype, device=device).sqrt() if self.fovea else None
+            self.register_buffer(f"fovea_{s.name}", root, persistent=False)
         if cfg.start == DictionaryStart.binocular:
             if symmetry == "swap":
                 raise ValueError("encoder.start=binocular gives atoms that the swap symmetry pairs with "
@@ -306,11 +323,15 @@ class BinocularEncoder(nn.Module):
             else:
                 raise ValueError(f"the observation holds neither scale {scale.name!r} nor {WINDOW!r}: "
                                  f"{sorted(observation)}")
+            root = getattr(self, f"fovea_{scale.name}").to(x.dtype) if self.fovea else None
+            if root is not None:  # the squared coefficients, so the pooled features, scale by the weight
+                x = x * root[:, None]
             out, pooled = dictionary.forward_pooled(x, check=check, reduction=self.pooling)
             patches.append(x)
             codes.append(out)
             features.append(pooled)
-            errors.append(out.error.mean(-1))
+            # (the errors are normalised by each patch's energy: the weight is applied to them here)
+            errors.append(out.error.mean(-1) if root is None else (out.error * root.square()).mean(-1))
         errors_t = torch.stack(errors, -1)
         return EncoderOutput(
             torch.cat(features, -1), -errors_t.sum(-1), errors_t, tuple(patches), tuple(codes)

@@ -35,6 +35,7 @@ __all__ = [
     "window_patches",
     "patch_permutation",
     "patch_energy",
+    "fovea_weights",
     "FovealPatches",
 ]
 
@@ -149,6 +150,31 @@ class Scale:
     def dim(self) -> int:
         """Length of a binocular patch vector, 2 * patch_size**2."""
         return 2 * self.patch_size**2
+
+
+def fovea_weights(scale: Scale | str, sigma_px: float, *, dtype: torch.dtype | None = None,
+                  device: torch.device | str | None = None) -> Tensor:
+    """A foveal weighting of a scale's patches ``[num_patches]``: a Gaussian of standard deviation
+    ``sigma_px`` (full-resolution pixels, > 0) of each patch centre's distance from the crop's
+    centre, scaled so that the weights' mean is 1 (a uniform image keeps its mean reward).
+
+    Patches in the grid's order (row-major, as :func:`extract_patches` cuts them), their centres
+    measured in the full-resolution pixels of the crop (a reduced pixel spans ``downsample``).
+
+    Example:
+        >>> w = fovea_weights("full", 5.0)
+        >>> w.shape, round(float(w.mean()), 6), bool(w[24] == w.max())
+        (torch.Size([49]), 1.0, True)
+    """
+    scale = as_scale(scale)
+    if not (isinstance(sigma_px, (int, float)) and not isinstance(sigma_px, bool) and sigma_px > 0):
+        raise ValueError(f"sigma_px must be a number of pixels > 0, got {sigma_px!r}")
+    g = scale.grid
+    centres = (scale.offset + scale.stride * torch.arange(g, dtype=torch.float64) + scale.patch_size / 2
+               - scale.side / 2) * scale.downsample
+    r2 = centres[:, None] ** 2 + centres[None, :] ** 2
+    weights = torch.exp(-r2 / (2.0 * float(sigma_px) ** 2)).reshape(-1)
+    return (weights / weights.mean()).to(dtype=dtype or torch.get_default_dtype(), device=device)
 
 
 def patch_permutation(patch_size: int, *, flip: bool = True, swap: bool = False) -> Tensor:

@@ -164,13 +164,13 @@ def _from_2(payload: dict) -> dict:
 #: optics (``None``: the roll of ``roll_deg`` and nothing else), the cues' reconstruction efficiency
 #: and no proprioception (``efficiency``, ``proprioception``), a reward of all their scales (``reward_scales``
 #: empty), learning for the whole run (``learn_until``) and a closed cue never reopening (``reopen_drop``), their rates without a floor (``encoder.floor``, ``nac.actor_floor``) and without a critical period
-#: (``encoder.close_at``, ``close_over``), and the oculomotor range of
+#: (``encoder.close_at``, ``close_over``), every patch alike (``encoder.fovea_px``), and the oculomotor range of
 #: the config's ``env`` (``pan_range_deg``, ``vergence_range_deg``): the eye pan limits alone, no vergence
 #: range but theirs.
 _ADDED_3 = {"env": {"optics": None, "first_optics": None}, "cue": {"efficiency": "reconstruction", "proprioception": [], "reward_scales": [],
                                                                "learn_until": None, "reopen_drop": None,
                                                                "reopen_window": 200, "reopen_for": 2400},
-            "encoder": {"floor": None, "close_at": None, "close_over": 0}, "nac": {"actor_floor": None},
+            "encoder": {"floor": None, "close_at": None, "close_over": 0, "fovea_px": None}, "nac": {"actor_floor": None},
             "config_env": {"pan_range_deg": [-45.0, 45.0], "vergence_range_deg": [-90.0, 90.0]}}
 
 

@@ -355,3 +355,37 @@ def test_symmetric_encoders_give_the_transformed_pair_permuted_features(symmetry
     assert paper_encoder(num_atoms=16, sparsity=3, scales=scales).feature_permutation is None
     with pytest.raises(ValueError, match="symmetry must be one of"):
         paper_encoder(num_atoms=16, sparsity=3, scales=scales, symmetry="rotate")
+
+
+def test_fovea_weights_the_reward_and_the_features_by_hand():
+    """encoder.fovea_px: each patch's normalised error and squared coefficients count by a
+    Gaussian of its centre's distance from the crop's centre (mean 1 per scale); the code (which
+    atoms) and the dictionaries' learning are those of the uniform encoder."""
+    from aectorch.coding import fovea_weights
+
+    first, second = _images(3, seed=8, dtype=F64)
+    plain = paper_encoder(generator=_gen(9), dtype=F64, centred=True)
+    fovea = paper_encoder(generator=_gen(9), dtype=F64, centred=True, fovea_px=12.0)
+    with torch.no_grad():
+        a, b = plain(first, second), fovea(first, second)
+    features = []
+    for j, scale in enumerate(plain.scales):
+        w = fovea_weights(scale, 12.0, dtype=F64)
+        # The weights by hand: the centred fine grid's patch centres lie at -28, -20, ..., 28 px (8 x 8).
+        if scale.name == "fine":
+            c = torch.arange(-28.0, 29.0, 8.0, dtype=F64)
+            by_hand = torch.exp(-(c[:, None] ** 2 + c[None, :] ** 2) / (2 * 12.0**2)).reshape(-1)
+            _close(w, by_hand / by_hand.mean(), atol=1e-12)
+        assert torch.equal(a.codes[j].code.indices, b.codes[j].code.indices)
+        _close(b.errors[:, j], (a.codes[j].error * w).mean(-1), atol=1e-10)
+        dense = (F.one_hot(a.codes[j].code.indices, 288).to(F64) * a.codes[j].code.coefficients[..., None]).sum(-2)
+        features.append(((dense**2) * w[:, None]).sum(-2))
+    _close(b.reward, -b.errors.sum(-1), atol=0.0)
+    _close(b.features, torch.cat(features, -1), atol=1e-10)
+    assert not torch.allclose(a.reward, b.reward)
+    # A weighting so wide it is flat is the uniform encoder.
+    wide = paper_encoder(generator=_gen(9), dtype=F64, centred=True, fovea_px=1e9)
+    with torch.no_grad():
+        _close(wide(first, second).reward, a.reward, atol=1e-12)
+    with pytest.raises(ValueError, match="encoder.fovea_px must be null or a number of pixels > 0"):
+        paper_encoder(generator=_gen(9), fovea_px=0)
