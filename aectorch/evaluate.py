@@ -234,13 +234,14 @@ def _pairs(args: EvaluateConfig, pairs, cfg, learner, protocol, iteration: int) 
         cue.config.actions_deg), source=checkpoint_source(args.checkpoint, iteration))
     _write(args.out, result)
     rows = [f"{'policy':<12} {'start':<14} {'median |error| px':>18} {'within 1 px':>12} {'beyond 5 px':>12} "
-            f"{'smooth median':>14} {'edge median':>12}"]
+            f"{'smooth median':>14} {'edge median':>12} {'visible median':>15} {'visible beyond 5 px':>20}"]
     for name, kinds in result["summary"].items():
         for kind in START_KINDS:
             s = kinds[kind]
             rows.append(f"{name:<12} {kind:<14} {s['all']['median_abs_px']:>18.3f} {s['all']['within_1px']:>12.1%} "
                         f"{s['all']['beyond_5px']:>12.1%} {s['smooth']['median_abs_px']:>14.3f} "
-                        f"{s['edge']['median_abs_px']:>12.3f}")
+                        f"{s['edge']['median_abs_px']:>12.3f} {s['visible']['median_abs_px']:>15.3f} "
+                        f"{s['visible']['beyond_5px']:>20.1%}")
     fixations = ", ".join(f"{p['name']} {p['fixations']}" for p in result["pairs"])
     rows.append(f"fixation points: {fixations}; pair_scale {args.pair_scale}, {result['steps']} iterations each; "
                 f"checkpoint iteration {iteration}; written to {args.out}")

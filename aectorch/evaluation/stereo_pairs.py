@@ -15,8 +15,11 @@ cue run frozen and greedy (:func:`stereo_policy`) or any other, such as the clas
 The result holds each fixation's final signed error in eye pixels (``vergence_error_px``: the
 right window's offset from the fixation point's match, positive past it) and, per policy and
 start kind, the median |error|, the fraction within 1 px and the fraction beyond 5 px, over all
-fixations and separately over smooth windows and windows that span a depth edge
-(:data:`EDGE_RESIDUAL_PX`, :data:`EDGE_UNKNOWN`).
+fixations, separately over smooth windows and windows that span a depth edge
+(:data:`EDGE_RESIDUAL_PX`, :data:`EDGE_UNKNOWN`), and over the **visible** fixation points: those
+none of whose four pixels the right photograph hides (`aectorch.sim.stereo_pairs.occlusion`; an
+occluded point's surface is seen by the left eye alone, so no vergence brings the right eye onto it,
+and Middlebury's benchmark reports its non-occluded pixels apart for the same reason).
 """
 
 from __future__ import annotations
@@ -32,13 +35,15 @@ from aectorch.coding.patches import as_scale
 from aectorch.evaluation.trials import placement
 from aectorch.sim.oculomotor import VERGENCE_RANGE_DEG
 from aectorch.sim.pair_world import StereoPairWorld, eye_extent_px
-from aectorch.sim.stereo_pairs import MIN_CONTRAST, StereoPair, disparity_roughness, pick_fixations
+from aectorch.sim.stereo_pairs import MIN_CONTRAST, StereoPair, disparity_roughness, occlusion, pick_fixations
 
-__all__ = ["BEYOND_PX", "EDGE_RESIDUAL_PX", "EDGE_UNKNOWN", "START_KINDS", "WITHIN_PX", "evaluate_pairs",
+__all__ = ["BEYOND_PX", "EDGE_RESIDUAL_PX", "EDGE_UNKNOWN", "PARTS", "START_KINDS", "WITHIN_PX", "evaluate_pairs",
            "pair_summary", "stereo_policy"]
 
 Policy = Callable[[dict, StereoPairWorld], Tensor]
 
+#: The parts of the fixations each summary covers: all of them, smooth and edge windows, visible points.
+PARTS = ("all", "smooth", "edge", "visible")
 #: The kinds of start: the training protocol's vergence, and the vergence test's offsets about the optimum.
 START_KINDS = ("protocol", "vergence_test")
 #: A fixation ends on target within this many eye pixels, and has failed beyond ``BEYOND_PX``.
@@ -116,6 +121,9 @@ def _pair_rows(pair: StereoPair, policies: dict[str, Policy], scales, settings: 
     rough, unknown = disparity_roughness(pair, points, coarse)
     rough = rough / ps
     edge = (rough > EDGE_RESIDUAL_PX) | (unknown > EDGE_UNKNOWN) | ~torch.isfinite(rough)
+    hidden = occlusion(pair)
+    x, y = points[:, 0].long(), points[:, 1].long()
+    occluded = hidden[y - 1, x - 1] | hidden[y - 1, x] | hidden[y, x - 1] | hidden[y, x]
     everything = StereoPairWorld(pair, points, pair_scale=ps, vergence_range_deg=settings["vergence_range_deg"])
     rows = []
     for k, kind in enumerate(START_KINDS):
@@ -142,14 +150,15 @@ def _pair_rows(pair: StereoPair, policies: dict[str, Policy], scales, settings: 
                         "start_error_px": round(float(start_px[j]), 6), "vergence_error_px": round(error_px, 6),
                         "vergence_error_deg": round(error_deg, 6),
                         "plane_residual_px": round(float(rough[j]), 4), "unknown_fraction": round(float(unknown[j]), 4),
-                        "window": "edge" if bool(edge[j]) else "smooth"})
+                        "window": "edge" if bool(edge[j]) else "smooth", "occluded": bool(occluded[j])})
                 if bar is not None:
                     bar.update(world.num_envs)
     return rows
 
 
 def _summaries(rows: list[dict]) -> dict:
-    """``{policy: {start kind: {"all"|"smooth"|"edge": pair_summary}}}`` and ``no_movement`` from the starts."""
+    """``{policy: {start kind: {"all"|"smooth"|"edge"|"visible": pair_summary}}}`` and ``no_movement`` from
+    the starts (``visible``: the fixation points the right photograph does not hide)."""
     out: dict = {}
     policies = list(dict.fromkeys(row["policy"] for row in rows))
     first = policies[0] if policies else None
@@ -159,10 +168,16 @@ def _summaries(rows: list[dict]) -> dict:
             chosen = [r for r in rows if r["policy"] == (first if name == "no_movement" else name) and r["start"] == kind]
             key = "start_error_px" if name == "no_movement" else "vergence_error_px"
             out[name][kind] = {
-                part: pair_summary(torch.tensor([r[key] for r in chosen if part == "all" or r["window"] == part],
-                                                dtype=torch.float64))
-                for part in ("all", "smooth", "edge")}
+                part: pair_summary(torch.tensor([r[key] for r in chosen if _part(r, part)], dtype=torch.float64))
+                for part in PARTS}
     return out
+
+
+def _part(row: dict, part: str) -> bool:
+    """Whether a fixation's row belongs to a summary's part (`PARTS`)."""
+    if part == "visible":
+        return not row["occluded"]
+    return part == "all" or row["window"] == part
 
 
 def evaluate_pairs(
@@ -198,7 +213,7 @@ def evaluate_pairs(
 
     Returns:
         ``summary`` (:func:`_summaries`: per policy, per start kind, over all, smooth and edge
-        windows, and ``no_movement``: the starts' errors), ``per_pair`` (the same over all windows
+        windows and visible points, and ``no_movement``: the starts' errors), ``per_pair`` (the same over all windows
         of each pair), ``per_fixation`` (one row per policy, start and point) and the settings.
 
     Example:

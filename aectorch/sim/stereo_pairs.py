@@ -25,8 +25,8 @@ from torch import Tensor
 from aectorch._checks import check_int, check_real
 from aectorch.sim.textures.files import load_grey
 
-__all__ = ["MIDDLEBURY_FILES", "MIN_CONTRAST", "PLAIN_FILES", "StereoPair", "corner_disparity", "disparity_roughness", "layout",
-           "pick_fixations", "read_pair", "read_pairs", "read_pfm"]
+__all__ = ["MIDDLEBURY_FILES", "MIN_CONTRAST", "OCCLUSION_TOLERANCE_PX", "PLAIN_FILES", "StereoPair", "corner_disparity",
+           "disparity_roughness", "layout", "occlusion", "pick_fixations", "read_pair", "read_pairs", "read_pfm"]
 
 #: Middlebury's layout: left image, right image, the left image's disparity.
 MIDDLEBURY_FILES = ("im0.png", "im1.png", "disp0.pfm")
@@ -290,3 +290,43 @@ def disparity_roughness(pair: StereoPair, points: Tensor, half_px: int, *, quant
         residual = (window[known] - (design @ plane)[:, 0]).abs()
         rough.append(float(torch.quantile(residual, quantile)))
     return torch.tensor(rough, dtype=torch.float64), torch.tensor(unknown, dtype=torch.float64)
+
+
+#: A pixel is occluded in the right photograph when a nearer pixel's disparity there exceeds its own
+#: by more than this many photo pixels (:func:`occlusion`).
+OCCLUSION_TOLERANCE_PX = 1.0
+
+
+def occlusion(pair: StereoPair, tolerance_px: float = OCCLUSION_TOLERANCE_PX) -> Tensor:
+    """Which pixels of the left photograph the right one does not see, ``[H, W]`` bool, from the
+    ground truth alone (a left-right visibility test, as Middlebury's ``mask0nocc`` marks them).
+
+    The pixel at column ``x`` with known disparity ``d`` covers the right photograph's columns
+    ``floor(x - d)`` and ``ceil(x - d)`` (one column where ``x - d`` is whole). Every known pixel
+    of the row marks the columns it covers with its disparity; a pixel is occluded where the
+    largest disparity marked on a column it covers exceeds its own by more than ``tolerance_px``
+    (a nearer surface covers it there). Unknown pixels neither occlude nor are occluded; pixels
+    that land outside the right photograph are occluded (it does not see them either).
+
+    Example:
+        >>> d = torch.full((1, 30), 2.0)
+        >>> d[0, 15:25] = 10.0  # a near object; the 8 px of background left of it are hidden
+        >>> pair = StereoPair("toy", torch.zeros(1, 30), torch.zeros(1, 30), d)
+        >>> torch.nonzero(occlusion(pair)[0]).flatten().tolist()
+        [0, 1, 7, 8, 9, 10, 11, 12, 13, 14]
+    """
+    check_real(tolerance_px, "tolerance_px", minimum=0.0)
+    d = pair.disparity.double()
+    h, w = d.shape
+    known = torch.isfinite(d)
+    columns = torch.arange(w, dtype=torch.float64).expand(h, w)
+    lands = columns - torch.where(known, d, 0.0)
+    first, last = torch.floor(lands).long(), torch.ceil(lands).long()
+    inside = known & (first >= 0) & (last < w)
+    rows = torch.arange(h)[:, None].expand(h, w)
+    marks = torch.full((h * w,), -math.inf, dtype=torch.float64)
+    for column in (first, last):  # the columns each pixel covers
+        marks.scatter_reduce_(0, (rows * w + column.clamp(0, w - 1))[inside], d[inside], reduce="amax")
+    marks = marks.view(h, w)
+    nearest = torch.maximum(marks.gather(1, first.clamp(0, w - 1)), marks.gather(1, last.clamp(0, w - 1)))
+    return known & (~inside | (nearest > d + tolerance_px))

@@ -8,8 +8,10 @@ For every pixel scale, start kind and policy one markdown row: the mean over the
 |error| (eye pixels), the fraction within 1 px, the fraction beyond 5 px and the fraction beyond 5 px
 past the match (converged too far), the median over the fixations whose ground truth is within the
 training's largest disparity (the optimum at 1 m, 15.4 eye px) and over the nearer ones, each run's
-value in brackets (in the runs' order; one value where the runs agree), then the policy's on smooth windows and on windows across a depth edge
-(`aectorch.evaluation.stereo_pairs`). ``--json`` keeps the rows and every run's summary.
+value in brackets (in the runs' order; one value where the runs agree), then the policy's on smooth
+windows, on windows across a depth edge and on the visible fixation points, those the right
+photograph does not hide (`aectorch.evaluation.stereo_pairs`). ``--json`` keeps the rows and every
+run's summary.
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ POLICIES = ("learner", "matcher", "no_movement")
 #: distance (3.43 deg at the camera's focal length of 257.34 px).
 TRAINED_PX = 15.4
 STARTS = ("protocol", "vergence_test")
+#: The parts of the fixations with columns of their own (`aectorch.evaluation.stereo_pairs.PARTS`).
+WINDOWS = ("smooth", "edge", "visible")
 
 
 def evaluations(runs: list[Path]) -> dict[int, list[dict]]:
@@ -79,7 +83,9 @@ def rows(found: dict[int, list[dict]]) -> list[dict]:
                        "trained_median_abs_px": [median_by_range(r, policy, start)[0] for r in results],
                        "nearer_median_abs_px": [median_by_range(r, policy, start)[1] for r in results]}
                 if policy != "no_movement":
-                    for window in ("smooth", "edge"):
+                    for window in WINDOWS:
+                        if any(window not in p for p in parts):  # an evaluation made before visible points
+                            continue
                         row[f"{window}_median_abs_px"] = [p[window]["median_abs_px"] for p in parts]
                         row[f"{window}_beyond_5px"] = [p[window]["beyond_5px"] for p in parts]
                         row[f"{window}_n"] = [p[window]["n"] for p in parts]
@@ -90,15 +96,14 @@ def rows(found: dict[int, list[dict]]) -> list[dict]:
 def markdown(table: list[dict]) -> str:
     head = ["pixel scale", "start", "policy", *(label for _, label, *_ in MEASURES), "beyond 5 px past the match (%)",
             f"median, ground truth <= {TRAINED_PX} px", f"median, ground truth > {TRAINED_PX} px",
-            "smooth: median, beyond 5 px",
-            "edge: median, beyond 5 px"]
+            *(f"{window}: median, beyond 5 px" for window in WINDOWS)]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in table:
         cells = [str(row["pair_scale"]), row["start"].replace("_", " "), row["policy"].replace("_", " ")]
         cells += [cell(row[key], scale, form) for key, _, scale, form in MEASURES]
         cells.append(cell(row["past_5px"], 100.0, "{:.0f}"))
         cells += [cell(row[key], 1.0, "{:.2f}") for key in ("trained_median_abs_px", "nearer_median_abs_px")]
-        for window in ("smooth", "edge"):
+        for window in WINDOWS:
             if f"{window}_n" in row and not any(row[f"{window}_n"]):
                 cells.append("no window")
             elif f"{window}_n" in row:

@@ -147,3 +147,66 @@ def test_an_oracle_policy_ends_on_every_match_and_depth_edges_are_told_from_smoo
         if abs(row["x"] - 300) < 32:
             assert row["window"] == "edge", row
     assert {r["window"] for r in rows} == {"smooth", "edge"}
+
+
+def layered_pair(near: int = 12, far: int = 4) -> tuple[StereoPair, np.ndarray]:
+    """A rendered pair of two surfaces: a background at disparity ``far`` and, before it, a near
+    square at disparity ``near`` (columns 120-199 of the left photograph, rows 40-139). Each eye's
+    photograph is painted back to front, so what the right one shows is what it sees; the
+    ground truth is the left photograph's. Returns the pair and which left pixels the right
+    photograph shows at their ground truth (the oracle's visibility)."""
+    h, w = 180, 320
+    back, front = texture(h, w + near, seed=3), texture(h, w + near, seed=4)
+    left, right = back[:, :w].copy(), back[:, far:far + w].copy()  # right[x - far] = back[x]
+    disparity = np.full((h, w), float(far), np.float32)
+    rows, cols = slice(40, 140), slice(120, 200)
+    left[rows, cols] = front[rows, cols]
+    right[rows, 120 - near:200 - near] = front[rows, cols]  # painted over the background
+    disparity[rows, cols] = near
+    # Oracle: the left pixel (y, x) is seen by the right eye where the right photograph at x - d
+    # shows the same surface point, i.e. it was painted by the same layer.
+    painted_front = np.zeros((h, w), bool)
+    painted_front[rows, 120 - near:200 - near] = True
+    x = np.arange(w)[None, :].repeat(h, 0)
+    target = (x - disparity.astype(int))
+    inside = (target >= 0) & (target < w)
+    on_front = disparity == near
+    seen = inside & (painted_front[np.arange(h)[:, None], target.clip(0, w - 1)] == on_front)
+    pair = StereoPair("layered", torch.from_numpy(left).float(), torch.from_numpy(right).float(),
+                      torch.from_numpy(disparity))
+    return pair, seen
+
+
+def test_occlusion_marks_what_a_rendered_right_photograph_hides():
+    """`occlusion` from the ground truth alone against the renderer's own visibility: the strip
+    of background left of the near square (near - far = 8 px wide) is hidden, nothing else but
+    the columns that land outside the right photograph; and where it says visible, the right
+    photograph shows the left pixel at its ground truth."""
+    from aectorch.sim.stereo_pairs import occlusion
+
+    pair, seen = layered_pair()
+    hidden = occlusion(pair).numpy()
+    assert np.array_equal(hidden, ~seen)
+    assert hidden[60, 112:120].all() and not hidden[60, 111] and not hidden[60, 120:].any()
+    assert hidden[10, :4].all() and not hidden[10, 4:].any()
+    d = pair.disparity.numpy().astype(int)
+    y, x = np.nonzero(~hidden)
+    assert np.array_equal(pair.left.numpy()[y, x], pair.right.numpy()[y, x - d[y, x]])
+
+
+def test_the_summaries_count_the_visible_points_apart():
+    """Fixation points on the hidden strip are occluded; the visible part's summary is over the others."""
+    pair, seen = layered_pair()
+
+    def oracle(observation, world):
+        return -world.vergence_error_deg.float()
+
+    out = evaluate_pairs({"oracle": oracle}, [pair], fixations=400, steps=1, seed=0, scales=("full",))
+    rows = out["per_fixation"]
+    for row in rows:
+        x, y = row["x"], row["y"]
+        assert row["occluded"] == (not seen[y - 1:y + 1, x - 1:x + 1].all()), row
+    assert any(r["occluded"] for r in rows) and not all(r["occluded"] for r in rows)
+    for kind in START_KINDS:
+        visible = out["summary"]["oracle"][kind]["visible"]
+        assert visible["n"] == sum(not r["occluded"] for r in rows if r["start"] == kind)
