@@ -249,7 +249,7 @@ def test_the_command_scores_pairs_without_ground_truth_beside_pairs_with_it(pair
     assert part["summary"]["learner"]["protocol"]["n"] == 3
     assert set(result["summary"]) == {"learner", "matcher", "no_movement"}  # over the pairs with ground truth
     assert result["summary"]["learner"]["protocol"]["all"]["n"] == 6
-    assert "without ground truth (robot; the protocol's start only)" in capsys.readouterr().out
+    assert "without ground truth (robot): the protocol's start only" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("arguments, message", [
