@@ -274,17 +274,16 @@ def _truthless_table(result: dict) -> list[str]:
     rows = [f"without ground truth ({', '.join(part['pairs'])}): the protocol's start only, searched over "
             f"{part['search_deg']} deg",
             f"{'policy':<12} {'median reward':>14} {'median sd px':>13} {'stable':>7} {'median |vs matcher| px':>23} "
-            f"{'within 1 px':>12} {'beyond 5 px':>12}"]
+            f"{'within 1 px':>12} {'beyond 5 px':>12} {'at the limit':>13}"]
     for name, kinds in part["summary"].items():
         s = kinds["protocol"]
         if name == "no_movement":
             rows.append(f"{name:<12} {s['median_reward']:>14.4f}  (the starts' reward)")
-        elif name == part["reference"]:
-            rows.append(f"{name:<12} {s['median_reward']:>14.4f} {s['median_stability_px']:>13.3f} {s['stable']:>7.1%}")
-        else:
-            rows.append(f"{name:<12} {s['median_reward']:>14.4f} {s['median_stability_px']:>13.3f} {s['stable']:>7.1%} "
-                        f"{s['median_agreement_px']:>23.3f} {s['agree_within_1px']:>12.1%} "
-                        f"{s['agree_beyond_5px']:>12.1%}")
+            continue
+        agreement = (f"{s['median_agreement_px']:>23.3f} {s['agree_within_1px']:>12.1%} {s['agree_beyond_5px']:>12.1%}"
+                     if name != part["reference"] else " " * 49)
+        rows.append(f"{name:<12} {s['median_reward']:>14.4f} {s['median_stability_px']:>13.3f} {s['stable']:>7.1%} "
+                    f"{agreement} {s['at_limit']:>13.1%}")
     return rows
 
 

@@ -34,7 +34,10 @@ too):
   a classical estimate of the match (the matcher);
 - ``stability_px``: the standard deviation of the right window's shift (``f tan(vergence)``,
   eye pixels) over the fixation's last :data:`STABILITY_ITERATIONS` iterations (stable at most
-  :data:`STABLE_PX`), and ``last_increment_px``, the last iteration's move.
+  :data:`STABLE_PX`), and ``last_increment_px``, the last iteration's move;
+- ``at_limit``: whether the fixation ends at an end of its vergence range (the search range
+  without ground truth), where the range, not the policy, holds it still: a match beyond the
+  search range is reached by no policy, and policies that agree there agree on the limit.
 
 Their summaries (:func:`fixation_summary`) are the result's ``without_ground_truth.summary``.
 """
@@ -153,12 +156,15 @@ def _fraction(mask: Tensor) -> float:
 def fixation_summary(rows: Sequence[dict]) -> dict:
     """What needs no ground truth, over ``rows`` (each a fixation's, :func:`evaluate_pairs`): the
     median reward, the median stability and the fraction stable (`STABLE_PX`), the median last
-    increment, and the median agreement with the reference and the fractions agreeing within
-    `WITHIN_PX` and beyond `BEYOND_PX` (NaN where the rows lack the value).
+    increment, the median agreement with the reference and the fractions agreeing within
+    `WITHIN_PX` and beyond `BEYOND_PX`, and the fraction ending at the vergence range's limit
+    (NaN where the rows lack the value).
 
     Example:
-        >>> rows = [{"reward": -1.0, "stability_px": 0.0, "last_increment_px": 0.0, "agreement_px": 0.5},
-        ...         {"reward": -3.0, "stability_px": 2.0, "last_increment_px": 1.0, "agreement_px": 6.0}]
+        >>> rows = [{"reward": -1.0, "stability_px": 0.0, "last_increment_px": 0.0, "agreement_px": 0.5,
+        ...          "at_limit": False},
+        ...         {"reward": -3.0, "stability_px": 2.0, "last_increment_px": 1.0, "agreement_px": 6.0,
+        ...          "at_limit": False}]
         >>> fixation_summary(rows)["stable"], fixation_summary(rows)["agree_beyond_5px"]
         (0.5, 0.5)
     """
@@ -170,7 +176,7 @@ def fixation_summary(rows: Sequence[dict]) -> dict:
     return {"n": len(rows), "median_reward": _median(values("reward")), "median_stability_px": _median(stability),
             "stable": _fraction(stability <= STABLE_PX), "median_last_increment_px": _median(values("last_increment_px")),
             "median_agreement_px": _median(agreement), "agree_within_1px": _fraction(agreement <= WITHIN_PX),
-            "agree_beyond_5px": _fraction(agreement > BEYOND_PX)}
+            "agree_beyond_5px": _fraction(agreement > BEYOND_PX), "at_limit": _fraction(values("at_limit") > 0)}
 
 
 def pair_summary(errors_px: Tensor) -> dict:
@@ -228,7 +234,10 @@ def _run(policy: Policy, pair: StereoPair, points: Tensor, start_deg: Tensor, sc
         shifts = _fixate(policy, world, scales, settings["steps"])
         last = shifts[1:][-STABILITY_ITERATIONS:]
         nan = torch.full((world.num_envs,), math.nan, dtype=torch.float64)
-        out.update(end_deg=world.vergence_deg.clone(), end_shift_px=shifts[-1], error_px=world.vergence_error_px,
+        low, high = settings["vergence_range_deg"]
+        end = world.vergence_deg.clone()
+        out.update(end_deg=end, at_limit=((end <= low + 1e-9) | (end >= high - 1e-9)).double(),
+                   end_shift_px=shifts[-1], error_px=world.vergence_error_px,
                    error_deg=world.vergence_error_deg,
                    stability_px=last.std(0, unbiased=False) if len(last) else nan,
                    last_increment_px=(shifts[-1] - shifts[-2]).abs() if len(last) else nan)
@@ -247,7 +256,7 @@ def _scores(ends: dict[str, dict[str, Tensor]], name: str, j: int, reference: st
     row: dict[str, float | None] = {key: round(float(end[key][j]), 6) for key in ("start_reward", "reward")
                                     if key in end}
     row.update(stability_px=round(float(end["stability_px"][j]), 6),
-               last_increment_px=round(float(end["last_increment_px"][j]), 6))
+               last_increment_px=round(float(end["last_increment_px"][j]), 6), at_limit=bool(end["at_limit"][j]))
     if reference is not None:
         row["agreement_px"] = None if name == reference else round(
             abs(float(end["end_shift_px"][j]) - float(ends[reference]["end_shift_px"][j])), 6)

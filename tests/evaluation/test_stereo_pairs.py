@@ -193,12 +193,20 @@ def test_a_pair_without_ground_truth_is_scored_by_reward_stability_and_agreement
     assert summary["still"]["protocol"] == {
         "n": fixations, "median_reward": pytest.approx(sorted(r["reward"] for r in still)[fixations // 2]),
         "median_stability_px": 0.0, "stable": 1.0, "median_last_increment_px": 0.0,
-        "median_agreement_px": pytest.approx(k, abs=0.25), "agree_within_1px": 0.0, "agree_beyond_5px": 1.0}
+        "median_agreement_px": pytest.approx(k, abs=0.25), "agree_within_1px": 0.0, "agree_beyond_5px": 1.0,
+        "at_limit": 0.0}
     assert summary["matcher"]["protocol"]["stable"] == 1.0 and math.isnan(summary["matcher"]["protocol"]["agree_within_1px"])
     assert summary["no_movement"]["protocol"]["n"] == fixations
     assert out["per_pair"]["robot"] == summary and out["pairs"][0]["ground_truth"] is False
     # the points' windows lie inside both photos over the search: x - 36.2 px >= 80 and x + 9 px <= 400 - 80
     assert all(117 <= r["x"] <= 311 and 80 <= r["y"] <= 120 for r in rows)
+    # a search that stops short of the match (1 deg: 4.5 px) holds the matcher at its limit
+    out = evaluate_pairs(policies, [pair], fixations=2, steps=4,
+                         scoring=Scoring(reference="matcher", search_deg=(-2.0, 1.0)))
+    ends = [r for r in out["per_fixation"] if r["policy"] == "matcher"]
+    assert all(r["at_limit"] and r["end_shift_px"] == pytest.approx(4.4915, abs=1e-3) for r in ends)
+    assert out["without_ground_truth"]["summary"]["matcher"]["protocol"]["at_limit"] == 1.0
+    assert out["without_ground_truth"]["summary"]["still"]["protocol"]["at_limit"] == 0.0
 
 
 def test_pairs_with_and_without_ground_truth_mix_and_bad_input_is_named():
