@@ -17,7 +17,7 @@ from omegaconf import MISSING
 from aectorch._checks import check_int, check_real
 from aectorch.choices import Policy, Readout, RendererName
 from aectorch.evaluation import BEYOND_DEG, EVAL_BATCH_SIZE, WITHIN_DEG, evaluate
-from aectorch.evaluation.stereo_pairs import START_KINDS, evaluate_pairs, stereo_policy
+from aectorch.evaluation.stereo_pairs import START_KINDS, Scoring, coding_reward, evaluate_pairs, stereo_policy
 from aectorch.evaluation.trials import TRACKING_SKIP, run_tracking, tracking_by_speed, tracking_rows
 from aectorch.baselines import Matcher
 from aectorch.figures import plot_evaluation, plot_tracking
@@ -72,10 +72,17 @@ class EvaluateConfig:
             cue (frozen, greedy) and the classical matcher fixate points of each pair for a
             fixation's iterations, from the protocol's start vergence and from the vergence
             test's (the optimum +-2 deg); the result holds each fixation's final error in eye
-            pixels (aectorch.evaluation.stereo_pairs). Not with textures or tracking.
+            pixels (aectorch.evaluation.stereo_pairs). A plain folder without disparity.npy
+            (e.g. a LeRobot dataset's two cameras, scripts/lerobot_pairs.py) is a pair without
+            ground truth: the protocol's start only, the vergence searched over search_deg,
+            scored by the stereo cue's coding reward, the fixation's stability and its agreement
+            with the matcher. Not with textures or tracking.
         pair_scale: with pairs, the photo pixels one eye pixel spans (1, 2, ...).
         fixations: with pairs, the fixation points per pair (fewer where fewer have a known
             disparity and texture).
+        search_deg: with pairs, [low, high]: the vergence range searched on a pair without
+            ground truth, degrees (default [-2, 8], about -9 to +36 eye px; within the vergence
+            range): its points' windows lie inside both photos over all of it.
     """
 
     checkpoint: str = MISSING
@@ -96,6 +103,7 @@ class EvaluateConfig:
     pairs: Optional[str] = None
     pair_scale: int = 1
     fixations: int = PAIR_FIXATIONS
+    search_deg: Optional[list[float]] = None
 
     def __post_init__(self) -> None:
         if not self.depths:
@@ -130,10 +138,16 @@ class EvaluateConfig:
         check_int(self.pair_scale, "pair_scale", minimum=1)
         check_int(self.fixations, "fixations", minimum=1)
         if self.pairs is None:
-            for name, default in (("pair_scale", 1), ("fixations", PAIR_FIXATIONS)):
+            for name, default in (("pair_scale", 1), ("fixations", PAIR_FIXATIONS), ("search_deg", None)):
                 if getattr(self, name) != default:
                     raise ValueError(f"{name} acts only on stereo pairs: give pairs=FOLDER too, or leave {name} out")
             return
+        if self.search_deg is not None:
+            if len(self.search_deg) != 2:
+                raise ValueError(f"search_deg must be [low, high] in degrees, got {list(self.search_deg)}")
+            low, high = (check_real(v, "search_deg", unit="degrees") for v in self.search_deg)
+            if not low < high:
+                raise ValueError(f"search_deg must be [low, high] with low < high, got {list(self.search_deg)}")
         for other in ("textures", "tracking", "figure"):
             if getattr(self, other) is not None:
                 raise ValueError(f"pairs and {other} exclude each other: the pairs are the evaluation's images "
@@ -221,20 +235,24 @@ def _pairs(args: EvaluateConfig, pairs, cfg, learner, protocol, iteration: int) 
     cue = learner.cues["stereo"]
     matcher = Matcher(actions_deg=cue.config.actions_deg, scales=cue.config.scales)
     policies = {"learner": stereo_policy(learner), "matcher": lambda observation, world: matcher.increment_deg(observation)}
+    scoring = Scoring(reward=coding_reward(learner), reference="matcher")
+    if args.search_deg is not None:
+        scoring = Scoring(scoring.reward, scoring.reference, (args.search_deg[0], args.search_deg[1]))
     spread = cfg.env.vergence_start_spread_deg
     start = (cfg.env.vergence_start_deg - spread, cfg.env.vergence_start_deg + spread)
     try:
         result = evaluate_pairs(policies, pairs, scales=[s.name for s in cue.encoder.scales], pair_scale=args.pair_scale,
                                 fixations=args.fixations, steps=protocol.fixation_iterations, seed=args.seed,
                                 start_vergence_deg=start, vergence_range_deg=protocol.vergence_range_deg,
-                                batch_size=args.batch_size, progress=args.progress)
+                                scoring=scoring, batch_size=args.batch_size, progress=args.progress)
     except ValueError as err:
         raise ValueError(f"pairs: {err}") from err
     result.update(checkpoint=args.checkpoint, folder=args.pairs, iteration=iteration, matcher_actions_deg=list(
         cue.config.actions_deg), source=checkpoint_source(args.checkpoint, iteration))
     _write(args.out, result)
     rows = [f"{'policy':<12} {'start':<14} {'median |error| px':>18} {'within 1 px':>12} {'beyond 5 px':>12} "
-            f"{'smooth median':>14} {'edge median':>12} {'visible median':>15} {'visible beyond 5 px':>20}"]
+            f"{'smooth median':>14} {'edge median':>12} {'visible median':>15} {'visible beyond 5 px':>20}"] \
+        if result["summary"] else []
     for name, kinds in result["summary"].items():
         for kind in START_KINDS:
             s = kinds[kind]
@@ -242,11 +260,33 @@ def _pairs(args: EvaluateConfig, pairs, cfg, learner, protocol, iteration: int) 
                         f"{s['all']['beyond_5px']:>12.1%} {s['smooth']['median_abs_px']:>14.3f} "
                         f"{s['edge']['median_abs_px']:>12.3f} {s['visible']['median_abs_px']:>15.3f} "
                         f"{s['visible']['beyond_5px']:>20.1%}")
+    rows += _truthless_table(result)
     fixations = ", ".join(f"{p['name']} {p['fixations']}" for p in result["pairs"])
     rows.append(f"fixation points: {fixations}; pair_scale {args.pair_scale}, {result['steps']} iterations each; "
                 f"checkpoint iteration {iteration}; written to {args.out}")
     print("\n".join(rows))
     return 0
+
+
+def _truthless_table(result: dict) -> list[str]:
+    """The table of the pairs without ground truth (none when every pair has it)."""
+    if "without_ground_truth" not in result:
+        return []
+    part = result["without_ground_truth"]
+    rows = [f"without ground truth ({', '.join(part['pairs'])}): the protocol's start only, searched over "
+            f"{part['search_deg']} deg",
+            f"{'policy':<12} {'median reward':>14} {'median sd px':>13} {'stable':>7} {'median |vs matcher| px':>23} "
+            f"{'within 1 px':>12} {'beyond 5 px':>12} {'at the limit':>13}"]
+    for name, kinds in part["summary"].items():
+        s = kinds["protocol"]
+        if name == "no_movement":
+            rows.append(f"{name:<12} {s['median_reward']:>14.4f}  (the starts' reward)")
+            continue
+        agreement = (f"{s['median_agreement_px']:>23.3f} {s['agree_within_1px']:>12.1%} {s['agree_beyond_5px']:>12.1%}"
+                     if name != part["reference"] else " " * 49)
+        rows.append(f"{name:<12} {s['median_reward']:>14.4f} {s['median_stability_px']:>13.3f} {s['stable']:>7.1%} "
+                    f"{agreement} {s['at_limit']:>13.1%}")
+    return rows
 
 
 def _tracking(args: EvaluateConfig, learner, bank: TextureBank, textures: str, protocol, iteration: int) -> int:

@@ -8,6 +8,9 @@ vergence the eyes are parallel, as the rectified cameras were; the optimum puts 
 over the fixation point's match: ``f tan(v*) = d / pair_scale``, ``d`` the ground-truth disparity
 there (photo pixels) and ``pair_scale`` the photo pixels one eye pixel spans.
 
+On a pair without ground truth (``pair.disparity`` ``None``) the optimum is unknown: the eyes
+move and see as on any pair, and the ground truth and the errors are NaN.
+
 Each foveal scale's eye images are made as `ActiveDepthEnv.stereo_observation` makes them: the
 scale's central crop with one more of its pixels on every side, each pixel the area average of
 the photo over its footprint (a photo pixel is a constant square; a window moved by a fraction of
@@ -128,8 +131,8 @@ class StereoPairWorld:
             raise ValueError(f"vergence_range_deg must be (low, high) with low < high, got {vergence_range_deg!r}")
         self.vergence_range_deg = (low, high)
         self.dtype = dtype
-        self.disparity_px = corner_disparity(pair, self.points)  # photo pixels
-        if not bool(torch.isfinite(self.disparity_px).all()):
+        self.disparity_px = corner_disparity(pair, self.points)  # photo pixels; NaN without ground truth
+        if pair.has_ground_truth and not bool(torch.isfinite(self.disparity_px).all()):
             raise ValueError(f"pair {pair.name!r}: the ground truth is unknown at some of the points")
         self.vergence_deg = torch.zeros(self.num_envs, dtype=torch.float64)
         self._left: dict[tuple, dict[str, Tensor]] = {}

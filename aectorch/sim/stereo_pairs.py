@@ -1,12 +1,14 @@
-"""Rectified stereo photographs with ground-truth disparity: the pairs, their readers and the
-fixation points an evaluation picks on them.
+"""Rectified stereo photographs, with ground-truth disparity or without: the pairs, their readers
+and the fixation points an evaluation picks on them.
 
 Two folder layouts are read (:func:`read_pair`):
 
 - **Middlebury's** (the 2014 and 2021 sets): ``im0.png`` (left), ``im1.png`` (right) and
   ``disp0.pfm``, the left image's disparity; unknown where it is ``inf`` or 0.
 - **the plain one**: ``left.<ext>`` and ``right.<ext>`` (any image format Pillow reads) and
-  ``disparity.npy``, float ``[H, W]``; unknown where it is NaN (or not finite).
+  ``disparity.npy``, float ``[H, W]``; unknown where it is NaN (or not finite). A folder with the
+  two images and no ``disparity.npy`` is a pair without ground truth (``disparity`` ``None``), such
+  as a robot's two cameras (``scripts/lerobot_pairs.py``).
 
 Disparities are in pixels of the photographs: the point at column ``x`` of the left image is at
 ``x - d`` in the right one. Images are read as grey in [0, 1] (`aectorch.sim.textures.files`).
@@ -38,28 +40,38 @@ MIN_CONTRAST = 0.05
 
 @dataclass(frozen=True)
 class StereoPair:
-    """A rectified stereo pair with the left image's disparity.
+    """A rectified stereo pair with the left image's disparity, or without ground truth.
 
     Args:
         name: the pair's name (its folder's).
         left, right: grey images ``[H, W]`` in [0, 1].
-        disparity: ``[H, W]`` photo pixels (left column minus right column), NaN where unknown.
+        disparity: ``[H, W]`` photo pixels (left column minus right column), NaN where unknown;
+            ``None``: the pair has no ground truth.
     """
 
     name: str
     left: Tensor
     right: Tensor
-    disparity: Tensor
+    disparity: Tensor | None = None
 
     def __post_init__(self) -> None:
-        shapes = [tuple(t.shape) for t in (self.left, self.right, self.disparity)]
+        images = (self.left, self.right) if self.disparity is None else (self.left, self.right, self.disparity)
+        shapes = [tuple(t.shape) for t in images]
         if len(shapes[0]) != 2 or len(set(shapes)) != 1:
-            raise ValueError(f"pair {self.name!r}: left, right and disparity must be [H, W] images of one size, "
-                             f"got {shapes[0]}, {shapes[1]} and {shapes[2]}")
+            names = "left and right" if self.disparity is None else "left, right and disparity"
+            got = ", ".join(map(str, shapes[:-1])) + f" and {shapes[-1]}"
+            raise ValueError(f"pair {self.name!r}: {names} must be [H, W] images of one size, got {got}")
+
+    @property
+    def has_ground_truth(self) -> bool:
+        """Whether the pair holds a disparity map."""
+        return self.disparity is not None
 
     @property
     def known(self) -> Tensor:
-        """Where the disparity is known ``[H, W]`` (bool)."""
+        """Where the disparity is known ``[H, W]`` (bool; nowhere without ground truth)."""
+        if self.disparity is None:
+            return torch.zeros(self.left.shape, dtype=torch.bool)
         return torch.isfinite(self.disparity)
 
 
@@ -133,8 +145,10 @@ def read_pair(folder: str | Path) -> StereoPair:
     """The pair in ``folder``, in Middlebury's layout or the plain one (the module's docstring).
 
     Raises:
-        ValueError: naming the folder and the file when a layout's file is missing or unreadable,
-            the images and the disparity differ in size, or no disparity is known.
+        ValueError: naming the folder and the file when a layout's file is missing or unreadable
+            (the plain layout's ``disparity.npy`` may be missing when both images are there: a
+            pair without ground truth), the images and the disparity differ in size, or no
+            disparity is known.
     """
     folder = Path(folder)
     kind = layout(folder)
@@ -154,11 +168,14 @@ def read_pair(folder: str | Path) -> StereoPair:
         files = {"left": _one(folder, "left"), "right": _one(folder, "right"),
                  "disparity": folder / "disparity.npy" if (folder / "disparity.npy").is_file() else None}
         missing = [PLAIN_FILES[i] for i, path in enumerate(files.values()) if path is None]
-        if missing:
+        left_file, right_file = files["left"], files["right"]
+        if left_file is None or right_file is None:
             raise ValueError(f"pair folder {str(folder)!r} (the plain layout) lacks {', '.join(missing)}")
-        left, right = _image(files["left"]), _image(files["right"])  # type: ignore[arg-type]  # checked
+        left, right = _image(left_file), _image(right_file)
+        if files["disparity"] is None:  # a pair without ground truth
+            return StereoPair(folder.name, left, right)
         try:
-            array = np.load(files["disparity"], allow_pickle=False)  # type: ignore[arg-type]  # checked
+            array = np.load(files["disparity"], allow_pickle=False)
         except (OSError, ValueError) as err:
             raise ValueError(f"cannot read {str(files['disparity'])!r}: {err}") from err
         if array.ndim != 2 or not np.issubdtype(array.dtype, np.number):
@@ -207,14 +224,18 @@ def _window_std(image: Tensor, half: int) -> Tensor:
 
 
 def pick_fixations(pair: StereoPair, count: int, *, half_extent_px: int, texture_half_px: int,
-                   min_contrast: float = MIN_CONTRAST, grid_px: int = 4, seed: int = 0) -> Tensor:
+                   min_contrast: float = MIN_CONTRAST, grid_px: int = 4, seed: int = 0,
+                   shift_range_px: tuple[float, float] | None = None) -> Tensor:
     """Fixation points on ``pair``: pixel corners ``(x, y)`` ``[N, 2]`` (long) with known ground
-    truth and texture, ``count`` of them drawn from the candidates (all when fewer), reproducibly.
+    truth (where the pair has it) and texture, ``count`` of them drawn from the candidates (all
+    when fewer), reproducibly.
 
     A candidate is a corner on a grid of ``grid_px`` photo pixels whose four pixels have a known
     disparity, whose window of ``half_extent_px`` photo pixels either side lies in the left image
     and, moved by the disparity, in the right one, and whose left image has a standard deviation
-    of at least ``min_contrast`` in the ``texture_half_px`` square around it.
+    of at least ``min_contrast`` in the ``texture_half_px`` square around it. On a pair without
+    ground truth the disparity is unknown: the window must lie in the right image moved by every
+    shift of ``shift_range_px``, the right window's shifts a search may reach.
 
     Args:
         pair: the stereo pair.
@@ -224,9 +245,13 @@ def pick_fixations(pair: StereoPair, count: int, *, half_extent_px: int, texture
         min_contrast: the least standard deviation of grey (in [0, 1]) there.
         grid_px: the candidates' spacing, photo pixels.
         seed: seeds the draw.
+        shift_range_px: ``(low, high)``, photo pixels: how far left of the point the right
+            window may move (``f tan(vergence) pair_scale`` over the vergence range); needed
+            for, and used only on, a pair without ground truth.
 
     Raises:
-        ValueError: when no candidate is left, saying which condition removed them.
+        ValueError: when no candidate is left, saying which condition removed them, or a pair
+            without ground truth is given no ``shift_range_px``.
     """
     check_int(count, "count", 1)
     check_int(half_extent_px, "half_extent_px", 1)
@@ -234,19 +259,29 @@ def pick_fixations(pair: StereoPair, count: int, *, half_extent_px: int, texture
     check_int(grid_px, "grid_px", 1)
     check_real(min_contrast, "min_contrast", minimum=0.0)
     h, w = pair.left.shape
-    d = pair.disparity.double()
-    # the ground truth at a corner: the mean of its four pixels (NaN when one is unknown)
-    corner = torch.full((h + 1, w + 1), math.nan, dtype=torch.float64)
-    corner[1:h, 1:w] = (d[:-1, :-1] + d[:-1, 1:] + d[1:, :-1] + d[1:, 1:]) / 4
     ys = torch.arange(h + 1, dtype=torch.float64)[:, None].expand(h + 1, w + 1)
     xs = torch.arange(w + 1, dtype=torch.float64)[None, :].expand(h + 1, w + 1)
-    conditions = {
-        "a known disparity": torch.isfinite(corner),
-        f"the window ({2 * half_extent_px} photo px) inside both images":
-            (ys >= half_extent_px) & (ys <= h - half_extent_px) & (xs >= half_extent_px) & (xs <= w - half_extent_px)
-            & (xs - corner >= half_extent_px) & (xs - corner <= w - half_extent_px),
-        f"contrast >= {min_contrast:g}": _window_std(pair.left, texture_half_px) >= min_contrast,
-    }
+    inside = (ys >= half_extent_px) & (ys <= h - half_extent_px) & (xs >= half_extent_px) & (xs <= w - half_extent_px)
+    conditions: dict[str, Tensor] = {}
+    if pair.disparity is not None:
+        d = pair.disparity.double()
+        # the ground truth at a corner: the mean of its four pixels (NaN when one is unknown)
+        corner = torch.full((h + 1, w + 1), math.nan, dtype=torch.float64)
+        corner[1:h, 1:w] = (d[:-1, :-1] + d[:-1, 1:] + d[1:, :-1] + d[1:, 1:]) / 4
+        conditions["a known disparity"] = torch.isfinite(corner)
+        conditions[f"the window ({2 * half_extent_px} photo px) inside both images"] = (
+            inside & (xs - corner >= half_extent_px) & (xs - corner <= w - half_extent_px))
+    else:
+        if shift_range_px is None:
+            raise ValueError(f"pair {pair.name!r} has no ground truth: give shift_range_px, the right window's "
+                             "shifts a search may reach")
+        low, high = (float(v) for v in shift_range_px)
+        if not low <= high:
+            raise ValueError(f"shift_range_px must be (low, high) with low <= high, got {shift_range_px!r}")
+        conditions[f"the window ({2 * half_extent_px} photo px) inside both images over the shifts "
+                   f"{low:.1f} to {high:.1f} photo px"] = (
+            inside & (xs - high >= half_extent_px) & (xs - low <= w - half_extent_px))
+    conditions[f"contrast >= {min_contrast:g}"] = _window_std(pair.left, texture_half_px) >= min_contrast
     grid = torch.zeros(h + 1, w + 1, dtype=torch.bool)
     grid[::grid_px, ::grid_px] = True
     ok = grid
@@ -263,8 +298,10 @@ def pick_fixations(pair: StereoPair, count: int, *, half_extent_px: int, texture
 
 def corner_disparity(pair: StereoPair, points: Tensor) -> Tensor:
     """The ground truth at pixel corners ``points`` ``[N, 2]`` (x, y): the mean disparity of the
-    four pixels around each ``[N]`` (photo pixels, float64)."""
+    four pixels around each ``[N]`` (photo pixels, float64; NaN on a pair without ground truth)."""
     x, y = points[:, 0].long(), points[:, 1].long()
+    if pair.disparity is None:
+        return torch.full((points.shape[0],), math.nan, dtype=torch.float64)
     d = pair.disparity.double()
     return (d[y - 1, x - 1] + d[y - 1, x] + d[y, x - 1] + d[y, x]) / 4
 
@@ -275,6 +312,8 @@ def disparity_roughness(pair: StereoPair, points: Tensor, half_px: int, *, quant
     ``half_px`` photo pixels either side of the point, the ``quantile`` of the known disparities'
     absolute distance from their least-squares plane (photo pixels; a slanted surface has none, a
     depth edge much), and the fraction of the square whose disparity is unknown, two ``[N]``."""
+    if pair.disparity is None:
+        raise ValueError(f"pair {pair.name!r} has no ground truth: its roughness is unknown")
     rough, unknown = [], []
     for x, y in points.long().tolist():
         window = pair.disparity[max(y - half_px, 0):y + half_px, max(x - half_px, 0):x + half_px].double()

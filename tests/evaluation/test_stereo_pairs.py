@@ -4,6 +4,8 @@
 from __future__ import annotations
 
 import json
+import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -12,8 +14,8 @@ import torch
 from PIL import Image
 
 from aectorch.evaluate import main
-from aectorch.evaluation.stereo_pairs import START_KINDS, evaluate_pairs
-from aectorch.sim.stereo_pairs import StereoPair
+from aectorch.evaluation.stereo_pairs import START_KINDS, Scoring, evaluate_pairs
+from aectorch.sim.stereo_pairs import StereoPair, pick_fixations
 
 #: The newest checkpoint of the migration fixtures: a small learner (2 iterations per fixation).
 CHECKPOINT = sorted((Path(__file__).resolve().parents[1] / "fixtures" / "checkpoints").glob("*.pt"))[-1]
@@ -210,3 +212,129 @@ def test_the_summaries_count_the_visible_points_apart():
     for kind in START_KINDS:
         visible = out["summary"]["oracle"][kind]["visible"]
         assert visible["n"] == sum(not r["occluded"] for r in rows if r["start"] == kind)
+def without_truth(image: torch.Tensor, k: int, name: str = "robot") -> StereoPair:
+    """A pair at disparity ``k`` everywhere, its disparity not given."""
+    return StereoPair(name, image, torch.from_numpy(shifted(image.numpy(), k)).float())
+
+
+def image_reward(observation: dict) -> torch.Tensor:
+    """A stand-in for the coding reward: the fine scale's halves' mean |difference|, negated."""
+    fine = observation["fine"]
+    return -(fine[:, 0] - fine[:, 1]).abs().mean((1, 2)).double()
+
+
+def test_a_pair_without_ground_truth_is_scored_by_reward_stability_and_agreement():
+    """From parallel eyes the matcher (any increment) ends on the shift, the still policy stays at
+    0: perfectly stable, 6 px from the matcher, with the worse reward; no vergence test runs."""
+    from aectorch.baselines import Matcher
+
+    k, fixations = 6, 5
+    pair = without_truth(torch.from_numpy(texture(200, 400)).float(), k)
+    matcher = Matcher(actions_deg=None, scales=("wide", "coarse", "fine", "full"))
+    policies = {"still": lambda observation, world: torch.zeros(world.num_envs),
+                "matcher": lambda observation, world: matcher.increment_deg(observation)}
+    out = evaluate_pairs(policies, [pair], fixations=fixations, steps=12,
+                         scoring=Scoring(reward=image_reward, reference="matcher"))
+    rows = out["per_fixation"]
+    assert len(rows) == 2 * fixations and {r["start"] for r in rows} == {"protocol"}  # no vergence test
+    assert all(r["ground_truth"] is False and "vergence_error_px" not in r for r in rows)
+    still = [r for r in rows if r["policy"] == "still"]
+    ends = [r for r in rows if r["policy"] == "matcher"]
+    for s, m in zip(still, ends):
+        assert (s["x"], s["y"]) == (m["x"], m["y"]) and s["start_shift_px"] == 0.0
+        assert s["stability_px"] == 0.0 and s["last_increment_px"] == 0.0 and s["end_shift_px"] == 0.0
+        assert s["reward"] == s["start_reward"] == m["start_reward"]
+        assert m["end_shift_px"] == pytest.approx(k, abs=0.25) and m["stability_px"] < 0.5
+        assert s["agreement_px"] == pytest.approx(m["end_shift_px"], abs=1e-6) and m["agreement_px"] is None
+        assert m["reward"] > s["reward"]
+    part = out["without_ground_truth"]
+    assert out["summary"] == {} and part["pairs"] == ["robot"] and part["start_kinds"] == ["protocol"]
+    assert "vergence test" in part["note"] and part["search_deg"] == [-2.0, 8.0]
+    summary = part["summary"]
+    assert summary["still"]["protocol"] == {
+        "n": fixations, "median_reward": pytest.approx(sorted(r["reward"] for r in still)[fixations // 2]),
+        "median_stability_px": 0.0, "stable": 1.0, "median_last_increment_px": 0.0,
+        "median_agreement_px": pytest.approx(k, abs=0.25), "agree_within_1px": 0.0, "agree_beyond_5px": 1.0,
+        "at_limit": 0.0}
+    assert summary["matcher"]["protocol"]["stable"] == 1.0 and math.isnan(summary["matcher"]["protocol"]["agree_within_1px"])
+    assert summary["no_movement"]["protocol"]["n"] == fixations
+    assert out["per_pair"]["robot"] == summary and out["pairs"][0]["ground_truth"] is False
+    # the points' windows lie inside both photos over the search: x - 36.2 px >= 80 and x + 9 px <= 400 - 80
+    assert all(117 <= r["x"] <= 311 and 80 <= r["y"] <= 120 for r in rows)
+    # a search that stops short of the match (1 deg: 4.5 px) holds the matcher at its limit
+    out = evaluate_pairs(policies, [pair], fixations=2, steps=4,
+                         scoring=Scoring(reference="matcher", search_deg=(-2.0, 1.0)))
+    ends = [r for r in out["per_fixation"] if r["policy"] == "matcher"]
+    assert all(r["at_limit"] and r["end_shift_px"] == pytest.approx(4.4915, abs=1e-3) for r in ends)
+    assert out["without_ground_truth"]["summary"]["matcher"]["protocol"]["at_limit"] == 1.0
+    assert out["without_ground_truth"]["summary"]["still"]["protocol"]["at_limit"] == 0.0
+
+
+def test_pairs_with_and_without_ground_truth_mix_and_bad_input_is_named():
+    image = torch.from_numpy(texture(200, 400)).float()
+    truth = StereoPair("truth", image, without_truth(image, 4).right, torch.full((200, 400), 4.0))
+    still = {"still": lambda observation, world: torch.zeros(world.num_envs)}
+    out = evaluate_pairs(still, [truth, without_truth(image, 4)], fixations=3, steps=2)
+    rows = out["per_fixation"]
+    assert {(r["pair"], r["ground_truth"], r["start"]) for r in rows} == {
+        ("truth", True, "protocol"), ("truth", True, "vergence_test"), ("robot", False, "protocol")}
+    assert out["summary"]["still"]["protocol"]["all"] == {"n": 3, "median_abs_px": 4.0, "within_1px": 0.0,
+                                                          "beyond_5px": 0.0, "mean_abs_px": 4.0}
+    assert out["without_ground_truth"]["summary"]["still"]["protocol"]["n"] == 3
+    assert "reward" not in rows[0] and "agreement_px" not in rows[0]  # no scoring given: the stability alone
+    assert math.isnan(out["without_ground_truth"]["summary"]["still"]["protocol"]["median_reward"])
+    with pytest.raises(ValueError, match=r"scoring.reference 'matcher' is none of the policies \['still'\]"):
+        evaluate_pairs(still, [truth], scoring=Scoring(reference="matcher"))
+    with pytest.raises(ValueError, match=r"the search range \[10.0, 20.0\] deg lies outside the vergence range"):
+        evaluate_pairs(still, [without_truth(image, 4)], scoring=Scoring(search_deg=(10.0, 20.0)),
+                       vergence_range_deg=(-2.0, 8.0))
+    with pytest.raises(ValueError, match="inside both images over the shifts -9.0 to 36.2 photo px"):
+        evaluate_pairs(still, [without_truth(image[:, :200], 4)])  # too narrow for the search
+    with pytest.raises(ValueError, match="has no ground truth: give shift_range_px"):
+        pick_fixations(without_truth(image, 4), 3, half_extent_px=80, texture_half_px=20)
+
+
+def test_the_command_scores_pairs_without_ground_truth_beside_pairs_with_it(pairs, tmp_path, capsys):
+    folder = tmp_path / "mixed"
+    shutil.copytree(pairs, folder)
+    robot = folder / "robot"
+    robot.mkdir()
+    image = texture(180, 260, seed=3)
+    save_png(robot / "left.png", image)
+    save_png(robot / "right.png", shifted(image, DISPARITY))
+    out = tmp_path / "mixed.json"
+    assert main([f"checkpoint={CHECKPOINT}", f"pairs={folder}", f"out={out}", "fixations=3", "progress=false"]) == 0
+    result = json.loads(out.read_text())
+    assert [(p["name"], p["ground_truth"]) for p in result["pairs"]] == [
+        ("middlebury", True), ("plain", True), ("robot", False)]
+    rows = [r for r in result["per_fixation"] if r["pair"] == "robot"]
+    assert len(rows) == 3 * 2 and {r["start"] for r in rows} == {"protocol"}
+    for row in rows:  # the learner's stereo encoder scores both policies' ends
+        assert row["reward"] < 0 and row["start_reward"] < 0 and row["stability_px"] >= 0
+        assert (row["agreement_px"] is None) == (row["policy"] == "matcher")
+    part = result["without_ground_truth"]
+    assert part["pairs"] == ["robot"] and part["reference"] == "matcher" and part["reward"] is True
+    assert set(part["summary"]) == {"learner", "matcher", "no_movement"}
+    assert part["summary"]["learner"]["protocol"]["n"] == 3
+    assert set(result["summary"]) == {"learner", "matcher", "no_movement"}  # over the pairs with ground truth
+    assert result["summary"]["learner"]["protocol"]["all"]["n"] == 6
+    assert "without ground truth (robot): the protocol's start only" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["search_deg=[3,1]"], "search_deg must be [low, high] with low < high"),
+    (["search_deg=[1]"], "search_deg must be [low, high] in degrees"),
+])
+def test_bad_search_ranges_name_the_argument(pairs, tmp_path, capsys, arguments, message):
+    assert main([f"checkpoint={CHECKPOINT}", f"out={tmp_path / 'e.json'}", f"pairs={pairs}", *arguments]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_search_needs_pairs_and_a_folder_needs_both_images(tmp_path, capsys):
+    assert main([f"checkpoint={CHECKPOINT}", f"out={tmp_path / 'e.json'}", "search_deg=[-1,4]"]) == 2
+    assert "search_deg acts only on stereo pairs: give pairs=FOLDER" in capsys.readouterr().err
+    lone = tmp_path / "lone" / "one"
+    lone.mkdir(parents=True)
+    np.save(lone / "disparity.npy", np.full((180, 260), 4.0))
+    assert main([f"checkpoint={CHECKPOINT}", f"pairs={lone.parent}", f"out={tmp_path / 'e.json'}"]) == 2
+    assert "(the plain layout) lacks left.*, right.*" in capsys.readouterr().err

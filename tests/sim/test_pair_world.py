@@ -102,8 +102,8 @@ def test_bad_folders_are_named_with_what_they_lack(tmp_path):
     plain.mkdir()
     save_png(plain / "left.png", np.zeros((4, 4)))
     save_png(plain / "right.png", np.zeros((4, 5)))
-    with pytest.raises(ValueError, match=r"plain layout\) lacks disparity.npy"):
-        read_pair(plain)
+    with pytest.raises(ValueError, match=r"left and right must be \[H, W\] images of one size, got \(4, 4\) and \(4, 5\)"):
+        read_pair(plain)  # without disparity.npy: a pair without ground truth, whose images must match too
     np.save(plain / "disparity.npy", np.zeros((4, 4)))
     with pytest.raises(ValueError, match=r"one size, got \(4, 4\), \(4, 5\) and \(4, 4\)"):
         read_pair(plain)
