@@ -355,6 +355,8 @@ def occlusion(pair: StereoPair, tolerance_px: float = OCCLUSION_TOLERANCE_PX) ->
         [0, 1, 7, 8, 9, 10, 11, 12, 13, 14]
     """
     check_real(tolerance_px, "tolerance_px", minimum=0.0)
+    if pair.disparity is None:
+        raise ValueError(f"pair {pair.name!r} has no ground truth: its occlusion cannot be told")
     d = pair.disparity.double()
     h, w = d.shape
     known = torch.isfinite(d)
