@@ -44,7 +44,6 @@ __all__ = [
     "plot_perturbation",
     "plot_evaluation",
     "plot_tracking",
-    "plot_focus_curve",
     "save_figure",
     "plot_code",
     "plot_code_comparison",
@@ -549,40 +548,6 @@ def plot_evaluation(result: Mapping, path: str | os.PathLike) -> Path:
     overall = ", ".join(f"{key[: -len('_mae_deg')]} {_as_float(result[key]):.3g} deg" for key in eyes)
     fig.suptitle(f"Evaluation: {overall}, depth {_as_float(result['depth_mae_m']):.3g} m MAE "
                  f"({result['trials']} trials)", fontsize=11)
-    return _save(fig, path)
-
-
-def plot_focus_curve(result: Mapping, path: str | os.PathLike) -> Path:
-    """The rewards against defocus (python -m aectorch.report focus-curve): one panel per image set (``result``'s
-    entries with ``defocus_D`` and the measures ``coding``, ``energy``, ``focus``), each measure
-    shifted to 0 at zero defocus, so that where each peaks reads at a glance.
-
-    Example:
-        >>> import tempfile
-        >>> rows = {"defocus_D": [-1, 0, 1], "coding": [-1, -2, -1], "energy": [0, 1, 0], "focus": [0, 1, 0]}
-        >>> plot_focus_curve({"textures": rows}, Path(tempfile.mkdtemp()) / "focus.png").exists()
-        True
-    """
-    sets = {name: rows for name, rows in result.items() if isinstance(rows, Mapping) and "defocus_D" in rows}
-    if not sets:
-        raise ValueError(f"result has no image set with 'defocus_D' (has {sorted(result)})")
-    fig = _new_figure((4.5 * len(sets), 3.6))
-    axes = np.atleast_1d(fig.subplots(1, len(sets)))
-    labels = {"coding": "coding reward -sum e", "energy": "input energy 1/2 log E", "focus": "focus reward 1/2 log E(1-e)"}
-    for ax, (name, rows) in zip(axes, sets.items()):
-        defocus = [float(d) for d in rows["defocus_D"]]
-        zero = min(range(len(defocus)), key=lambda i: abs(defocus[i]))
-        for i, (key, label) in enumerate(labels.items()):
-            if key in rows:
-                values = [float(v) - float(rows[key][zero]) for v in rows[key]]
-                ax.plot(defocus, values, marker="o", markersize=3, color=_color(i), label=label)
-        ax.axvline(0.0, **EVENT_STYLE)
-        ax.set_xlabel("defocus (D)")
-        ax.set_ylabel("change from zero defocus")
-        ax.set_title(name, loc="left", fontsize=10)
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7)
-    fig.suptitle("Rewards against defocus (both eyes, optimal vergence)", fontsize=11)
     return _save(fig, path)
 
 

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from aectorch.report import accommodation, compare, depth, matcher, offsets, tables
+from aectorch.report import compare, depth, matcher, offsets, tables
 from aectorch.report.tracking import tracking_table
 from aectorch.report.tails import tails, tails_lines
 from aectorch.report.command import run_command
@@ -114,22 +114,6 @@ def _code(args) -> list[str]:
 
 def _tracking(args) -> list[str]:
     return tracking_table([Run(run) for run in args.runs], args.eval, args.plot, args.target, args.within)
-
-
-def _accommodation(args) -> list[str]:
-    groups = {name: [Run(r) for r in runs.split(",")] for name, runs in _pairs(args.groups, "groups are name=run,run,...")}
-    return accommodation.accommodation_table(groups, args.eval, args.per_distance)
-
-
-def _focus_curve(args) -> list[str]:
-    return accommodation.focus_curve(args.photos, args.out, args.steps, args.batch, args.spread, args.aperture_m,
-                                     args.seed)
-
-
-def _accommodation_policy(args) -> list[str]:
-    from aectorch.runtime import load_learner
-
-    return accommodation.policy_table(load_learner(args.checkpoint)[1], args.textures)
 
 
 def _threads(count: int) -> None:
@@ -295,25 +279,6 @@ def _experiment_commands(command) -> None:
     sub.add_argument("--target", type=float, default=None, help="draw a target error (deg)")
     sub.add_argument("--within", type=float, default=None,
                      help="also the percentage of fixations whose mean |error| is within this many degrees")
-
-    sub = command("accommodation", _accommodation, accommodation.accommodation_table)
-    sub.add_argument("groups", nargs="+", help="name=run,run,...")
-    sub.add_argument("--eval", default=EVALUATION, help=f"evaluation file in each run folder (default: {EVALUATION})")
-    sub.add_argument("--per-distance", action="store_true",
-                     help="also the accommodation error per distance (px: mean abs. / signed)")
-
-    sub = command("focus-curve", _focus_curve, accommodation.focus_curve)
-    sub.add_argument("--photos", required=True, help="a folder of photographs (the choosing photographs)")
-    sub.add_argument("--out", type=Path, default=Path("docs/figures/focus_curve.png"), help="the figure (PNG)")
-    sub.add_argument("--steps", type=int, default=300, help="steps the coder learns for")
-    sub.add_argument("--batch", type=int, default=16, help="environments per step")
-    sub.add_argument("--spread", type=float, default=1.0, help="dioptres of defocus the coder learns on")
-    sub.add_argument("--aperture-m", type=float, default=0.016, help="the pupil's diameter (m)")
-    sub.add_argument("--seed", type=int, default=0)
-
-    sub = command("accommodation-policy", _accommodation_policy, accommodation.policy_table)
-    sub.add_argument("checkpoint", type=Path, help="a run's checkpoint.pt trained with the accommodation cue")
-    sub.add_argument("--textures", type=int, default=8, help="the first this many test textures")
 
     sub = command("rl", _rl, tables.rl_table)
     sub.add_argument("folder", type=Path, help="the examples' result files")

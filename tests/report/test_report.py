@@ -15,7 +15,6 @@ from aectorch.evaluation.summary import BEYOND_DEG, WITHIN_DEG
 from aectorch.report.__main__ import main
 from aectorch.report.tables import band
 from aectorch.runs import Run, read_json, read_metrics
-from aectorch.sim import PinholeCamera
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -275,37 +274,6 @@ def test_rl_tabulates_the_clients_and_active_depth(tmp_path, capsys):
     assert "| CleanRL-style PPO | scaled | test textures | 2 | 0.300 (0.141) [0.20 / 0.40] | 50.0% | 2.50 | 10 |" in out
     assert "| SB3 PPO | coding | test textures | 1 | 1.000 [1.00] | 50.0% | 2.50 | 10 |" in out
     assert "| SB3 PPO, MultiDiscrete | scaled | test textures | 1 | 1.000 [1.00] | 3.000 | 0.500 [0.50] | 2.000 | 10 |" in out
-
-
-def test_accommodation_gives_each_groups_mean_and_sd(tmp_path, capsys):
-    def run(name, vergence, mae_D=None):
-        folder = tmp_path / name
-        folder.mkdir()
-        result = {"vergence_mae_deg": vergence, "pursuit_mae_deg": 0.03, "depth_mae_m": 0.05}
-        if mae_D is not None:
-            result["accommodation_focus"] = {"mae_D": mae_D, "mae_px": 4 * mae_D, "within_0.25px": 0.1,
-                                             "within_0.5px": 0.2}
-            px = PinholeCamera().degrees_per_pixel  # two fixation ends per trial, in blur-disc degrees
-            result["per_trial"] = [{"distance_m": 1.0, "accommodation_errors_deg": [-mae_D * px, -0.5 * px]},
-                                   {"distance_m": 3.0, "accommodation_errors_deg": [0.25 * px, 0.25 * px]}]
-        (folder / "evaluation.json").write_text(json.dumps(result))
-        return str(folder)
-
-    acc = ",".join(run(f"a{i}", v, d) for i, (v, d) in enumerate([(0.02, 0.4), (0.04, 0.6)]))
-    plain = ",".join(run(f"p{i}", v) for i, v in enumerate([0.05, 0.05]))
-    assert main(["accommodation", f"with={acc}", f"plain={plain}"]) == 0
-    lines = capsys.readouterr().out.splitlines()
-    assert lines[0] == "| | with (2 seeds) | plain (2 seeds) |"
-    assert "| vergence MAE (deg) | 0.030 +- 0.014 | 0.050 +- 0.000 |" in lines
-    assert "| accommodation MAE (D) | 0.500 +- 0.141 | - |" in lines
-    assert main(["accommodation", f"with={acc}", f"plain={plain}", "--per-distance"]) == 0
-    lines = capsys.readouterr().out.splitlines()
-    at = lines.index("| distance (m) | with: px, mean abs. / signed | plain: px, mean abs. / signed |")
-    assert lines[at + 2:] == ["| 1 | 0.50 / -0.50 | - |", "| 3 | 0.25 / +0.25 | - |"]  # (0.4 + 0.5 + 0.6 + 0.5) / 4
-    assert main(["accommodation", f"plain={plain}", "--per-distance"]) == 2
-    assert "no per-trial accommodation errors" in capsys.readouterr().err
-    assert main(["accommodation", "nogroup"]) == 2
-    assert "groups are name=run,run,..." in capsys.readouterr().err
 
 
 def test_tails_counts_the_far_ends_compares_near_and_far_and_lists_the_worst_with_their_views(tmp_path, capsys):
