@@ -10,7 +10,6 @@ from pathlib import Path
 from typing import Sequence
 
 from aectorch.report import compare, depth, matcher, offsets, tables
-from aectorch.report.tracking import tracking_table
 from aectorch.report.tails import tails, tails_lines
 from aectorch.report.command import run_command
 from aectorch.runs import EVALUATION, Run
@@ -110,10 +109,6 @@ def _code(args) -> list[str]:
                              readout=args.readout)
         lines.append(f"wrote {args.plot}")
     return lines
-
-
-def _tracking(args) -> list[str]:
-    return tracking_table([Run(run) for run in args.runs], args.eval, args.plot, args.target, args.within)
 
 
 def _threads(count: int) -> None:
@@ -271,14 +266,6 @@ def _experiment_commands(command) -> None:
     sub.add_argument("--cue", default=None, help="only this cue's dictionaries (e.g. stereo)")
     sub.add_argument("--plot", type=Path, default=None, help="also draw one read-out's histograms side by side")
     sub.add_argument("--readout", default="binocularity", choices=("binocularity", "disparity", "orientation"))
-
-    sub = command("tracking", _tracking, tracking_table)
-    sub.add_argument("runs", nargs="+", type=Path, help="run folders")
-    sub.add_argument("--eval", default="tracking.json", help="the tracking test's file in each run folder")
-    sub.add_argument("--plot", type=Path, default=None, help="also draw the error against speed into this PNG")
-    sub.add_argument("--target", type=float, default=None, help="draw a target error (deg)")
-    sub.add_argument("--within", type=float, default=None,
-                     help="also the percentage of fixations whose mean |error| is within this many degrees")
 
     sub = command("rl", _rl, tables.rl_table)
     sub.add_argument("folder", type=Path, help="the examples' result files")
