@@ -13,7 +13,6 @@ the last four compute on checkpoints, images or the head's geometry:
 - ``trials A.json B.json [--tolerance DEG] [--json OUT]``: two evaluations of the same trials;
 - ``ablation LABEL=RUN[:SUFFIX]... [--json OUT]``: each run's ``final_textures`` and
   ``final_choose`` evaluations in one row;
-- ``rl FOLDER [--own RUN...]``: the RL clients on ``aectorch/Vergence-v0`` beside the learner;
 - ``matcher [--textures DIR] [--depths M...] [--free] [--json OUT]``: the classical matcher
   through the same trials (it computes);
 - ``offsets LABEL=CHECKPOINT|LABEL=JSON... [--textures DIR] [--json OUT] [--plot PNG]``: the offset
@@ -26,7 +25,7 @@ evaluation's, `aectorch.evaluation.summary`.
 """
 
 from aectorch.report.compare import compare_groups, compare_trials, curves_table, group_table
-from aectorch.report.tables import ablation_table, band, band_line, results_table, rl_table
+from aectorch.report.tables import ablation_table, band, band_line, results_table
 
 __all__ = ["ablation_table", "band", "band_line", "compare_groups", "compare_trials", "curves_table", "group_table",
-           "results_table", "rl_table"]
+           "results_table"]

@@ -158,10 +158,6 @@ def _depth_tolerance(args) -> list[str]:
                                  args.depth_m)
 
 
-def _rl(args) -> list[str]:
-    return tables.rl_table(args.folder, [Run(run) for run in args.own], args.default_set)
-
-
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m aectorch.report", description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True, metavar="command")
@@ -266,12 +262,6 @@ def _experiment_commands(command) -> None:
     sub.add_argument("--cue", default=None, help="only this cue's dictionaries (e.g. stereo)")
     sub.add_argument("--plot", type=Path, default=None, help="also draw one read-out's histograms side by side")
     sub.add_argument("--readout", default="binocularity", choices=("binocularity", "disparity", "orientation"))
-
-    sub = command("rl", _rl, tables.rl_table)
-    sub.add_argument("folder", type=Path, help="the examples' result files")
-    sub.add_argument("--own", type=Path, nargs="*", default=[], help="the project's own runs")
-    sub.add_argument("--default-set", default="data/choose-photos",
-                     help="the set of result files written before the examples evaluated several")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

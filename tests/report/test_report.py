@@ -193,26 +193,12 @@ def test_compare_gives_each_groups_mean_and_sd_and_plots_its_curves(tmp_path, ca
     assert table["photos"]["both"]["pursuit_mae_deg"]["runs"] == [1.0, 2.0] and plot.stat().st_size > 0
 
 
-def test_rl_puts_the_clients_beside_the_learner(tmp_path, capsys):
-    folder = tmp_path / "rl"
-    folder.mkdir()
-    for seed, mae in ((0, 0.5), (1, 0.7)):
-        (folder / f"sb3_error_s{seed}.json").write_text(json.dumps({"train_s": 100.0, "eval": {"photos": {
-            "trained": {"vergence_mae_deg": mae, "within_0.22_deg": 0.5}, "random": {"vergence_mae_deg": 3.0}}}}))
-    (folder / "notes.json").write_text("{}")  # not a client's file: skipped
-    own = _finished(tmp_path / "own", seed=0, mae=1.0)
-    assert main(["rl", str(folder), "--own", str(own), "--default-set", "photos"]) == 0
-    lines = capsys.readouterr().out.splitlines()
-    assert lines[2] == "| SB3 PPO | error | photos | 2 | 0.600 (0.141) [0.50 / 0.70] | 50.0% | 3.00 | 100 |"
-    assert lines[3] == "| aectorch NAC (vergence only) | coding (improvement) | photos | 1 | 0.500 [0.50] | 75.0% | - | 60 |"
-
-
 @pytest.mark.integration
 def test_the_command_line_lists_its_commands():
     done = subprocess.run([sys.executable, "-m", "aectorch.report", "--help"], cwd=ROOT, capture_output=True, text=True,
                           timeout=120)
     assert done.returncode == 0
-    for command in ("table", "compare", "curves", "band", "trials", "ablation", "rl", "tails", "matcher", "offsets",
+    for command in ("table", "compare", "curves", "band", "trials", "ablation", "tails", "matcher", "offsets",
                     "depth-readout", "depth-tolerance"):
         assert command in done.stdout
 
@@ -256,24 +242,6 @@ def test_code_rejects_bad_groups(tmp_path, capsys, args, message):
     assert main(["code", *[a if "=" in a or a.startswith("--") or a == "stereo" else str(tmp_path / a)
                            for a in args]]) == 2
     assert message in capsys.readouterr().err
-
-
-def test_rl_tabulates_the_clients_and_active_depth(tmp_path, capsys):
-    def result(mae, random_mae, **pursuit):
-        row = lambda v, p: {"vergence_mae_deg": v, "within_0.22_deg": 0.5, "fixations": 8,  # noqa: E731
-                            **({"pursuit_mae_deg": p} if p is not None else {})}
-        return {"train_s": 10.0, "eval": {"test textures": {"trained": row(mae, pursuit.get("trained")),
-                                                            "random": row(random_mae, pursuit.get("random"))}}}
-
-    for name, value in (("cleanrl_scaled_s0", 0.2), ("cleanrl_scaled_s1", 0.4), ("sb3_coding_s0", 1.0)):
-        (tmp_path / f"{name}.json").write_text(json.dumps(result(value, 2.5)))
-    (tmp_path / "sb3-activedepth_scaled_s0.json").write_text(json.dumps(result(0.5, 2.0, trained=1.0, random=3.0)))
-    (tmp_path / "other_s0.json").write_text("{}")  # not a client's file: left alone
-    assert main(["rl", str(tmp_path)]) == 0
-    out = capsys.readouterr().out.splitlines()
-    assert "| CleanRL-style PPO | scaled | test textures | 2 | 0.300 (0.141) [0.20 / 0.40] | 50.0% | 2.50 | 10 |" in out
-    assert "| SB3 PPO | coding | test textures | 1 | 1.000 [1.00] | 50.0% | 2.50 | 10 |" in out
-    assert "| SB3 PPO, MultiDiscrete | scaled | test textures | 1 | 1.000 [1.00] | 3.000 | 0.500 [0.50] | 2.000 | 10 |" in out
 
 
 def test_tails_counts_the_far_ends_compares_near_and_far_and_lists_the_worst_with_their_views(tmp_path, capsys):
