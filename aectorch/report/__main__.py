@@ -10,7 +10,6 @@ from pathlib import Path
 from typing import Sequence
 
 from aectorch.report import compare, depth, matcher, offsets, tables
-from aectorch.report.tails import tails, tails_lines
 from aectorch.report.command import run_command
 from aectorch.runs import EVALUATION, Run
 from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL
@@ -70,13 +69,6 @@ def _trials(args) -> list[str]:
     result = compare.compare_trials(args.first, args.second, args.tolerance)
     _write_json(args.json, result, indent=2)
     return compare.trials_lines(result)
-
-
-def _tails(args) -> list[str]:
-    groups = {name: [Run(r) for r in runs.split(",")] for name, runs in _pairs(args.groups, "groups are name=run,run,...")}
-    result = tails(groups, args.eval, args.worst)
-    _write_json(args.json, result)
-    return tails_lines(result)
 
 
 def _ablation(args) -> list[str]:
@@ -200,12 +192,6 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_argument("second", type=Path, help="another evaluation of the same trials")
     sub.add_argument("--tolerance", type=float, default=0.05, help="degrees (default 0.05)")
     sub.add_argument("--json", type=Path, default=None, help="also write the comparison here")
-
-    sub = command("tails", _tails, tails)
-    sub.add_argument("groups", nargs="+", help="name=run,run,...")
-    sub.add_argument("--eval", default=EVALUATION, help=f"evaluation file in each run folder (default: {EVALUATION})")
-    sub.add_argument("--worst", type=int, default=10, help="list this many of the worst fixation ends (default 10)")
-    sub.add_argument("--json", type=Path, help="also write the numbers here")
 
     sub = command("ablation", _ablation, tables.ablation_table)
     sub.add_argument("rows", nargs="+", help="label=run[:suffix]")

@@ -198,7 +198,7 @@ def test_the_command_line_lists_its_commands():
     done = subprocess.run([sys.executable, "-m", "aectorch.report", "--help"], cwd=ROOT, capture_output=True, text=True,
                           timeout=120)
     assert done.returncode == 0
-    for command in ("table", "compare", "curves", "band", "trials", "ablation", "tails", "matcher", "offsets",
+    for command in ("table", "compare", "curves", "band", "trials", "ablation", "matcher", "offsets",
                     "depth-readout", "depth-tolerance"):
         assert command in done.stdout
 
@@ -242,41 +242,3 @@ def test_code_rejects_bad_groups(tmp_path, capsys, args, message):
     assert main(["code", *[a if "=" in a or a.startswith("--") or a == "stereo" else str(tmp_path / a)
                            for a in args]]) == 2
     assert message in capsys.readouterr().err
-
-
-def test_tails_counts_the_far_ends_compares_near_and_far_and_lists_the_worst_with_their_views(tmp_path, capsys):
-    def folder(name: str, trials) -> Path:
-        run = tmp_path / name
-        run.mkdir()
-        rows = _rows(trials)
-        for i, row in enumerate(rows):  # the flat view is the failing one
-            row.update(view_contrast=0.001 if row["texture"] == "flat" else 0.3, view_energy_full=1e-6 * (i + 1))
-        (run / "final_choose.json").write_text(json.dumps({"per_trial": rows}))
-        return run
-
-    a = folder("a", [("flat", 1.0, [0.1, 0.0], [-12.0, 1.5]),  # ends beyond 2 and beyond 1 deg
-                     ("texture", 2.0, [0.1, 0.1], [0.1, 0.1])])
-    b = folder("b", [("texture", 1.2, [0.3, 0.0], [0.0, 0.0]), ("texture", 3.0, [0.0, 0.0], [0.0, 0.2])])
-    assert main(["tails", f"g={a},{b}", "--eval", "final_choose.json", "--worst", "2",
-                 "--json", str(tmp_path / "t.json")]) == 0
-    lines = capsys.readouterr().out.splitlines()
-    # 8 fixation ends; within 0.22 deg: a 2 of 4, b 3 of 4; MAEs are the means of the runs' (vergence:
-    # a 13.7 / 4, b 0.2 / 4; near: a 6.75, b 0; far: 0.1 each)
-    assert lines[2] == ("| g | 8 | 62.5% | 2 (25.0%) | 1 (12.5%) | 0.075 / 1.737 | 0.100 / 3.375 | 0.050 / 0.100 "
-                        "| 33.75x |")
-    result = json.loads((tmp_path / "t.json").read_text())["g"]
-    assert [w["errors_deg"]["vergence"] for w in result["worst"]] == [-12.0, 1.5]
-    # the one end beyond 2 deg is a vergence short of its optimum (diverged): counted by its kind
-    assert result["all"]["beyond_2_vergence-"] == 1 and result["all"]["beyond_2_vergence+"] == 0
-    assert result["all"]["beyond_2_pursuit+"] == result["all"]["beyond_2_pursuit-"] == 0
-    assert lines[3:5] == ["", "g: the ends beyond 2 deg by the movement of the largest error and its sign (vergence + "
-                        "past the optimum, - short of it): vergence- 1"]
-    # without the ends beyond 1 deg: run a's vergence is its two 0.1 deg ends
-    assert [r["inside_vergence_mae_deg"] for r in result["runs"]] == pytest.approx([0.1, 0.05])
-    assert "| g 0 | 3.425 | 0.100 | 2 |" in lines
-    assert result["worst"][0]["texture"] == "flat" and result["worst"][0]["view_contrast"] == 0.001
-    assert result["views"]["beyond_1"] == {"trials": 1, "view_contrast": 0.001, "view_energy_full": 1e-6}
-    assert result["views"]["all"]["trials"] == 4 and result["views"]["all"]["view_contrast"] == pytest.approx(0.3)
-    assert any(line.startswith("| g, with an end beyond 1 deg | 1 | 0.001 | 1e-06 |") for line in lines)
-    assert main(["tails", "no-runs"]) == 2
-    assert "name=run,run" in capsys.readouterr().err
