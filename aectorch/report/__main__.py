@@ -9,8 +9,8 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from aectorch.report import compare, depth, matcher, offsets, tables
-from aectorch.report.command import run_command
+from aectorch.report import code, compare, depth, matcher, offsets, tables
+from aectorch.report.command import pairs, run_command, run_groups
 from aectorch.runs import EVALUATION, Run
 from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL
 
@@ -27,17 +27,9 @@ def _table(args) -> list[str]:
     return tables.results_table([Run(run) for run in args.runs], args.eval)
 
 
-def _pairs(items: Sequence[str], what: str) -> list[tuple[str, str]]:
-    pairs = [item.partition("=")[::2] for item in items]
-    bad = [item for item, (key, value) in zip(items, pairs) if not key or not value]
-    if bad:
-        raise ValueError(f"{what}, got {bad[0]!r}")
-    return pairs
-
-
 def _compare(args) -> list[str]:
-    groups = {name: [Run(r) for r in runs.split(",")] for name, runs in _pairs(args.groups, "groups are name=run,run,...")}
-    evaluations = dict(_pairs(args.evals, "--evals are set=file"))
+    groups = run_groups(args.groups)
+    evaluations = dict(pairs(args.evals, "--evals are set=file"))
     table = compare.compare_groups(groups, evaluations)
     _write_json(args.json, {"groups": {k: [str(r.path) for r in v] for k, v in groups.items()},
                             "evals": evaluations, "table": table})
@@ -93,12 +85,10 @@ def _code_groups(items: Sequence[str]) -> dict[str, list[Run]]:
 
 def _code(args) -> list[str]:
     codes = {label: [run.code for run in runs] for label, runs in _code_groups(args.groups).items()}
-    lines = tables.code_table(codes, args.cue)
+    lines = code.code_table(codes, args.cue)
     if args.plot is not None:
-        from aectorch.figures import plot_code_comparison
-
-        plot_code_comparison(codes, args.plot, dictionaries=tables.code_dictionaries(codes, args.cue),
-                             readout=args.readout)
+        code.plot_code_comparison(codes, args.plot, dictionaries=code.code_dictionaries(codes, args.cue),
+                                  readout=args.readout)
         lines.append(f"wrote {args.plot}")
     return lines
 
@@ -122,7 +112,7 @@ def _matcher(args) -> list[str]:
 
 
 def _offsets(args) -> list[str]:
-    items = _pairs(args.learners, "learners are label=checkpoint.pt or label=measurement.json")
+    items = pairs(args.learners, "learners are label=checkpoint.pt or label=measurement.json")
     computed = [path for _, path in items if not path.endswith(".json")]
     if (args.json or args.plot) and (len(items) != 1 or not computed):
         raise ValueError("--json and --plot take one learner, label=checkpoint.pt")
@@ -197,7 +187,12 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_argument("rows", nargs="+", help="label=run[:suffix]")
     sub.add_argument("--json", type=Path, help="also write the cells here")
 
-    _experiment_commands(command)
+    sub = command("code", _code, code.code_table)
+    sub.add_argument("groups", nargs="+", help="label=run[,run...] or a run folder")
+    sub.add_argument("--cue", default=None, help="only this cue's dictionaries (e.g. stereo)")
+    sub.add_argument("--plot", type=Path, default=None, help="also draw one read-out's histograms side by side")
+    sub.add_argument("--readout", default="binocularity", choices=("binocularity", "disparity", "orientation"))
+
     _diagnostic_commands(command)
     return parser
 
@@ -238,16 +233,6 @@ def _diagnostic_commands(command) -> None:
     sub.add_argument("--depth-m", type=float, default=0.05, help="the depth error (m; default 0.05)")
     sub.add_argument("--shift-m", type=float, default=DEFAULT_PROTOCOL.shift_m,
                      help=f"the body's shift (m; default {DEFAULT_PROTOCOL.shift_m:g})")
-
-
-def _experiment_commands(command) -> None:
-    """The commands of the experiments beyond the paper's run: the code, perturbations, tracking,
-    accommodation and the RL clients."""
-    sub = command("code", _code, tables.code_table)
-    sub.add_argument("groups", nargs="+", help="label=run[,run...] or a run folder")
-    sub.add_argument("--cue", default=None, help="only this cue's dictionaries (e.g. stereo)")
-    sub.add_argument("--plot", type=Path, default=None, help="also draw one read-out's histograms side by side")
-    sub.add_argument("--readout", default="binocularity", choices=("binocularity", "disparity", "orientation"))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -1,5 +1,5 @@
-"""Tables of finished runs: one row per run (``table``, ``ablation``), a band of distances (``band``)
-and the learned code of groups of runs (``code``). Each returns the markdown lines it prints.
+"""Tables of finished runs: one row per run (``table``, ``ablation``) and a band of distances
+(``band``). Each returns the markdown lines it prints.
 
 The thresholds of "on target" and "failed" are the evaluation's (`aectorch.evaluation.summary`:
 ``WITHIN_DEG``, ``BEYOND_DEG``), and the fractions come from its `fractions`.
@@ -17,7 +17,7 @@ import torch
 from aectorch.evaluation.summary import BEYOND_DEG, WITHIN_DEG, fractions
 from aectorch.runs import EVALUATION, Run
 
-__all__ = ["NEAR_M", "ablation_table", "band", "band_line", "code_table", "results_row", "results_table"]
+__all__ = ["NEAR_M", "ablation_table", "band", "band_line", "results_row", "results_table"]
 
 #: `results_table` reports the trials up to this distance (metres) apart.
 NEAR_M = 1.5
@@ -186,48 +186,3 @@ def ablation_table(specs: Sequence[str]) -> tuple[list[str], dict]:
         out[label] = {"run": folder, "suffix": suffix, "cells": cells}
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return lines, out
-
-
-def _code_numbers(readout: dict) -> tuple[float, float, float, float]:
-    """The code table's four numbers of one dictionary's read-out."""
-    disparity = readout["disparity"]
-    near = sum(c for d, c in zip(disparity["disparities_px"], disparity["counts"]) if abs(d) <= 1)
-    return (readout["binocularity"]["mean_abs_index"], near, disparity["mean_modulation"],
-            readout["orientation"]["mean_selectivity"])
-
-
-def _code_cell(values: list[float], start: list[float], digits: int) -> str:
-    text = f"{sum(values) / len(values):.{digits}f}"
-    if len(values) > 1:
-        text += f" ({min(values):.{digits}f}-{max(values):.{digits}f})"
-    return f"{text} [{sum(start) / len(start):.{digits}f}]"
-
-
-def code_dictionaries(codes: dict[str, list[dict]], cue: str | None) -> list[str]:
-    """The dictionaries of the groups' first run (those of ``cue`` only, when given)."""
-    first = next(iter(codes.values()))[0]
-    return [name for name in first if name != "initial" and (cue is None or name.split("/")[0] == cue)]
-
-
-def code_table(codes: dict[str, list[dict]], cue: str | None = None) -> list[str]:
-    """The learned code's read-outs of groups of runs (``summary.json``'s ``"code"``).
-
-    Each group is ``label=run,run,...`` (the runs of one condition, e.g. its seeds) or one run
-    folder (its own group, labelled by the folder's name). For every group and dictionary the
-    table gives, as the mean over the group's runs (with the smallest and largest run when there
-    are several), the trained code's mean absolute binocularity index, its atoms whose preferred
-    disparity is within 1 px of zero, the tuning curves' mean depth of modulation and the mean
-    orientation selectivity, each beside the same read-out of the runs' random start in brackets
-    (`aectorch.coding.readouts.code_summary`; docs/sensory-coding.md). ``--plot`` draws one
-    read-out's histograms of the groups side by side (`aectorch.figures.plot_code_comparison`).
-    """
-    rows = ["| group | dictionary | mean abs. binocularity index | atoms within 1 px of zero disparity | "
-            "mean modulation | mean orientation selectivity |", "|---|---|---|---|---|---|"]
-    for label, runs in codes.items():
-        for name in code_dictionaries({label: runs}, cue):
-            trained = [_code_numbers(run[name]) for run in runs]
-            start = [_code_numbers(run["initial"][name] if "initial" in run else run[name]) for run in runs]
-            cells = [_code_cell([t[i] for t in trained], [s[i] for s in start], digits)
-                     for i, digits in enumerate((3, 0, 3, 3))]
-            rows.append(f"| {label} ({len(runs)}) | {name} | " + " | ".join(cells) + " |")
-    return rows

@@ -25,7 +25,7 @@ MODULES = sorted(
     for m in pkgutil.walk_packages(package.__path__, prefix=f"{package.__name__}.") if not m.ispkg
 ) + ["aectorch.framework.joint", "aectorch.figures", "aectorch.profiling", "aectorch.runtime.watchdog",
      "aectorch.runtime.provenance", "aectorch.runtime.config_docs", "aectorch.evaluation.trials", "aectorch.evaluation.summary", "aectorch._checks", "aectorch.runs",
-     "aectorch.report.command"]  # top-level modules with examples
+     "aectorch.report.command", "aectorch.report.code"]  # top-level modules with examples
 
 
 def test_module_discovery_finds_the_modules():
