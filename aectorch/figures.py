@@ -12,10 +12,8 @@ with a tight layout, creates the parent folders and returns the :class:`pathlib.
 - :func:`plot_perturbation`: Fig. 4, the same around perturbation events;
 - :func:`plot_evaluation`: per-distance breakdown of :func:`aectorch.evaluation.evaluate`;
 - :func:`plot_code`: the learned code's read-outs (binocularity, disparity, orientation
-  histograms per dictionary, :func:`aectorch.coding.readouts.code_summary`);
-- :func:`plot_code_comparison`: those read-outs of several runs side by side (e.g. rearing
-  conditions over seeds; `aectorch.runs.Run.code` reads them, ``python -m aectorch.report code``
-  tabulates them).
+  histograms per dictionary, :func:`aectorch.coding.readouts.code_summary`; groups of runs side by
+  side: `aectorch.report.code.plot_code_comparison`).
 
 Metric records are dicts with an ``'iteration'`` key (`aectorch.runs.read_metrics` reads a run's); a value that is missing, ``None`` or NaN
 is a gap in the curve (the depth error is NaN before the depth MLP's first fit). The eye
@@ -44,10 +42,8 @@ __all__ = [
     "plot_perturbation",
     "plot_evaluation",
     "plot_tracking",
-    "plot_focus_curve",
     "save_figure",
     "plot_code",
-    "plot_code_comparison",
 ]
 
 DPI = 120
@@ -552,40 +548,6 @@ def plot_evaluation(result: Mapping, path: str | os.PathLike) -> Path:
     return _save(fig, path)
 
 
-def plot_focus_curve(result: Mapping, path: str | os.PathLike) -> Path:
-    """The rewards against defocus (python -m aectorch.report focus-curve): one panel per image set (``result``'s
-    entries with ``defocus_D`` and the measures ``coding``, ``energy``, ``focus``), each measure
-    shifted to 0 at zero defocus, so that where each peaks reads at a glance.
-
-    Example:
-        >>> import tempfile
-        >>> rows = {"defocus_D": [-1, 0, 1], "coding": [-1, -2, -1], "energy": [0, 1, 0], "focus": [0, 1, 0]}
-        >>> plot_focus_curve({"textures": rows}, Path(tempfile.mkdtemp()) / "focus.png").exists()
-        True
-    """
-    sets = {name: rows for name, rows in result.items() if isinstance(rows, Mapping) and "defocus_D" in rows}
-    if not sets:
-        raise ValueError(f"result has no image set with 'defocus_D' (has {sorted(result)})")
-    fig = _new_figure((4.5 * len(sets), 3.6))
-    axes = np.atleast_1d(fig.subplots(1, len(sets)))
-    labels = {"coding": "coding reward -sum e", "energy": "input energy 1/2 log E", "focus": "focus reward 1/2 log E(1-e)"}
-    for ax, (name, rows) in zip(axes, sets.items()):
-        defocus = [float(d) for d in rows["defocus_D"]]
-        zero = min(range(len(defocus)), key=lambda i: abs(defocus[i]))
-        for i, (key, label) in enumerate(labels.items()):
-            if key in rows:
-                values = [float(v) - float(rows[key][zero]) for v in rows[key]]
-                ax.plot(defocus, values, marker="o", markersize=3, color=_color(i), label=label)
-        ax.axvline(0.0, **EVENT_STYLE)
-        ax.set_xlabel("defocus (D)")
-        ax.set_ylabel("change from zero defocus")
-        ax.set_title(name, loc="left", fontsize=10)
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7)
-    fig.suptitle("Rewards against defocus (both eyes, optimal vergence)", fontsize=11)
-    return _save(fig, path)
-
-
 def plot_tracking(runs: Sequence[Sequence[Mapping]], path: str | os.PathLike, *, target_deg: float | None = None,
                   title: str = "Tracking a moving object") -> Path:
     """Tracking error against the object's speed (`aectorch.evaluation.tracking_by_speed`), one
@@ -642,48 +604,6 @@ def plot_tracking(runs: Sequence[Sequence[Mapping]], path: str | os.PathLike, *,
         if not name.endswith("_lead"):  # (a lead is signed)
             ax.set_ylim(bottom=0)
     fig.suptitle(title, fontsize=11)
-    return _save(fig, path)
-
-
-def plot_offsets(sweeps: Mapping[str, Mapping[str, Tensor]], path: str | os.PathLike) -> Path:
-    """The offset diagnostic (:func:`aectorch.evaluation.offset_sweep`) of each cue: (top) the coding
-    reward against the eye's offset from its optimum, relative to the reward at the optimum
-    (median and quartiles over the trials); (bottom) the greedy increment (median and quartiles)
-    and the policy's mean increment (mean), with the line that would reach the optimum in one step.
-
-    Args:
-        sweeps: ``{cue: sweep}``, each an `offset_sweep` result.
-        path: the image file to write.
-
-    Returns:
-        The path written.
-    """
-    if not isinstance(sweeps, Mapping) or not sweeps:
-        raise ValueError("sweeps must map cue names to offset_sweep results")
-    fig = _new_figure((4.2 * len(sweeps), 6.0))
-    axes = fig.subplots(2, len(sweeps), squeeze=False, sharex=True)
-    for column, (cue, sweep) in enumerate(sweeps.items()):
-        x = sweep["offsets_deg"].double().numpy()
-        zero = int(np.abs(x).argmin())
-        reward = sweep["reward"].double().numpy()
-        relative = reward - reward[:, zero : zero + 1]
-        q = np.percentile(relative, [25, 50, 75], axis=0)
-        top, bottom = axes[0, column], axes[1, column]
-        top.fill_between(x, q[0], q[2], color=_color(0), alpha=0.25, label="quartiles")
-        top.plot(x, q[1], color=_color(0), label="median")
-        top.axvline(0, color="k", lw=0.6)
-        top.set_title(f"{cue}: reward - reward at the optimum", fontsize=9)
-        top.legend(fontsize=7)
-        greedy = np.percentile(sweep["increment_deg"].double().numpy(), [25, 50, 75], axis=0)
-        bottom.fill_between(x, greedy[0], greedy[2], color=_color(1), alpha=0.25, label="greedy quartiles")
-        bottom.plot(x, greedy[1], color=_color(1), label="greedy median")
-        bottom.plot(x, sweep["expected_increment_deg"].double().numpy().mean(0), color=_color(2),
-                    label="policy's mean increment")
-        bottom.plot(x, -x, color="k", lw=0.6, ls="--", label="to the optimum")
-        bottom.axhline(0, color="k", lw=0.6)
-        bottom.set_xlabel("offset from the optimum (deg)")
-        bottom.set_title(f"{cue}: increment taken there (deg)", fontsize=9)
-        bottom.legend(fontsize=7)
     return _save(fig, path)
 
 
@@ -776,82 +696,4 @@ def plot_code(code: Mapping[str, Mapping], path: str | os.PathLike, *,
     if initial is not None:
         axes[0, 0].legend(fontsize=7)
     fig.suptitle("The learned code: binocularity, disparity and orientation of each atom")
-    return _save(fig, path)
-
-
-def plot_code_comparison(groups: Mapping[str, Sequence[Mapping[str, Mapping]]], path: str | os.PathLike, *,
-                         dictionaries: Sequence[str] | None = None, readout: str = "binocularity") -> Path:
-    """One read-out's histograms of several groups of runs side by side (e.g. rearing conditions).
-
-    One panel per dictionary; in each, one bar per group and bin: the share of the atoms in that
-    bin, the mean over the group's runs (seeds), with the smallest and largest run as an error
-    bar. The legend gives each group's mean absolute binocularity index (over its runs).
-
-    Args:
-        groups: ``{label: [code, ...]}``, each code a run's ``{dictionary: code_summary}``
-            (`aectorch.runs.Run.code`), e.g. ``{"normal": [seed 0, seed 1, seed 2], "monocular": [...]}``.
-        path: the image file to write.
-        dictionaries: the dictionaries to show (default: every one the first run holds, but
-            ``"initial"``).
-        readout: ``"binocularity"`` (default), ``"disparity"`` or ``"orientation"``.
-
-    Returns:
-        The path written.
-
-    Example:
-        >>> import tempfile
-        >>> import torch
-        >>> from aectorch.coding.readouts import code_summary
-        >>> def run(seed):
-        ...     atoms = torch.randn(200, 32, generator=torch.Generator().manual_seed(seed))
-        ...     return {"stereo/fine": code_summary(atoms)}
-        >>> groups = {"normal": [run(0), run(1)], "other": [run(2)]}
-        >>> plot_code_comparison(groups, Path(tempfile.mkdtemp()) / "compare.png").exists()
-        True
-    """
-    parts = {part: (bins, label) for part, bins, label in _READOUTS}
-    if readout not in parts:
-        raise ValueError(f"readout must be one of {sorted(parts)}, got {readout!r}")
-    if not isinstance(groups, Mapping) or not groups:
-        raise ValueError("groups must map labels to non-empty lists of runs' code read-outs")
-    for label, runs in groups.items():
-        if isinstance(runs, (str, bytes, Mapping)) or not isinstance(runs, Sequence) or not runs:
-            raise ValueError(f"groups[{label!r}] must be a non-empty list of runs' code read-outs")
-        for i, run in enumerate(runs):
-            _check_code({k: v for k, v in run.items() if k != "initial"}, f"groups[{label!r}][{i}]")
-    first = next(iter(groups.values()))[0]
-    names = [k for k in first if k != "initial"] if dictionaries is None else list(dictionaries)
-    for label, runs in groups.items():
-        for i, run in enumerate(runs):
-            missing = [n for n in names if n not in run]
-            if missing:
-                raise ValueError(f"groups[{label!r}][{i}] has no read-outs of {missing} (has {sorted(run)})")
-    bins, axis_label = parts[readout]
-    fig = _new_figure((4.2 * len(names), 3.6))
-    axes = fig.subplots(1, len(names), squeeze=False)[0]
-    width = 0.8 / len(groups)
-    for ax, name in zip(axes, names):
-        x = np.asarray(first[name][readout][bins], dtype=float)
-        centres = (x[:-1] + x[1:]) / 2 if bins == "edges" else x
-        step = centres[1] - centres[0] if len(centres) > 1 else 1.0
-        for g, (label, runs) in enumerate(groups.items()):
-            shares = np.array([np.asarray(run[name][readout]["counts"], dtype=float)
-                               / max(1.0, float(np.sum(run[name][readout]["counts"]))) for run in runs])
-            if shares.shape[1] != len(centres):
-                raise ValueError(f"groups[{label!r}] has {shares.shape[1]} {readout} bins for {name!r}, the first "
-                                 f"run {len(centres)}: read-outs with different bins cannot share a panel")
-            mean = shares.mean(0)
-            # The bars' reach down to the smallest run and up to the largest; equal runs can put
-            # the float mean a rounding error outside them, which matplotlib refuses.
-            spread = np.clip(np.stack([mean - shares.min(0), shares.max(0) - mean]), 0.0, None)
-            index = np.mean([_as_float(run[name]["binocularity"].get("mean_abs_index")) for run in runs])
-            runs_text = f"{len(runs)} run" + ("" if len(runs) == 1 else "s")
-            ax.bar(centres + (g - (len(groups) - 1) / 2) * width * step, mean, width=width * step,
-                   yerr=spread, capsize=2, color=_color(g),
-                   label=f"{label} ({runs_text}; mean |index| {index:.2f})", error_kw={"linewidth": 0.8})
-        ax.set_title(name, fontsize=10)
-        ax.set_xlabel(axis_label, fontsize=8)
-        ax.set_ylabel("share of the atoms", fontsize=8)
-        ax.legend(fontsize=7)
-    fig.suptitle(f"The learned code's {readout}, by group (mean of the runs; bars: smallest to largest run)")
     return _save(fig, path)

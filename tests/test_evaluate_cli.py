@@ -68,8 +68,10 @@ def test_writes_the_result_json_and_figure(run, tmp_path, capsys):
 @pytest.mark.integration
 def test_tracking_writes_its_rows_and_the_report_reads_them(run, tmp_path, capsys):
     """``tracking=[...]``: the moving object's test (per speed and per trial); then
-    ``python -m aectorch.report tracking`` over two run folders, with its figure."""
-    from aectorch.report.__main__ import main as report
+    experiments/moving_objects/report.py over two run folders, with its figure."""
+    from tests.end_to_end import study_module
+
+    report = study_module("moving_objects", "report").main
 
     checkpoint, textures = run
     for seed in (0, 1):
@@ -84,14 +86,14 @@ def test_tracking_writes_its_rows_and_the_report_reads_them(run, tmp_path, capsy
     assert [row["speed_deg"] for row in result["per_trial"]] == [0.0, 0.0, 1.5, -1.5]
     assert {"pursuit_tracking_deg", "vergence_tracking_deg"} <= set(result["per_trial"][0])
     capsys.readouterr()
-    assert report(["tracking", str(tmp_path / "run0"), str(tmp_path / "run1"), "--plot",
+    assert report([str(tmp_path / "run0"), str(tmp_path / "run1"), "--plot",
                    str(tmp_path / "t.png"), "--target", "0.2"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("2 runs") and lines[3].startswith("| 0 | ") and " +- " in lines[4]
     assert (tmp_path / "t.png").exists()
     # --within: the percentage of fixations within the limit, per run, then mean +- sd over the runs
     limit = 0.5 * (result["per_trial"][2]["pursuit_tracking_deg"][0] + result["per_trial"][2]["pursuit_tracking_deg"][1])
-    assert report(["tracking", str(tmp_path / "run0"), str(tmp_path / "run1"), "--within", str(limit)]) == 0
+    assert report([str(tmp_path / "run0"), str(tmp_path / "run1"), "--within", str(limit)]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[1].endswith(f"| pursuit within {limit:g} (%) | vergence within {limit:g} (%) |")
     percent = []
@@ -100,7 +102,7 @@ def test_tracking_writes_its_rows_and_the_report_reads_them(run, tmp_path, capsy
         errors = [e for row in rows if abs(row["speed_deg"]) == 1.5 for e in row["pursuit_tracking_deg"]]
         percent.append(100.0 * sum(e <= limit for e in errors) / len(errors))
     assert lines[4].split(" | ")[-2].split(" +- ")[0] == f"{sum(percent) / 2:.1f}"
-    assert report(["tracking", str(run[0].parent)]) == 2  # no tracking.json there
+    assert report([str(run[0].parent)]) == 2  # no tracking.json there
 
 
 @pytest.mark.integration

@@ -1,4 +1,5 @@
-"""Tests of aectorch.figures: the figures, from plain data to a PNG."""
+"""Tests of aectorch.figures (and the report's plot_code_comparison, on its panels): the figures, from
+plain data to a PNG."""
 
 from __future__ import annotations
 
@@ -12,12 +13,12 @@ import torch
 from aectorch.figures import (
     DPI,
     plot_code,
-    plot_code_comparison,
     plot_dictionaries,
     plot_evaluation,
     plot_perturbation,
     plot_training,
 )
+from aectorch.report.code import plot_code_comparison
 
 torch.set_num_threads(1)
 KEYS = ("parallax/coarse", "parallax/fine", "stereo/coarse", "stereo/fine")

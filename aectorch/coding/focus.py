@@ -13,8 +13,8 @@ of the normalised patch), the code holds the energy ``E (1 - e)`` and
 is the scale-free part that a coder of normalised patches sees). The two terms pull apart under
 defocus: blur is a low-pass filter, so E falls (H(R) prefers focus), while a smooth patch is
 easier to reconstruct, so e falls too (the coding reward ``-e`` prefers blur). The focus
-reward :func:`focus_reward` is ``sum_scales mean_patches 1/2 log(E (1 - e))``; python -m aectorch.report focus-curve
-measures each term against defocus (docs/results.md, "Accommodation").
+reward :func:`focus_reward` is ``sum_scales mean_patches 1/2 log(E (1 - e))``; experiments/accommodation/focus_curve.py
+measures each term against defocus (experiments/accommodation/README.md).
 """
 
 from __future__ import annotations

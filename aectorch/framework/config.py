@@ -92,7 +92,7 @@ class CueConfig:
             z-scores with the rest (but leaves out of the scaling to its ``feature_norm``, which
             would shrink each to a few per cent of a z-score among hundreds). The vergence angle encodes the distance once vergence is right,
             so with the focus it tells an accommodation cue which way the object's focus lies,
-            which the blur alone cannot (docs/results.md, "Accommodation"). A cue's symmetry
+            which the blur alone cannot (experiments/accommodation/README.md). A cue's symmetry
             leaves the vergence angle and the focus unchanged; ``pan`` and ``shift`` change sign
             under it, so they need ``symmetry=null``.
         reward_scales: the scales whose coding efficiency the agent learns from (default, empty:

@@ -1,7 +1,8 @@
-"""Tables and plots of finished runs: ``python -m aectorch.report <command> ...``.
+"""The generic tables and plots of finished runs: ``python -m aectorch.report <command> ...``.
 
 Every command reads run folders through `aectorch.runs` and prints markdown (``--help`` on each);
-the last four compute on checkpoints, images or the head's geometry:
+the last four compute on checkpoints, images or the head's geometry. A study's own tables live
+beside it, in ``experiments/<study>/`` (its ``report.py`` runs on `aectorch.report.command`):
 
 - ``table RUN... [--eval FILE]``: one row per run (training time, the final training window, an
   evaluation's MAEs, medians, the fractions on target and failed, the near trials), mean +- sd;
@@ -13,9 +14,8 @@ the last four compute on checkpoints, images or the head's geometry:
 - ``trials A.json B.json [--tolerance DEG] [--json OUT]``: two evaluations of the same trials;
 - ``ablation LABEL=RUN[:SUFFIX]... [--json OUT]``: each run's ``final_textures`` and
   ``final_choose`` evaluations in one row;
-- ``tracking RUN... [--eval FILE] [--plot PNG] [--target DEG]``: a moving object's tracking error
-  per speed (``python -m aectorch.evaluate ... tracking=[...]``), mean +- sd over runs;
-- ``rl FOLDER [--own RUN...]``: the RL clients on ``aectorch/Vergence-v0`` beside the learner;
+- ``code LABEL=RUN,RUN...|RUN... [--cue CUE] [--plot PNG]``: the learned code's read-outs of
+  groups of runs beside their random start;
 - ``matcher [--textures DIR] [--depths M...] [--free] [--json OUT]``: the classical matcher
   through the same trials (it computes);
 - ``offsets LABEL=CHECKPOINT|LABEL=JSON... [--textures DIR] [--json OUT] [--plot PNG]``: the offset
@@ -27,9 +27,9 @@ The thresholds (on target within ``WITHIN_DEG``, failed beyond ``BEYOND_DEG``) a
 evaluation's, `aectorch.evaluation.summary`.
 """
 
+from aectorch.report.code import code_table
 from aectorch.report.compare import compare_groups, compare_trials, curves_table, group_table
-from aectorch.report.tables import ablation_table, band, band_line, results_table, rl_table
-from aectorch.report.tracking import tracking_table
+from aectorch.report.tables import ablation_table, band, band_line, results_table
 
-__all__ = ["ablation_table", "band", "band_line", "compare_groups", "compare_trials", "curves_table", "group_table",
-           "results_table", "rl_table", "tracking_table"]
+__all__ = ["ablation_table", "band", "band_line", "code_table", "compare_groups", "compare_trials", "curves_table",
+           "group_table", "results_table"]

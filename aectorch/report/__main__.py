@@ -9,10 +9,8 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from aectorch.report import accommodation, compare, depth, matcher, offsets, tables
-from aectorch.report.tracking import tracking_table
-from aectorch.report.tails import tails, tails_lines
-from aectorch.report.command import run_command
+from aectorch.report import code, compare, depth, matcher, offsets, tables
+from aectorch.report.command import pairs, run_command, run_groups
 from aectorch.runs import EVALUATION, Run
 from aectorch.sim import DEFAULT_DISTANCES_M, DEFAULT_PROTOCOL
 
@@ -29,17 +27,9 @@ def _table(args) -> list[str]:
     return tables.results_table([Run(run) for run in args.runs], args.eval)
 
 
-def _pairs(items: Sequence[str], what: str) -> list[tuple[str, str]]:
-    pairs = [item.partition("=")[::2] for item in items]
-    bad = [item for item, (key, value) in zip(items, pairs) if not key or not value]
-    if bad:
-        raise ValueError(f"{what}, got {bad[0]!r}")
-    return pairs
-
-
 def _compare(args) -> list[str]:
-    groups = {name: [Run(r) for r in runs.split(",")] for name, runs in _pairs(args.groups, "groups are name=run,run,...")}
-    evaluations = dict(_pairs(args.evals, "--evals are set=file"))
+    groups = run_groups(args.groups)
+    evaluations = dict(pairs(args.evals, "--evals are set=file"))
     table = compare.compare_groups(groups, evaluations)
     _write_json(args.json, {"groups": {k: [str(r.path) for r in v] for k, v in groups.items()},
                             "evals": evaluations, "table": table})
@@ -73,13 +63,6 @@ def _trials(args) -> list[str]:
     return compare.trials_lines(result)
 
 
-def _tails(args) -> list[str]:
-    groups = {name: [Run(r) for r in runs.split(",")] for name, runs in _pairs(args.groups, "groups are name=run,run,...")}
-    result = tails(groups, args.eval, args.worst)
-    _write_json(args.json, result)
-    return tails_lines(result)
-
-
 def _ablation(args) -> list[str]:
     lines, cells = tables.ablation_table(args.rows)
     _write_json(args.json, cells)
@@ -102,34 +85,12 @@ def _code_groups(items: Sequence[str]) -> dict[str, list[Run]]:
 
 def _code(args) -> list[str]:
     codes = {label: [run.code for run in runs] for label, runs in _code_groups(args.groups).items()}
-    lines = tables.code_table(codes, args.cue)
+    lines = code.code_table(codes, args.cue)
     if args.plot is not None:
-        from aectorch.figures import plot_code_comparison
-
-        plot_code_comparison(codes, args.plot, dictionaries=tables.code_dictionaries(codes, args.cue),
-                             readout=args.readout)
+        code.plot_code_comparison(codes, args.plot, dictionaries=code.code_dictionaries(codes, args.cue),
+                                  readout=args.readout)
         lines.append(f"wrote {args.plot}")
     return lines
-
-
-def _tracking(args) -> list[str]:
-    return tracking_table([Run(run) for run in args.runs], args.eval, args.plot, args.target, args.within)
-
-
-def _accommodation(args) -> list[str]:
-    groups = {name: [Run(r) for r in runs.split(",")] for name, runs in _pairs(args.groups, "groups are name=run,run,...")}
-    return accommodation.accommodation_table(groups, args.eval, args.per_distance)
-
-
-def _focus_curve(args) -> list[str]:
-    return accommodation.focus_curve(args.photos, args.out, args.steps, args.batch, args.spread, args.aperture_m,
-                                     args.seed)
-
-
-def _accommodation_policy(args) -> list[str]:
-    from aectorch.runtime import load_learner
-
-    return accommodation.policy_table(load_learner(args.checkpoint)[1], args.textures)
 
 
 def _threads(count: int) -> None:
@@ -151,7 +112,7 @@ def _matcher(args) -> list[str]:
 
 
 def _offsets(args) -> list[str]:
-    items = _pairs(args.learners, "learners are label=checkpoint.pt or label=measurement.json")
+    items = pairs(args.learners, "learners are label=checkpoint.pt or label=measurement.json")
     computed = [path for _, path in items if not path.endswith(".json")]
     if (args.json or args.plot) and (len(items) != 1 or not computed):
         raise ValueError("--json and --plot take one learner, label=checkpoint.pt")
@@ -177,10 +138,6 @@ def _depth_readout(args) -> list[str]:
 def _depth_tolerance(args) -> list[str]:
     return depth.tolerance_lines(depth.tolerance_table(args.distances, depth_m=args.depth_m, shift_m=args.shift_m),
                                  args.depth_m)
-
-
-def _rl(args) -> list[str]:
-    return tables.rl_table(args.folder, [Run(run) for run in args.own], args.default_set)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -226,17 +183,16 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_argument("--tolerance", type=float, default=0.05, help="degrees (default 0.05)")
     sub.add_argument("--json", type=Path, default=None, help="also write the comparison here")
 
-    sub = command("tails", _tails, tails)
-    sub.add_argument("groups", nargs="+", help="name=run,run,...")
-    sub.add_argument("--eval", default=EVALUATION, help=f"evaluation file in each run folder (default: {EVALUATION})")
-    sub.add_argument("--worst", type=int, default=10, help="list this many of the worst fixation ends (default 10)")
-    sub.add_argument("--json", type=Path, help="also write the numbers here")
-
     sub = command("ablation", _ablation, tables.ablation_table)
     sub.add_argument("rows", nargs="+", help="label=run[:suffix]")
     sub.add_argument("--json", type=Path, help="also write the cells here")
 
-    _experiment_commands(command)
+    sub = command("code", _code, code.code_table)
+    sub.add_argument("groups", nargs="+", help="label=run[,run...] or a run folder")
+    sub.add_argument("--cue", default=None, help="only this cue's dictionaries (e.g. stereo)")
+    sub.add_argument("--plot", type=Path, default=None, help="also draw one read-out's histograms side by side")
+    sub.add_argument("--readout", default="binocularity", choices=("binocularity", "disparity", "orientation"))
+
     _diagnostic_commands(command)
     return parser
 
@@ -277,49 +233,6 @@ def _diagnostic_commands(command) -> None:
     sub.add_argument("--depth-m", type=float, default=0.05, help="the depth error (m; default 0.05)")
     sub.add_argument("--shift-m", type=float, default=DEFAULT_PROTOCOL.shift_m,
                      help=f"the body's shift (m; default {DEFAULT_PROTOCOL.shift_m:g})")
-
-
-def _experiment_commands(command) -> None:
-    """The commands of the experiments beyond the paper's run: the code, perturbations, tracking,
-    accommodation and the RL clients."""
-    sub = command("code", _code, tables.code_table)
-    sub.add_argument("groups", nargs="+", help="label=run[,run...] or a run folder")
-    sub.add_argument("--cue", default=None, help="only this cue's dictionaries (e.g. stereo)")
-    sub.add_argument("--plot", type=Path, default=None, help="also draw one read-out's histograms side by side")
-    sub.add_argument("--readout", default="binocularity", choices=("binocularity", "disparity", "orientation"))
-
-    sub = command("tracking", _tracking, tracking_table)
-    sub.add_argument("runs", nargs="+", type=Path, help="run folders")
-    sub.add_argument("--eval", default="tracking.json", help="the tracking test's file in each run folder")
-    sub.add_argument("--plot", type=Path, default=None, help="also draw the error against speed into this PNG")
-    sub.add_argument("--target", type=float, default=None, help="draw a target error (deg)")
-    sub.add_argument("--within", type=float, default=None,
-                     help="also the percentage of fixations whose mean |error| is within this many degrees")
-
-    sub = command("accommodation", _accommodation, accommodation.accommodation_table)
-    sub.add_argument("groups", nargs="+", help="name=run,run,...")
-    sub.add_argument("--eval", default=EVALUATION, help=f"evaluation file in each run folder (default: {EVALUATION})")
-    sub.add_argument("--per-distance", action="store_true",
-                     help="also the accommodation error per distance (px: mean abs. / signed)")
-
-    sub = command("focus-curve", _focus_curve, accommodation.focus_curve)
-    sub.add_argument("--photos", required=True, help="a folder of photographs (the choosing photographs)")
-    sub.add_argument("--out", type=Path, default=Path("docs/figures/focus_curve.png"), help="the figure (PNG)")
-    sub.add_argument("--steps", type=int, default=300, help="steps the coder learns for")
-    sub.add_argument("--batch", type=int, default=16, help="environments per step")
-    sub.add_argument("--spread", type=float, default=1.0, help="dioptres of defocus the coder learns on")
-    sub.add_argument("--aperture-m", type=float, default=0.016, help="the pupil's diameter (m)")
-    sub.add_argument("--seed", type=int, default=0)
-
-    sub = command("accommodation-policy", _accommodation_policy, accommodation.policy_table)
-    sub.add_argument("checkpoint", type=Path, help="a run's checkpoint.pt trained with the accommodation cue")
-    sub.add_argument("--textures", type=int, default=8, help="the first this many test textures")
-
-    sub = command("rl", _rl, tables.rl_table)
-    sub.add_argument("folder", type=Path, help="the examples' result files")
-    sub.add_argument("--own", type=Path, nargs="*", default=[], help="the project's own runs")
-    sub.add_argument("--default-set", default="data/choose-photos",
-                     help="the set of result files written before the examples evaluated several")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

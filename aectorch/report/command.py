@@ -9,10 +9,30 @@ import os
 import sys
 from typing import Sequence
 
-from aectorch.runs import files_read, forget_files_read
+from aectorch.runs import Run, files_read, forget_files_read
 from aectorch.runtime.command import check_output_file
 
-__all__ = ["run_command"]
+__all__ = ["pairs", "run_command", "run_groups"]
+
+
+def pairs(items: Sequence[str], what: str) -> list[tuple[str, str]]:
+    """``name=value`` arguments as ``(name, value)`` pairs; ``what`` is the message of one that is
+    not (an empty name or value).
+
+    Example:
+        >>> pairs(["a=1", "b=x=y"], "pairs are name=value")
+        [('a', '1'), ('b', 'x=y')]
+    """
+    out = [item.partition("=")[::2] for item in items]
+    bad = [item for item, (key, value) in zip(items, out) if not key or not value]
+    if bad:
+        raise ValueError(f"{what}, got {bad[0]!r}")
+    return out
+
+
+def run_groups(items: Sequence[str]) -> dict[str, list[Run]]:
+    """``name=run,run,...`` arguments as groups of runs, by name (a study's or ``compare``'s)."""
+    return {name: [Run(r) for r in runs.split(",")] for name, runs in pairs(items, "groups are name=run,run,...")}
 
 
 def run_command(parser: argparse.ArgumentParser, argv: Sequence[str] | None = None) -> int:

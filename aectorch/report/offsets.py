@@ -3,14 +3,19 @@
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 from typing import Mapping, Sequence
 
+import numpy as np
+from torch import Tensor
+
 from aectorch.evaluation import offset_summary, offset_sweep
+from aectorch.figures import COLORS, save_figure
 from aectorch.runs import read_json
 from aectorch.sim import ActiveDepthEnv, TextureBank
 
-__all__ = ["OFFSET_ROWS", "offset_measurement", "offsets_table", "read_measurement"]
+__all__ = ["OFFSET_ROWS", "offset_measurement", "offsets_table", "plot_offsets", "read_measurement"]
 
 #: The rows of `offsets_table`: `aectorch.evaluation.offset_summary`'s keys and what they say.
 OFFSET_ROWS = {
@@ -39,7 +44,7 @@ def offset_measurement(checkpoint: str | Path, textures: str | Path | None,
     the accommodation cue's focus are not swept) on ``textures`` (a folder of images; None: the 40
     test textures) at ``distances_m``, the eye -``span_deg`` to +``span_deg`` off the optimum in
     steps of about ``step_deg``, summarised by `offset_summary`; ``plot`` draws the sweeps
-    (`aectorch.figures.plot_offsets`).
+    (`plot_offsets`).
     Returns ``{"checkpoint", "textures", "cues": {cue: summary}}``, the JSON ``--json`` writes."""
     from aectorch.runtime import load_learner
 
@@ -54,8 +59,6 @@ def offset_measurement(checkpoint: str | Path, textures: str | Path | None,
     sweeps = {cue: offset_sweep(learner, bank, cue=cue, offsets_deg=offsets_deg, distances_m=distances_m,
                                 progress=progress) for cue in learner.cues if cue in ActiveDepthEnv.CUES}
     if plot is not None:
-        from aectorch.figures import plot_offsets
-
         plot_offsets(sweeps, plot)
     return {"checkpoint": str(checkpoint), "textures": str(textures) if textures is not None else "test textures",
             "cues": {cue: offset_summary(sweep) for cue, sweep in sweeps.items()}}
@@ -102,3 +105,48 @@ def read_measurement(path: str | Path) -> dict:
         raise ValueError(f"{path} is not an offset measurement (no 'cues'; python -m aectorch.report offsets --json)")
     data.setdefault("textures", "?")
     return data
+
+
+def plot_offsets(sweeps: Mapping[str, Mapping[str, Tensor]], path: str | os.PathLike) -> Path:
+    """The offset diagnostic (:func:`aectorch.evaluation.offset_sweep`) of each cue: (top) the coding
+    reward against the eye's offset from its optimum, relative to the reward at the optimum
+    (median and quartiles over the trials); (bottom) the greedy increment (median and quartiles)
+    and the policy's mean increment (mean), with the line that would reach the optimum in one step.
+
+    Args:
+        sweeps: ``{cue: sweep}``, each an `offset_sweep` result.
+        path: the image file to write.
+
+    Returns:
+        The path written.
+    """
+    if not isinstance(sweeps, Mapping) or not sweeps:
+        raise ValueError("sweeps must map cue names to offset_sweep results")
+    from matplotlib.figure import Figure  # Agg renders it on savefig; pyplot is never used
+
+    fig = Figure(figsize=(4.2 * len(sweeps), 6.0))
+    axes = fig.subplots(2, len(sweeps), squeeze=False, sharex=True)
+    for column, (cue, sweep) in enumerate(sweeps.items()):
+        x = sweep["offsets_deg"].double().numpy()
+        zero = int(np.abs(x).argmin())
+        reward = sweep["reward"].double().numpy()
+        relative = reward - reward[:, zero : zero + 1]
+        q = np.percentile(relative, [25, 50, 75], axis=0)
+        top, bottom = axes[0, column], axes[1, column]
+        top.fill_between(x, q[0], q[2], color=COLORS[0], alpha=0.25, label="quartiles")
+        top.plot(x, q[1], color=COLORS[0], label="median")
+        top.axvline(0, color="k", lw=0.6)
+        top.set_title(f"{cue}: reward - reward at the optimum", fontsize=9)
+        top.legend(fontsize=7)
+        greedy = np.percentile(sweep["increment_deg"].double().numpy(), [25, 50, 75], axis=0)
+        bottom.fill_between(x, greedy[0], greedy[2], color=COLORS[1], alpha=0.25, label="greedy quartiles")
+        bottom.plot(x, greedy[1], color=COLORS[1], label="greedy median")
+        bottom.plot(x, sweep["expected_increment_deg"].double().numpy().mean(0), color=COLORS[2],
+                    label="policy's mean increment")
+        bottom.plot(x, -x, color="k", lw=0.6, ls="--", label="to the optimum")
+        bottom.axhline(0, color="k", lw=0.6)
+        bottom.set_xlabel("offset from the optimum (deg)")
+        bottom.set_title(f"{cue}: increment taken there (deg)", fontsize=9)
+        bottom.legend(fontsize=7)
+    fig.tight_layout()
+    return save_figure(fig, path)

@@ -1,5 +1,5 @@
-"""Tables of finished runs: one row per run (``table``, ``ablation``), a band of distances (``band``)
-and the RL clients beside the project's learner (``rl``). Each returns the markdown lines it prints.
+"""Tables of finished runs: one row per run (``table``, ``ablation``) and a band of distances
+(``band``). Each returns the markdown lines it prints.
 
 The thresholds of "on target" and "failed" are the evaluation's (`aectorch.evaluation.summary`:
 ``WITHIN_DEG``, ``BEYOND_DEG``), and the fractions come from its `fractions`.
@@ -8,18 +8,16 @@ The thresholds of "on target" and "failed" are the evaluation's (`aectorch.evalu
 from __future__ import annotations
 
 import math
-import re
 import statistics
-from collections import defaultdict
 from pathlib import Path
 from typing import Sequence
 
 import torch
 
 from aectorch.evaluation.summary import BEYOND_DEG, WITHIN_DEG, fractions
-from aectorch.runs import EVALUATION, Run, read_json
+from aectorch.runs import EVALUATION, Run
 
-__all__ = ["NEAR_M", "ablation_table", "band", "band_line", "results_row", "results_table", "rl_table"]
+__all__ = ["NEAR_M", "ablation_table", "band", "band_line", "results_row", "results_table"]
 
 #: `results_table` reports the trials up to this distance (metres) apart.
 NEAR_M = 1.5
@@ -188,125 +186,3 @@ def ablation_table(specs: Sequence[str]) -> tuple[list[str], dict]:
         out[label] = {"run": folder, "suffix": suffix, "cells": cells}
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return lines, out
-
-
-def _rl_sets(result: dict, default_set: str) -> dict:
-    """``{set: {"trained": ..., "random": ...}}`` of one example's result (older files: one set)."""
-    if "eval" in result:
-        return result["eval"]
-    return {default_set: {"trained": result["trained"], "random": result["random"]}}
-
-
-def rl_table(folder: Path, own: Sequence[Run] = (), default_set: str = "data/choose-photos") -> list[str]:
-    """The RL clients on ``aectorch/Vergence-v0`` (``<client>_<reward>_s<seed>.json`` in ``folder``,
-    written by ``examples/sb3_vergence.py``, ``examples/torchrl_vergence.py`` and
-    ``examples/cleanrl_ppo_vergence.py`` with ``--out``) beside the project's learner (each of
-    ``own``'s ``final_choose.json`` and ``final_textures.json``, and ``summary.json``): per client,
-    reward and evaluation set, the mean over the seeds of the vergence MAE at fixation ends, the
-    fraction on target, the random policy's error and the training seconds. The client
-    ``sb3-activedepth`` (``examples/sb3_vergence.py --env aectorch/ActiveDepth-v0``) gets a table
-    of its own, with both movements' errors beside a random policy's."""
-    if not Path(folder).is_dir():
-        raise FileNotFoundError(f"{folder}: no such folder")
-    rows: dict = defaultdict(lambda: defaultdict(list))
-    depth_rows: dict = defaultdict(list)
-    for path in sorted(Path(folder).glob("*_s[0-9]*.json")):
-        match = re.fullmatch(r"(sb3|torchrl|cleanrl|sb3-activedepth)_(error|coding|improvement|scaled)_s(\d+)\.json",
-                             path.name)
-        if not match:
-            continue
-        result = read_json(path)
-        if match[1] == "sb3-activedepth":
-            for name, pair in _rl_sets(result, default_set).items():
-                depth_rows[(match[2], name)].append((pair, result["train_s"]))
-            continue
-        client = {"sb3": "SB3 PPO", "torchrl": "TorchRL PPO", "cleanrl": "CleanRL-style PPO"}[match[1]]
-        for name, pair in _rl_sets(result, default_set).items():
-            cell = rows[(client, match[2], name)]
-            cell["mae"].append(pair["trained"]["vergence_mae_deg"])
-            cell["within"].append(pair["trained"]["within_0.22_deg"])  # (the examples' files name their threshold)
-            cell["random"].append(pair["random"]["vergence_mae_deg"])
-            cell["train_s"].append(result["train_s"])
-    for run in own:
-        for name, file in ((default_set, "final_choose.json"), ("test textures", "final_textures.json")):
-            if not run.has(file):
-                continue
-            evaluation = run.evaluation(file)
-            cell = rows[("aectorch NAC (vergence only)", "coding (improvement)", name)]
-            cell["mae"].append(evaluation["vergence_mae_deg"])
-            cell["within"].append(evaluation["fractions"]["vergence"]["within"])
-            cell["random"].append(math.nan)
-            cell["train_s"].append(run.summary["train_seconds"])
-    lines = [f"| agent | reward | evaluated on | seeds | vergence MAE (deg) | within {WITHIN_DEG} deg | random policy (deg) "
-             "| training (s) |", "|---|---|---|---|---|---|---|---|"]
-    for (client, reward, name), cell in sorted(rows.items(), key=lambda kv: (kv[0][2], kv[0][0], kv[0][1])):
-        mae = cell["mae"]
-        sd = f" ({statistics.stdev(mae):.3f})" if len(mae) > 1 else ""
-        per_seed = " / ".join(f"{v:.2f}" for v in mae)
-        random = [v for v in cell["random"] if v == v]
-        lines.append(f"| {client} | {reward} | {name} | {len(mae)} | {statistics.fmean(mae):.3f}{sd} [{per_seed}] | "
-                     f"{statistics.fmean(cell['within']):.1%} | "
-                     + (f"{statistics.fmean(random):.2f} |" if random else "- |")
-                     + f" {statistics.fmean(cell['train_s']):.0f} |")
-    return lines + (_active_depth_table(depth_rows) if depth_rows else [])
-
-
-def _active_depth_table(depth_rows: dict) -> list[str]:
-    """SB3's PPO on ``aectorch/ActiveDepth-v0``: both movements' mean |error|, beside random."""
-    lines = ["", "| agent | reward | evaluated on | seeds | pursuit MAE (deg) | random | vergence MAE (deg) | random "
-             "| training (s) |", "|---|---|---|---|---|---|---|---|---|"]
-    for (reward, name), runs in sorted(depth_rows.items()):
-        cells = []
-        for movement in ("pursuit", "vergence"):
-            for policy in ("trained", "random"):
-                values = [pair[policy][f"{movement}_mae_deg"] for pair, _ in runs]
-                per_seed = " [" + " / ".join(f"{v:.2f}" for v in values) + "]" if policy == "trained" else ""
-                cells.append(f"{statistics.fmean(values):.3f}{per_seed}")
-        seconds = statistics.fmean(s for _, s in runs)
-        lines.append(f"| SB3 PPO, MultiDiscrete | {reward} | {name} | {len(runs)} | {' | '.join(cells)} | {seconds:.0f} |")
-    return lines
-
-
-def _code_numbers(readout: dict) -> tuple[float, float, float, float]:
-    """The code table's four numbers of one dictionary's read-out."""
-    disparity = readout["disparity"]
-    near = sum(c for d, c in zip(disparity["disparities_px"], disparity["counts"]) if abs(d) <= 1)
-    return (readout["binocularity"]["mean_abs_index"], near, disparity["mean_modulation"],
-            readout["orientation"]["mean_selectivity"])
-
-
-def _code_cell(values: list[float], start: list[float], digits: int) -> str:
-    text = f"{sum(values) / len(values):.{digits}f}"
-    if len(values) > 1:
-        text += f" ({min(values):.{digits}f}-{max(values):.{digits}f})"
-    return f"{text} [{sum(start) / len(start):.{digits}f}]"
-
-
-def code_dictionaries(codes: dict[str, list[dict]], cue: str | None) -> list[str]:
-    """The dictionaries of the groups' first run (those of ``cue`` only, when given)."""
-    first = next(iter(codes.values()))[0]
-    return [name for name in first if name != "initial" and (cue is None or name.split("/")[0] == cue)]
-
-
-def code_table(codes: dict[str, list[dict]], cue: str | None = None) -> list[str]:
-    """The learned code's read-outs of groups of runs (``summary.json``'s ``"code"``).
-
-    Each group is ``label=run,run,...`` (the runs of one condition, e.g. its seeds) or one run
-    folder (its own group, labelled by the folder's name). For every group and dictionary the
-    table gives, as the mean over the group's runs (with the smallest and largest run when there
-    are several), the trained code's mean absolute binocularity index, its atoms whose preferred
-    disparity is within 1 px of zero, the tuning curves' mean depth of modulation and the mean
-    orientation selectivity, each beside the same read-out of the runs' random start in brackets
-    (`aectorch.coding.readouts.code_summary`; docs/sensory-coding.md). ``--plot`` draws one
-    read-out's histograms of the groups side by side (`aectorch.figures.plot_code_comparison`).
-    """
-    rows = ["| group | dictionary | mean abs. binocularity index | atoms within 1 px of zero disparity | "
-            "mean modulation | mean orientation selectivity |", "|---|---|---|---|---|---|"]
-    for label, runs in codes.items():
-        for name in code_dictionaries({label: runs}, cue):
-            trained = [_code_numbers(run[name]) for run in runs]
-            start = [_code_numbers(run["initial"][name] if "initial" in run else run[name]) for run in runs]
-            cells = [_code_cell([t[i] for t in trained], [s[i] for s in start], digits)
-                     for i, digits in enumerate((3, 0, 3, 3))]
-            rows.append(f"| {label} ({len(runs)}) | {name} | " + " | ".join(cells) + " |")
-    return rows

@@ -77,7 +77,7 @@ ACCOMMODATION: dict[str, Any] = {
 #: eye's previous frame against its current one; its actions change the velocity, degrees per
 #: iteration) learns it beside pursuit's position steps and vergence. Mirroring the world mirrors
 #: both frames and negates the velocity change, as for the parallax cue. Pursuit's steps also go on
-#: as velocity (``velocity_memory``): without it the eye lags (docs/results.md, "A moving object").
+#: as velocity (``velocity_memory``): without it the eye lags (experiments/moving_objects/README.md).
 SLIP: dict[str, Any] = {
     "env.pursuit_velocity": True,
     "env.velocity_memory": True,

@@ -11,12 +11,19 @@ EXPERIMENTS = Path(__file__).resolve().parents[2] / "experiments"
 
 def study_module(study: str, name: str) -> ModuleType:
     """``experiments/<study>/<name>.py`` imported as a module (``<study>_<name>``, once per
-    process), the way its scripts import each other: with its folder on the path."""
+    process), the way its scripts import each other: with its folder first on the path, and a
+    sibling another study's module imported under the same bare name (``report``) forgotten, so
+    that ``from report import ...`` reads this study's."""
     key = f"{study}_{name}"
     if key not in sys.modules:
         folder = EXPERIMENTS / study
-        if str(folder) not in sys.path:
-            sys.path.append(str(folder))
+        for path in folder.glob("*.py"):
+            sibling = sys.modules.get(path.stem)
+            if sibling is not None and Path(getattr(sibling, "__file__", None) or "").parent != folder:
+                del sys.modules[path.stem]
+        if str(folder) in sys.path:
+            sys.path.remove(str(folder))
+        sys.path.insert(0, str(folder))
         spec = importlib.util.spec_from_file_location(key, folder / f"{name}.py")
         module = importlib.util.module_from_spec(spec)
         sys.modules[key] = module  # (dataclasses and doctest look the module up by name)

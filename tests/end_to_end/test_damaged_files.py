@@ -3,10 +3,11 @@
 Random corruptions (truncation, bit flips, values of another type, missing entries) of a tiny
 run's ``checkpoint.pt``, ``metrics.jsonl``, ``summary.json``, ``evaluation.json`` and an
 evaluation of ``python -m aectorch.evaluate`` (``tracking.json``), read by ``python -m
-aectorch.report`` and by the checkpoint reader of ``python -m aectorch.evaluate``. Each gives
-status 2 and one ``error:`` line naming the file, or the table of the undamaged files (a flip
-that leaves the file's bytes meaning the same, a cut after the last line), or that table with
-cells of the missing values shown as missing. A bit flip that turns a number of a JSON file into
+aectorch.report`` (``tracking.json`` by experiments/moving_objects/report.py) and by the
+checkpoint reader of ``python -m aectorch.evaluate``. Each gives status 2 and one ``error:`` line
+naming the file, or the table of the undamaged files (a flip that leaves the file's bytes meaning
+the same, a cut after the last line), or that table with cells of the missing values shown as
+missing. A bit flip that turns a number of a JSON file into
 another valid number is not a corruption any reader can see (no checksum): those flips are left
 out; a checkpoint's entries carry CRC-32s, so every flip in one is seen.
 """
@@ -25,6 +26,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from aectorch.evaluate import main as evaluate
 from aectorch.report.__main__ import main as report
 from aectorch.runtime import load_checkpoint, load_learner, run_experiment
+from tests.end_to_end import study_module
 from tests.runtime.test_train import _cfg, textures  # noqa: F401  (the fixture)
 
 pytestmark = pytest.mark.integration  # every test here runs training or a subprocess
@@ -32,9 +34,9 @@ pytestmark = pytest.mark.integration  # every test here runs training or a subpr
 EXAMPLES = settings(max_examples=20, deadline=None, derandomize=True,
                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 
-#: The report command that reads each file.
+#: The report command that reads each file (``None``: the moving-object study's report).
 COMMANDS = {"summary.json": ["table"], "evaluation.json": ["table"], "metrics.jsonl": ["curves", "--every", "2"],
-            "tracking.json": ["tracking"]}
+            "tracking.json": [None]}
 
 #: How a missing value shows in the tables.
 MISSING = {"n/a", "nan", "None", "-", ""}
@@ -52,7 +54,10 @@ def run(tmp_path_factory, textures) -> Path:
 def _report(name: str, folder: Path, capsys) -> tuple[int, list[str], list[str]]:
     capsys.readouterr()
     args = COMMANDS[name]
-    code = report([args[0], str(folder), *args[1:]])
+    if args[0] is None:
+        code = study_module("moving_objects", "report").main([str(folder), *args[1:]])
+    else:
+        code = report([args[0], str(folder), *args[1:]])
     out, err = capsys.readouterr()
     return code, out.splitlines(), [line for line in err.splitlines() if line.strip()]
 

@@ -8,7 +8,7 @@ import json
 import pytest
 import torch
 
-from tests.end_to_end import EXPERIMENTS, TINY, noise_images, run_script
+from tests.end_to_end import EXPERIMENTS, TINY, noise_images, run_script, study_module
 
 STUDY = EXPERIMENTS / "rearing"
 
@@ -41,14 +41,9 @@ def test_gabor_reads_a_reared_run_with_both_measures(tmp_path):
 
 
 def test_both_measures_call_monocular_atoms_monocular():
-    import importlib.util
-
     from aectorch.coding.gabor import _gabor  # the Gabor model the fit uses
 
-    spec = importlib.util.spec_from_file_location("rearing_gabor", STUDY / "gabor.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    measures = module.measures
+    measures = study_module("rearing", "gabor").measures
 
     y, x = torch.meshgrid(torch.arange(8.0) - 3.5, torch.arange(8.0) - 3.5, indexing="ij")
     params = torch.tensor([[1.0, 0.3 * k - 1, 0.2, 0.4 * k, 0.15, 0.5, 0.7, 0.9] for k in range(6)], dtype=torch.float64)

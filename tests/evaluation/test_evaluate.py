@@ -233,7 +233,7 @@ def test_offset_sweep_reads_the_cues_reward_and_greedy_increment_off_the_optimum
     torch.testing.assert_close(mean.double(), kept["expected_increment_deg"])
     summary = offset_summary(sweep)
     assert summary["trials"] == 3 and 0 <= summary["reward_peak_within_px"] <= 1
-    from aectorch.figures import plot_offsets
+    from aectorch.report.offsets import plot_offsets
 
     assert plot_offsets({"stereo": sweep}, tmp_path / "offsets.png").stat().st_size > 1000
     with pytest.raises(ValueError, match="cue must be one the learner learns"):

@@ -24,7 +24,8 @@ MODULES = sorted(
     m.name for package in PACKAGES
     for m in pkgutil.walk_packages(package.__path__, prefix=f"{package.__name__}.") if not m.ispkg
 ) + ["aectorch.framework.joint", "aectorch.figures", "aectorch.profiling", "aectorch.runtime.watchdog",
-     "aectorch.runtime.provenance", "aectorch.runtime.config_docs", "aectorch.evaluation.trials", "aectorch.evaluation.summary", "aectorch._checks", "aectorch.runs"]  # top-level modules with examples
+     "aectorch.runtime.provenance", "aectorch.runtime.config_docs", "aectorch.evaluation.trials", "aectorch.evaluation.summary", "aectorch._checks", "aectorch.runs",
+     "aectorch.report.command", "aectorch.report.code"]  # top-level modules with examples
 
 
 def test_module_discovery_finds_the_modules():

@@ -28,7 +28,6 @@ EXEMPT = {
     "aectorch.sim.env.ActiveDepthEnv": "the environment of every movement, being split the same way",
     "aectorch.sim.env.ActiveDepthEnv.__init__": "the world's and every movement's start settings (16), which the "
                                                 "movement objects will hold",
-    "aectorch.figures": "one module per figure set is pending; the figures share their panels and styles",
     "aectorch.sim.hoap3.HOAP3Head": "the URDF chain and the closed-form fixations of the same head",
     "aectorch.sim.textures.bank.TextureBank": "building, indexing, splitting and moving one bank",
     "aectorch.depth.levenberg_marquardt.fit_levenberg_marquardt": "MATLAB trainlm's options, one keyword each",

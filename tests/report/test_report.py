@@ -15,7 +15,6 @@ from aectorch.evaluation.summary import BEYOND_DEG, WITHIN_DEG
 from aectorch.report.__main__ import main
 from aectorch.report.tables import band
 from aectorch.runs import Run, read_json, read_metrics
-from aectorch.sim import PinholeCamera
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -194,26 +193,12 @@ def test_compare_gives_each_groups_mean_and_sd_and_plots_its_curves(tmp_path, ca
     assert table["photos"]["both"]["pursuit_mae_deg"]["runs"] == [1.0, 2.0] and plot.stat().st_size > 0
 
 
-def test_rl_puts_the_clients_beside_the_learner(tmp_path, capsys):
-    folder = tmp_path / "rl"
-    folder.mkdir()
-    for seed, mae in ((0, 0.5), (1, 0.7)):
-        (folder / f"sb3_error_s{seed}.json").write_text(json.dumps({"train_s": 100.0, "eval": {"photos": {
-            "trained": {"vergence_mae_deg": mae, "within_0.22_deg": 0.5}, "random": {"vergence_mae_deg": 3.0}}}}))
-    (folder / "notes.json").write_text("{}")  # not a client's file: skipped
-    own = _finished(tmp_path / "own", seed=0, mae=1.0)
-    assert main(["rl", str(folder), "--own", str(own), "--default-set", "photos"]) == 0
-    lines = capsys.readouterr().out.splitlines()
-    assert lines[2] == "| SB3 PPO | error | photos | 2 | 0.600 (0.141) [0.50 / 0.70] | 50.0% | 3.00 | 100 |"
-    assert lines[3] == "| aectorch NAC (vergence only) | coding (improvement) | photos | 1 | 0.500 [0.50] | 75.0% | - | 60 |"
-
-
 @pytest.mark.integration
 def test_the_command_line_lists_its_commands():
     done = subprocess.run([sys.executable, "-m", "aectorch.report", "--help"], cwd=ROOT, capture_output=True, text=True,
                           timeout=120)
     assert done.returncode == 0
-    for command in ("table", "compare", "curves", "band", "trials", "ablation", "rl", "tails", "matcher", "offsets",
+    for command in ("table", "compare", "curves", "band", "trials", "ablation", "matcher", "offsets",
                     "depth-readout", "depth-tolerance"):
         assert command in done.stdout
 
@@ -257,90 +242,3 @@ def test_code_rejects_bad_groups(tmp_path, capsys, args, message):
     assert main(["code", *[a if "=" in a or a.startswith("--") or a == "stereo" else str(tmp_path / a)
                            for a in args]]) == 2
     assert message in capsys.readouterr().err
-
-
-def test_rl_tabulates_the_clients_and_active_depth(tmp_path, capsys):
-    def result(mae, random_mae, **pursuit):
-        row = lambda v, p: {"vergence_mae_deg": v, "within_0.22_deg": 0.5, "fixations": 8,  # noqa: E731
-                            **({"pursuit_mae_deg": p} if p is not None else {})}
-        return {"train_s": 10.0, "eval": {"test textures": {"trained": row(mae, pursuit.get("trained")),
-                                                            "random": row(random_mae, pursuit.get("random"))}}}
-
-    for name, value in (("cleanrl_scaled_s0", 0.2), ("cleanrl_scaled_s1", 0.4), ("sb3_coding_s0", 1.0)):
-        (tmp_path / f"{name}.json").write_text(json.dumps(result(value, 2.5)))
-    (tmp_path / "sb3-activedepth_scaled_s0.json").write_text(json.dumps(result(0.5, 2.0, trained=1.0, random=3.0)))
-    (tmp_path / "other_s0.json").write_text("{}")  # not a client's file: left alone
-    assert main(["rl", str(tmp_path)]) == 0
-    out = capsys.readouterr().out.splitlines()
-    assert "| CleanRL-style PPO | scaled | test textures | 2 | 0.300 (0.141) [0.20 / 0.40] | 50.0% | 2.50 | 10 |" in out
-    assert "| SB3 PPO | coding | test textures | 1 | 1.000 [1.00] | 50.0% | 2.50 | 10 |" in out
-    assert "| SB3 PPO, MultiDiscrete | scaled | test textures | 1 | 1.000 [1.00] | 3.000 | 0.500 [0.50] | 2.000 | 10 |" in out
-
-
-def test_accommodation_gives_each_groups_mean_and_sd(tmp_path, capsys):
-    def run(name, vergence, mae_D=None):
-        folder = tmp_path / name
-        folder.mkdir()
-        result = {"vergence_mae_deg": vergence, "pursuit_mae_deg": 0.03, "depth_mae_m": 0.05}
-        if mae_D is not None:
-            result["accommodation_focus"] = {"mae_D": mae_D, "mae_px": 4 * mae_D, "within_0.25px": 0.1,
-                                             "within_0.5px": 0.2}
-            px = PinholeCamera().degrees_per_pixel  # two fixation ends per trial, in blur-disc degrees
-            result["per_trial"] = [{"distance_m": 1.0, "accommodation_errors_deg": [-mae_D * px, -0.5 * px]},
-                                   {"distance_m": 3.0, "accommodation_errors_deg": [0.25 * px, 0.25 * px]}]
-        (folder / "evaluation.json").write_text(json.dumps(result))
-        return str(folder)
-
-    acc = ",".join(run(f"a{i}", v, d) for i, (v, d) in enumerate([(0.02, 0.4), (0.04, 0.6)]))
-    plain = ",".join(run(f"p{i}", v) for i, v in enumerate([0.05, 0.05]))
-    assert main(["accommodation", f"with={acc}", f"plain={plain}"]) == 0
-    lines = capsys.readouterr().out.splitlines()
-    assert lines[0] == "| | with (2 seeds) | plain (2 seeds) |"
-    assert "| vergence MAE (deg) | 0.030 +- 0.014 | 0.050 +- 0.000 |" in lines
-    assert "| accommodation MAE (D) | 0.500 +- 0.141 | - |" in lines
-    assert main(["accommodation", f"with={acc}", f"plain={plain}", "--per-distance"]) == 0
-    lines = capsys.readouterr().out.splitlines()
-    at = lines.index("| distance (m) | with: px, mean abs. / signed | plain: px, mean abs. / signed |")
-    assert lines[at + 2:] == ["| 1 | 0.50 / -0.50 | - |", "| 3 | 0.25 / +0.25 | - |"]  # (0.4 + 0.5 + 0.6 + 0.5) / 4
-    assert main(["accommodation", f"plain={plain}", "--per-distance"]) == 2
-    assert "no per-trial accommodation errors" in capsys.readouterr().err
-    assert main(["accommodation", "nogroup"]) == 2
-    assert "groups are name=run,run,..." in capsys.readouterr().err
-
-
-def test_tails_counts_the_far_ends_compares_near_and_far_and_lists_the_worst_with_their_views(tmp_path, capsys):
-    def folder(name: str, trials) -> Path:
-        run = tmp_path / name
-        run.mkdir()
-        rows = _rows(trials)
-        for i, row in enumerate(rows):  # the flat view is the failing one
-            row.update(view_contrast=0.001 if row["texture"] == "flat" else 0.3, view_energy_full=1e-6 * (i + 1))
-        (run / "final_choose.json").write_text(json.dumps({"per_trial": rows}))
-        return run
-
-    a = folder("a", [("flat", 1.0, [0.1, 0.0], [-12.0, 1.5]),  # ends beyond 2 and beyond 1 deg
-                     ("texture", 2.0, [0.1, 0.1], [0.1, 0.1])])
-    b = folder("b", [("texture", 1.2, [0.3, 0.0], [0.0, 0.0]), ("texture", 3.0, [0.0, 0.0], [0.0, 0.2])])
-    assert main(["tails", f"g={a},{b}", "--eval", "final_choose.json", "--worst", "2",
-                 "--json", str(tmp_path / "t.json")]) == 0
-    lines = capsys.readouterr().out.splitlines()
-    # 8 fixation ends; within 0.22 deg: a 2 of 4, b 3 of 4; MAEs are the means of the runs' (vergence:
-    # a 13.7 / 4, b 0.2 / 4; near: a 6.75, b 0; far: 0.1 each)
-    assert lines[2] == ("| g | 8 | 62.5% | 2 (25.0%) | 1 (12.5%) | 0.075 / 1.737 | 0.100 / 3.375 | 0.050 / 0.100 "
-                        "| 33.75x |")
-    result = json.loads((tmp_path / "t.json").read_text())["g"]
-    assert [w["errors_deg"]["vergence"] for w in result["worst"]] == [-12.0, 1.5]
-    # the one end beyond 2 deg is a vergence short of its optimum (diverged): counted by its kind
-    assert result["all"]["beyond_2_vergence-"] == 1 and result["all"]["beyond_2_vergence+"] == 0
-    assert result["all"]["beyond_2_pursuit+"] == result["all"]["beyond_2_pursuit-"] == 0
-    assert lines[3:5] == ["", "g: the ends beyond 2 deg by the movement of the largest error and its sign (vergence + "
-                        "past the optimum, - short of it): vergence- 1"]
-    # without the ends beyond 1 deg: run a's vergence is its two 0.1 deg ends
-    assert [r["inside_vergence_mae_deg"] for r in result["runs"]] == pytest.approx([0.1, 0.05])
-    assert "| g 0 | 3.425 | 0.100 | 2 |" in lines
-    assert result["worst"][0]["texture"] == "flat" and result["worst"][0]["view_contrast"] == 0.001
-    assert result["views"]["beyond_1"] == {"trials": 1, "view_contrast": 0.001, "view_energy_full": 1e-6}
-    assert result["views"]["all"]["trials"] == 4 and result["views"]["all"]["view_contrast"] == pytest.approx(0.3)
-    assert any(line.startswith("| g, with an end beyond 1 deg | 1 | 0.001 | 1e-06 |") for line in lines)
-    assert main(["tails", "no-runs"]) == 2
-    assert "name=run,run" in capsys.readouterr().err

@@ -29,6 +29,7 @@ from tests.runtime.test_distributed import _single
 from tests.end_to_end.test_rearing_report import _run as _rearing_run
 from tests.end_to_end.test_rearing_report import main as rearing_report
 from tests.end_to_end.test_roll_adaptation_report import main as adaptation_report
+from tests.end_to_end.test_moving_objects_study import main as tracking_report
 from tests.runtime.test_train import QUIET, TINY, _cfg, textures  # noqa: F401  (the fixture)
 
 
@@ -146,7 +147,7 @@ def test_report_tracking_refuses_an_evaluation_of_another_checkpoint(tmp_path, t
                      "depths=[1.0]", "tracking=[0]", "skip=1", "progress=false"]) == 0
     run_experiment(_cfg(textures, "train.iterations=4", "train.resume=auto"), run)  # checkpoint.pt moves on
     capsys.readouterr()
-    assert report(["tracking", str(run)]) == 2
+    assert tracking_report([str(run)]) == 2
     line = _error_line(capsys.readouterr().err)
     assert str(run / "tracking.json") in line and "iteration 2" in line and "evaluate it again" in line, line
 

@@ -1,14 +1,29 @@
-"""A moving object's tracking error per speed over runs (``python -m aectorch.report tracking``)."""
+"""A moving object's tracking error per speed over runs, as one table: the moving-object study's report.
+
+    .venv/bin/python experiments/moving_objects/report.py RUN... [--eval tracking.json] [--within DEG]
+        [--plot PNG] [--target DEG]
+
+Each run folder holds an evaluation of ``python -m aectorch.evaluate ... tracking=[...]`` (README.md
+here says what it measured). A missing file, an evaluation without the tracking test or of another
+checkpoint, or a bad argument prints one ``error:`` line and exits with status 2
+(`aectorch.report.command.run_command`, as ``python -m aectorch.report`` does).
+"""
 
 from __future__ import annotations
 
+import argparse
+import inspect
 import math
+import sys
 from pathlib import Path
 from typing import Sequence
 
-from aectorch.runs import Run
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run as a script from a checkout
 
-__all__ = ["tracking_table"]
+from aectorch.report.command import run_command  # noqa: E402
+from aectorch.runs import Run  # noqa: E402
+
+__all__ = ["main", "parser", "tracking_table"]
 
 
 def _stats(values: list[float], digits: int = 3) -> str:
@@ -78,3 +93,31 @@ def tracking_table(runs: Sequence[Run], evaluation: str, plot: Path | None = Non
         plot_tracking(per_run, plot, target_deg=target_deg)
         lines.append(f"wrote {plot}")
     return lines
+
+
+def _report(args) -> list[str]:
+    return tracking_table([Run(run) for run in args.runs], args.eval, args.plot, args.target, args.within)
+
+
+def parser() -> argparse.ArgumentParser:
+    """The command line: its help is `tracking_table`'s docstring."""
+    out = argparse.ArgumentParser(prog="experiments/moving_objects/report.py",
+                                  description=inspect.cleandoc(tracking_table.__doc__),
+                                  formatter_class=argparse.RawDescriptionHelpFormatter)
+    out.set_defaults(run=_report)
+    out.add_argument("runs", nargs="+", type=Path, help="run folders")
+    out.add_argument("--eval", default="tracking.json", help="the tracking test's file in each run folder")
+    out.add_argument("--plot", type=Path, default=None, help="also draw the error against speed into this PNG")
+    out.add_argument("--target", type=float, default=None, help="draw a target error (deg)")
+    out.add_argument("--within", type=float, default=None,
+                     help="also the percentage of fixations whose mean |error| is within this many degrees")
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Print the table (and draw the figure); 0, or 2 after one ``error:`` line."""
+    return run_command(parser(), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

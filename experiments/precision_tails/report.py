@@ -1,23 +1,37 @@
-"""The tails of groups of runs (``python -m aectorch.report tails``): how many fixations end far
+"""The tails of groups of runs: the precision-and-tails study's report. How many fixations end far
 off, near against far, and the worst fixation ends with what their eyes saw at the trial's start.
+
+    .venv/bin/python experiments/precision_tails/report.py NAME=RUN,RUN... [--eval FILE] [--worst N]
+        [--json OUT]
 
 A mean error is made by its tails: one trial 16 degrees off moves a 399-trial MAE by
 0.02 degrees. This counts the fixation ends beyond each threshold (either eye), compares the near
 trials with the far ones, and lists the worst ends with their texture statistics (the per-trial
-rows' ``view_*``, `aectorch.evaluation.views`), so a failure can be told from its view.
+rows' ``view_*``, `aectorch.evaluation.views`), so a failure can be told from its view (README.md
+here says what it found). A missing file, a bad file or a bad argument prints one ``error:`` line
+and exits with status 2 (`aectorch.report.command.run_command`, as ``python -m aectorch.report``
+does).
 """
 
 from __future__ import annotations
 
+import argparse
+import inspect
+import json
 import math
 import statistics
+import sys
 from collections import Counter
+from pathlib import Path
 from typing import Mapping, Sequence
 
-from aectorch.evaluation.summary import WITHIN_DEG
-from aectorch.runs import Run
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run as a script from a checkout
 
-__all__ = ["FAR_FROM_M", "THRESHOLDS_DEG", "kind", "tails", "tails_lines"]
+from aectorch.evaluation.summary import WITHIN_DEG  # noqa: E402
+from aectorch.report.command import run_command, run_groups  # noqa: E402
+from aectorch.runs import EVALUATION, Run  # noqa: E402
+
+__all__ = ["FAR_FROM_M", "THRESHOLDS_DEG", "kind", "main", "parser", "tails", "tails_lines"]
 
 #: Fixation ends are counted beyond each of these errors (degrees, either eye).
 THRESHOLDS_DEG = (1.0, 2.0)
@@ -165,3 +179,33 @@ def tails_lines(result: dict) -> list[str]:
             lines.append(f"| {e['run']} | {e['texture']} | {e['distance_m']:.1f} | {e['fixation']} | {errors} | "
                          + " | ".join(f"{e[k]:.2g}" for k in views) + " |")
     return lines
+
+
+def _report(args) -> list[str]:
+    result = tails(run_groups(args.groups), args.eval, args.worst)
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(result, indent=1) + "\n")
+    return tails_lines(result)
+
+
+def parser() -> argparse.ArgumentParser:
+    """The command line: its help is `tails`' docstring."""
+    out = argparse.ArgumentParser(prog="experiments/precision_tails/report.py",
+                                  description=inspect.cleandoc(tails.__doc__),
+                                  formatter_class=argparse.RawDescriptionHelpFormatter)
+    out.set_defaults(run=_report)
+    out.add_argument("groups", nargs="+", help="name=run,run,...")
+    out.add_argument("--eval", default=EVALUATION, help=f"evaluation file in each run folder (default: {EVALUATION})")
+    out.add_argument("--worst", type=int, default=10, help="list this many of the worst fixation ends (default 10)")
+    out.add_argument("--json", type=Path, help="also write the numbers here")
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Print the tables; 0, or 2 after one ``error:`` line."""
+    return run_command(parser(), argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
