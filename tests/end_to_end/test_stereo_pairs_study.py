@@ -67,7 +67,7 @@ def test_the_study_evaluates_tabulates_and_draws_a_tiny_pair(tmp_path, capsys):
     done = run_script(str(STUDY / "visible.py"), f"tiny={runs[0]},{runs[1]}")
     assert done.returncode == 0, done.stdout + done.stderr
     lines = done.stdout.splitlines()
-    assert lines[0].startswith("| runs | pixel scale | start | visible: median (px)") and len(lines) == 2 + 2 * 2
+    assert lines[0].startswith("| runs | pixel scale | start | visible points | visible: median (px)") and len(lines) == 2 + 2 * 2
     assert [line.split(" | ")[1:3] for line in lines[2:]] == [["1", "protocol"], ["1", "vergence test"],
                                                               ["2", "protocol"], ["2", "vergence test"]]
     done = run_script(str(STUDY / "visible.py"), f"none={tmp_path / 'photos'}")
