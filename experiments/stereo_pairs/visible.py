@@ -7,8 +7,9 @@ scale and start, the mean over the group's runs (each run's value in brackets).
 
 Each run folder holds ``pairs_ps<k>.json`` (``python -m aectorch.evaluate pairs=... pair_scale=k``)
 made with the occlusion test (its summaries have a ``visible`` part). The columns: how many of the
-fixation points are visible, the learner's median |error| (eye pixels) and fraction beyond 5 px over the visible fixation points, the same over
-all of them, and the matcher's over the visible ones (the matcher does not depend on the run).
+fixation points are visible, the learner's median |error| (eye pixels) and fraction beyond 5 px
+over the visible fixation points, the same over all of them, and the matcher's over the visible
+ones (the matcher does not depend on the run).
 """
 
 from __future__ import annotations
@@ -24,8 +25,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("groups", nargs="+", help="label=run,run,...")
     args = parser.parse_args(argv)
-    head = ["runs", "pixel scale", "start", "visible points", "visible: median (px)", "visible: beyond 5 px (%)", "all: median (px)",
-            "all: beyond 5 px (%)", "matcher, visible: median (px)", "matcher, visible: beyond 5 px (%)"]
+    head = ["runs", "pixel scale", "start", "visible points", "visible: median (px)", "visible: beyond 5 px (%)",
+            "all: median (px)", "all: beyond 5 px (%)", "matcher, visible: median (px)", "matcher, visible: beyond 5 px (%)"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for group in args.groups:
         label, _, runs = group.partition("=")
@@ -38,7 +39,8 @@ def main(argv: list[str] | None = None) -> int:
             for start in STARTS:
                 learner = [r["summary"]["learner"][start] for r in results]
                 matcher = [r["summary"]["matcher"][start]["visible"] for r in results]
-                cells = [label, str(scale), start.replace("_", " "), f"{learner[0]['visible']['n']} of {learner[0]['all']['n']}",
+                shown = f"{learner[0]['visible']['n']} of {learner[0]['all']['n']}"
+                cells = [label, str(scale), start.replace("_", " "), shown,
                          cell([s["visible"]["median_abs_px"] for s in learner], 1.0, "{:.2f}"),
                          cell([s["visible"]["beyond_5px"] for s in learner], 100.0, "{:.1f}"),
                          cell([s["all"]["median_abs_px"] for s in learner], 1.0, "{:.2f}"),
