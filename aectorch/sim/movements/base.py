@@ -1,0 +1,61 @@
+"""`Movement`: one eye movement of an `ActiveDepthEnv`, over the head state the environment keeps.
+
+The environment keeps the head (the eyes' pans and roll, the body's shift), the scene and the
+object, the renderers, the protocol and the trial clock; a movement is what one eye movement adds
+to them: what it observes (an image pair), how it acts (an increment ``[B]``), its optimum (the
+increment that reaches it) and its error, and its part of the batch state. A cue of the
+environment (`ActiveDepthEnv.CUES`) names the movement class it drives.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, ClassVar
+
+from torch import Tensor
+
+if TYPE_CHECKING:
+    from aectorch.sim.env import ActiveDepthEnv
+
+__all__ = ["Movement"]
+
+
+class Movement:
+    """One eye movement of ``env`` (an `ActiveDepthEnv`); a subclass says what it is.
+
+    Attributes:
+        name: the movement's name: its error is ``IterationInfo.errors_deg[name]``.
+        images: names of its observation's two images (the eye, and ``_before`` for the image at
+            the fixation's start position): the viewer's titles, the LeRobot recording's cameras.
+        STATE: its part of the environment's batch state (`ActiveDepthEnv.state_dict`): the state's
+            key -> the movement's attribute, a tensor ``[B, ...]`` stored while it is not ``None``.
+    """
+
+    name: ClassVar[str]
+    images: ClassVar[tuple[str, str]]
+    STATE: ClassVar[dict[str, str]] = {}
+
+    def __init__(self, env: ActiveDepthEnv) -> None:
+        self.env = env
+
+    def observe(self, scales=None, *, window: bool = False) -> dict[str, Tensor]:
+        """Its image pair: ``{scale name: [B, 2, side, side]}`` for the foveal ``scales`` asked for
+        and ``{WINDOW: [B, 2, h, w]}`` without scales or with ``window=True``."""
+        raise NotImplementedError
+
+    def act(self, delta_deg: Tensor) -> None:
+        """Add the increments ``[B]`` (degrees) to the movement."""
+        raise NotImplementedError
+
+    def to_optimum(self) -> Tensor:
+        """The increments ``[B]`` that put the movement at its optimum now (`ActiveDepthEnv.hold`)."""
+        raise NotImplementedError
+
+    def error_deg(self) -> Tensor:
+        """Its error ``[B]`` now, actual minus optimal (reported by `ActiveDepthEnv.end_iteration`)."""
+        return -self.to_optimum()
+
+    def start_fixation(self, fixation: int) -> None:
+        """Its state at the start of ``fixation`` (after the eyes' start pans and the object's motion)."""
+
+    def between_iterations(self) -> None:
+        """What it does between two iterations of a fixation (after the body and the object moved)."""
