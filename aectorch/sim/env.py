@@ -51,10 +51,10 @@ from typing import NamedTuple, Sequence
 import torch
 from torch import Tensor
 
-from aectorch._checks import check_choice, check_distances, check_int, check_real, is_real
-from aectorch.choices import Proprioception
+from aectorch._checks import check_distances, check_int, check_real, is_real
 from aectorch.sim import batch_state
 from aectorch.sim.camera import PinholeCamera, PixelWindow
+from aectorch.sim.ground_truth import fixation_target, ideal_q_deg
 from aectorch.sim.hoap3 import HOAP3Head
 from aectorch.sim.motion import MovingObject, check_object_motion
 from aectorch.sim.movements import Accommodation, AccommodationRight, Movement, Pursuit, Slip, Vergence
@@ -62,9 +62,10 @@ from aectorch.sim.observations import (RENDERERS, SCALE_FILTER, WINDOW, EyeImage
                                        pyramid_blur)
 from aectorch.sim.oculomotor import check_oculomotor_range, clamp_eyes
 from aectorch.sim.optics_state import EyeOptics
-from aectorch.sim.perturbations import NEUTRAL, Optics, orientation_filter
+from aectorch.sim.perturbations import NEUTRAL, Optics
+from aectorch.sim.proprioception import proprioception
 from aectorch.sim.protocol import START_PURSUIT_DEG, START_VERGENCE_DEG, TrialProtocol, resolve_protocol
-from aectorch.sim.scene import LayoutDraws, PlaneScene, SceneLayout, axis_point
+from aectorch.sim.scene import LayoutDraws, PlaneScene, SceneLayout
 from aectorch.sim.textures import TextureBank, pink_noise_images
 
 __all__ = ["ActiveDepthEnv", "IterationInfo", "RENDERERS", "DEFAULT_DISTANCES_M", "SCALE_FILTER", "WINDOW",
@@ -130,6 +131,55 @@ def _range_or_value(value, name: str) -> tuple[float, float]:
     return lo, hi
 
 
+def _batch_rows(batch_slice: tuple[int, int] | None, num_envs: int) -> tuple[slice, int]:
+    """The rows of ``batch_slice`` (``(start, total)``; ``None``: all ``num_envs``) and the batch's size, checked."""
+    start, total = (0, num_envs) if batch_slice is None else (int(batch_slice[0]), int(batch_slice[1]))
+    if not 0 <= start <= total - num_envs:
+        raise ValueError(f"batch_slice=(start, total) must have 0 <= start <= total - num_envs = "
+                         f"{total - num_envs}, got {batch_slice!r}")
+    return slice(start, start + num_envs), total
+
+
+def _oculomotor_range(head: HOAP3Head, protocol: TrialProtocol) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The protocol's oculomotor range, checked against the head's eye pan limits."""
+    pans = head.limits_deg
+    return check_oculomotor_range(protocol.pan_range_deg, protocol.vergence_range_deg,
+                                  pan_limits_deg=(max(pans["left_eye_pan"][0], pans["right_eye_pan"][0]),
+                                                  min(pans["left_eye_pan"][1], pans["right_eye_pan"][1])))
+
+
+def _with_optional_cues(cues: dict[str, type[Movement]], protocol: TrialProtocol) -> dict[str, type[Movement]]:
+    """``cues`` with the :data:`OPTIONAL_CUES` the protocol asks for: the slip cue first (it sees the
+    frame the last iteration ended with), the accommodation cue(s) last."""
+    accommodates = protocol.accommodation_start_D is not None
+    return {**({"slip": Slip} if protocol.pursuit_velocity else {}), **cues,
+            **({"accommodation": Accommodation} if accommodates else {}),
+            **({"accommodation_right": AccommodationRight} if accommodates and not protocol.yoked_accommodation else {})}
+
+
+def _check_trial(texture_index: Tensor, distance_m: Tensor, b: int, num_textures: int) -> None:
+    """`ActiveDepthEnv.set_trial`'s arguments checked: shapes ``[B]``, distances > 0, textures in range."""
+    if texture_index.shape != (b,) or distance_m.shape != (b,):
+        raise ValueError(f"texture_index and distance_m must have shape [B] = [{b}] (num_envs), got "
+                         f"{tuple(texture_index.shape)} and {tuple(distance_m.shape)}")
+    if not bool((distance_m > 0).all()):
+        raise ValueError(f"distance_m must be > 0 (metres in front of the eyes), got min {float(distance_m.min()):.4g}")
+    if bool(((texture_index < 0) | (texture_index >= num_textures)).any()):
+        raise IndexError(f"texture_index must be in [0, {num_textures}), got values "
+                         f"{int(texture_index.min())}..{int(texture_index.max())}")
+
+
+def _check_background(eye_x_m: float, distances: list[float], background_x_m: float) -> None:
+    if eye_x_m + max(distances) >= background_x_m:
+        raise ValueError(f"distances_m reach {max(distances)} m, behind the background plane at x = "
+                         f"{background_x_m} m; use distances below {background_x_m - eye_x_m:.2f} m")
+
+
+def _batch_keys(cls: type[ActiveDepthEnv]) -> tuple[str, ...]:
+    """The keys of a state's per-environment tensors: those of every part and movement ``cls`` may hold."""
+    return batch_state.batch_keys(MovingObject, EyeOptics, *cls.CUES.values(), *OPTIONAL_CUES.values(), LayoutDraws)
+
+
 class ActiveDepthEnv:
     """B simulated HOAP-3 heads looking at textured planes, batched, with ground truth.
 
@@ -168,14 +218,8 @@ class ActiveDepthEnv:
         renderer_options: passed on to the pyrender renderer, e.g. ``{"platform": "egl"}``.
         layout: the world's depth structure (`aectorch.sim.scene.SceneLayout`, drawn per trial:
             a narrower object moved sideways and slanted, before a background at its own distance
-            and texture); ``None``: the plain world. Its object's pivot stands straight ahead of
-            the left eye's start position, where a fixation from the standard start (pan 0)
-            fixates. **The optimum stays on the object**: the fixation target is where the left
-            eye's axis at its start pan meets the object's plane (slanted, extended past its
-            edges), and the optimal vergence puts the right eye's axis through the point where the
-            left axis meets that plane now, even where the left axis has slipped past the edge
-            onto the background. The trial's distance (the depth's ground truth) is the pivot's.
-            Not with a moving object.
+            and texture); ``None``: the plain world. Not with a moving object. **The optimum
+            stays on the object** (`aectorch.sim.ground_truth`); the trial's distance is the pivot's.
         batch_slice: ``(start, total)``: these B environments are rows ``start .. start + B - 1``
             of a batch of ``total`` split across processes (`aectorch.runtime.distributed`). Every random
             draw is made for the whole batch and this slice kept, so the split batch behaves as
@@ -195,9 +239,6 @@ class ActiveDepthEnv:
         (0, False, torch.Size([2]))
     """
 
-    #: The depth cues this environment serves, in the paper's order (an iteration's steps k1, k2):
-    #: motion parallax (the dominant eye before and after the body shift) drives pursuit, stereo
-    #: (both eyes) drives vergence. `observe`, `act` and `hold` take a cue's name.
     #: The depth cues this environment serves, in the paper's order (an iteration's steps k1, k2),
     #: each the eye movement it drives (`aectorch.sim.movements`): motion parallax (the dominant eye
     #: before and after the body shift) drives pursuit, stereo (both eyes) drives vergence.
@@ -232,11 +273,7 @@ class ActiveDepthEnv:
         if dtype not in (torch.float32, torch.float64):
             raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
         self.num_envs = num_envs
-        start, total = (0, num_envs) if batch_slice is None else (int(batch_slice[0]), int(batch_slice[1]))
-        if not 0 <= start <= total - num_envs:
-            raise ValueError(f"batch_slice=(start, total) must have 0 <= start <= total - num_envs = "
-                             f"{total - num_envs}, got {batch_slice!r}")
-        self._rows, self._draws = slice(start, start + num_envs), total
+        self._rows, self._draws = _batch_rows(batch_slice, num_envs)
         self.device, self.dtype = torch.device("cpu") if device is None else torch.device(device), dtype
         self.fixation_iterations, self.shift_m = h, float(protocol.shift_m)
         self.shift_iterations = min(protocol.shift_iterations, h)
@@ -247,7 +284,7 @@ class ActiveDepthEnv:
         self.camera = camera or PinholeCamera()
         self.window = check_window(self.camera, window)
         self.head = (head or HOAP3Head()).to(device=self.device, dtype=dtype)
-        self.pan_range_deg, self.vergence_range_deg = self._oculomotor_range(protocol)
+        self.pan_range_deg, self.vergence_range_deg = _oculomotor_range(self.head, protocol)
         self.textures = TextureBank.default("train") if textures is None else \
             textures if isinstance(textures, TextureBank) else TextureBank(textures)
         if background is None:
@@ -256,13 +293,10 @@ class ActiveDepthEnv:
         if not isinstance(self.layout, SceneLayout):
             raise TypeError(f"layout must be None or an aectorch.sim.scene.SceneLayout, got {type(layout).__name__}")
         self.layout_draws = LayoutDraws(self, self.layout)
-        self.scene = self._world = PlaneScene(self.textures.textures, background, **self.layout_draws.scene_arguments())
+        self.scene = self.built_scene = PlaneScene(self.textures.textures, background, **self.layout_draws.scene_arguments())
         self.aperture_m = protocol.aperture_m
         self.eye_optics = EyeOptics(self)  # perturbations: set_optics; focus: set_focus
-        if float(self.head.eye_x_m) + max(distances) >= self.scene.background_x_m:
-            raise ValueError(f"distances_m reach {max(distances)} m, behind the background plane at x = "
-                             f"{self.scene.background_x_m} m; use distances below "
-                             f"{self.scene.background_x_m - float(self.head.eye_x_m):.2f} m")
+        _check_background(float(self.head.eye_x_m), distances, self.scene.background_x_m)
         self.distances_m = torch.tensor(distances, dtype=dtype, device=self.device)
         self._init_movements(protocol, distances)
         self.renderer_name, self.renderer_options = renderer, dict(renderer_options or {})
@@ -273,35 +307,19 @@ class ActiveDepthEnv:
         self.reset(seed)
 
     def _init_movements(self, protocol: TrialProtocol, distances: list[float]) -> None:
-        """The cues the protocol asks for and their movements (:attr:`movements`, by name), and the
-        moving object (checked; it stands still unless its speeds are drawn or pinned)."""
+        """The cues the protocol asks for, their movements (by name) and the moving object, checked."""
         self.accommodation_start_D = protocol.accommodation_start_D
         self.yoked_accommodation = protocol.yoked_accommodation
         self.pursuit_velocity, self.velocity_memory = protocol.pursuit_velocity, protocol.velocity_memory
-        optional = {"slip": self.pursuit_velocity, "accommodation": self.accommodation_start_D is not None,
-                    "accommodation_right": self.accommodation_start_D is not None and not self.yoked_accommodation}
-        if any(optional.values()):  # the slip cue first: it sees the frame the last iteration ended with
-            self.CUES = {**({"slip": Slip} if optional["slip"] else {}), **type(self).CUES,
-                         **{cue: OPTIONAL_CUES[cue] for cue in ("accommodation", "accommodation_right") if optional[cue]}}
+        if protocol.pursuit_velocity or protocol.accommodation_start_D is not None:
+            self.CUES = _with_optional_cues(type(self).CUES, protocol)
         self._cues = {cue: movement(self) for cue, movement in self.CUES.items()}
         self.movements: dict[str, Movement] = {m.name: m for m in self._cues.values()}
         self.object_speed_deg, self.object_depth_speed_m = protocol.object_speed_deg, protocol.object_depth_speed_m
         check_object_motion(self.object_speed_deg, self.object_depth_speed_m, distances,
                             protocol.fixation_iterations, self.scene.background_x_m - float(self.head.eye_x_m))
-        if self.layout.draws and (protocol.object_speed_deg != (0.0, 0.0) or protocol.object_depth_speed_m != (0.0, 0.0)):
-            raise ValueError("layout (scene.object_offset_m, slant_deg, background_depth_m, background_texture) cannot "
-                             "be drawn for a moving object (object_speed_deg, object_depth_speed_m): use one of them")
-        if self.layout.background_texture == "bank" and len(self.textures) < 2:
-            raise ValueError("scene.background_texture='bank' draws a texture other than the object's: it needs at "
-                             f"least 2 textures, got {len(self.textures)}")
+        self.layout_draws.check(protocol)
         self.motion = MovingObject(self, self.object_speed_deg, self.object_depth_speed_m)
-
-    def _oculomotor_range(self, protocol: TrialProtocol) -> tuple[tuple[float, float], tuple[float, float]]:
-        """The protocol's oculomotor range, checked against this head's eye pan limits."""
-        pans = self.head.limits_deg
-        return check_oculomotor_range(protocol.pan_range_deg, protocol.vergence_range_deg,
-                                      pan_limits_deg=(max(pans["left_eye_pan"][0], pans["right_eye_pan"][0]),
-                                                      min(pans["left_eye_pan"][1], pans["right_eye_pan"][1])))
 
     # -- the trial clock ---------------------------------------------------------------------------
     def reset(self, seed: int | None = None) -> None:
@@ -314,9 +332,8 @@ class ActiveDepthEnv:
         self.q_sum_deg = torch.zeros(b, 2, dtype=self.dtype, device=self.device)
         self._new_trial()
 
-    def uniform(self, bounds: tuple[float, float]) -> Tensor:
-        """A uniform draw ``[B]`` within ``bounds`` from the environment's generator (drawn for the
-        whole batch of ``batch_slice``, these rows kept)."""
+    def uniform(self, bounds: Sequence[float]) -> Tensor:
+        """A uniform draw ``[B]`` within ``bounds`` from the generator (for the whole batch, these rows kept)."""
         lo, hi = bounds
         u = torch.rand(self._draws, generator=self._generator, dtype=torch.float64)[self._rows]
         return (lo + (hi - lo) * u).to(self.dtype).to(self.device)
@@ -336,18 +353,9 @@ class ActiveDepthEnv:
 
         Evaluation grids use this to pin the conditions; training draws them at random.
         """
-        b = self.num_envs
         texture_index = torch.as_tensor(texture_index, device=self.device)
         distance_m = torch.as_tensor(distance_m, dtype=self.dtype, device=self.device)
-        if texture_index.shape != (b,) or distance_m.shape != (b,):
-            raise ValueError(f"texture_index and distance_m must have shape [B] = [{b}] (num_envs), got "
-                             f"{tuple(texture_index.shape)} and {tuple(distance_m.shape)}")
-        if not bool((distance_m > 0).all()):
-            raise ValueError(f"distance_m must be > 0 (metres in front of the eyes), got min "
-                             f"{float(distance_m.min()):.4g}")
-        if bool(((texture_index < 0) | (texture_index >= len(self.textures))).any()):
-            raise IndexError(f"texture_index must be in [0, {len(self.textures)}), got values "
-                             f"{int(texture_index.min())}..{int(texture_index.max())}")
+        _check_trial(texture_index, distance_m, self.num_envs, len(self.textures))
         self.texture_index, self.distance_m = texture_index.long(), distance_m
         self.plane_x_m = distance_m + float(self.head.eye_x_m)
         self._start_fixation(0)
@@ -360,7 +368,7 @@ class ActiveDepthEnv:
         moves = self.motion.moves
         if moves or self.moving:  # the object back at its start (the trial's distance, straight ahead)
             self.motion.stop()
-        self.target_m = self._fixation_target(self.eye_pan_deg[:, 0], self.plane_x_m)
+        self.target_m = fixation_target(self, self.eye_pan_deg[:, 0], self.plane_x_m)
         self._start_pans = self.pan_deg
         if self.pursuit_start_error_deg > 0:  # the eyes off the target and the first image's view
             error = self.uniform((-self.pursuit_start_error_deg, self.pursuit_start_error_deg))
@@ -438,34 +446,9 @@ class ActiveDepthEnv:
         movement = self.cue(cue)
         movement.act(movement.to_optimum())
 
-    def check_increment(self, delta_deg, name: str) -> Tensor:
-        """A movement's increments ``delta_deg`` as a ``[B]`` tensor of the environment's dtype, checked."""
-        delta = torch.as_tensor(delta_deg, device=self.device)
-        if not delta.is_floating_point():
-            delta = delta.to(self.dtype)
-        if delta.shape != (self.num_envs,):
-            raise ValueError(f"{name} must have shape [B] = [{self.num_envs}] (num_envs), got {tuple(delta.shape)}")
-        return delta.to(self.dtype)
-
     def parallax_observation(self, scales=None, *, window: bool = False) -> dict[str, Tensor]:
-        """The motion-parallax pair (`Pursuit`): the left eye before the shift, then after it.
-
-        The first image is the left eye at the starting position with the fixation's start pan,
-        rendered once per fixation; the second is the left eye after the body shift with the
-        current pan (the previous stereo frame's left image when nothing has moved since).
-
-        Args:
-            scales: ``None`` (the whole window), or foveal scales (:class:`aectorch.coding.Scale`):
-                each scale's central ``crop`` rendered directly at its resolution
-                (``crop // downsample``, mipmapped: :data:`SCALE_FILTER`) and given the rest of the
-                pyramid's blur (:func:`pyramid_blur`), what :class:`aectorch.coding.BinocularEncoder`
-                reads in place of the pyramid's output.
-            window: with ``scales``, also render the whole window.
-
-        Returns:
-            ``{scale.name: [B, 2, side, side]}`` for each scale and ``{WINDOW: [B, 2, h, w]}`` (the
-            crops of ``window``) without scales or with ``window=True``.
-        """
+        """The motion-parallax pair (`Pursuit.observe`): the left eye before the shift, then after it;
+        ``scales``: ``None`` (the whole window) or foveal scales, ``window``: also the whole window."""
         return self.movements["pursuit"].observe(scales, window=window)
 
     def stereo_observation(self, scales=None, *, window: bool = False) -> dict[str, Tensor]:
@@ -474,13 +457,11 @@ class ActiveDepthEnv:
         return self.movements["vergence"].observe(scales, window=window)
 
     def apply_pursuit(self, delta_deg: Tensor) -> None:
-        """Add the pursuit increments ``[B]`` (degrees) to the left eye's pan (and the right eye's with
-        ``yoked_pursuit``), within the oculomotor range (:meth:`clamp_pan_deg`)."""
+        """Add the pursuit increments ``[B]`` (degrees) to the left eye's pan (`Pursuit.act`)."""
         self.movements["pursuit"].act(delta_deg)
 
     def apply_vergence(self, delta_deg: Tensor) -> None:
-        """Add the vergence increments ``[B]`` (degrees) to the right eye's pan, within the oculomotor
-        range (:meth:`clamp_pan_deg`: the vergence stays within ``vergence_range_deg``)."""
+        """Add the vergence increments ``[B]`` (degrees) to the right eye's pan (`Vergence.act`)."""
         self.movements["vergence"].act(delta_deg)
 
     def optimal_left_pan_deg(self, target_m: Tensor | None = None, body_shift_m: Tensor | None = None) -> Tensor:
@@ -493,12 +474,6 @@ class ActiveDepthEnv:
         """The right pan whose axis meets the plane where the left axis does (current left pan,
         of the eye's axis: :attr:`eye_pan_deg`)."""
         return self.movements["vergence"].optimal_pan_deg(left_pan_deg)
-
-    def accommodation_error_deg(self, eye: int = 0) -> Tensor:
-        """The accommodation cue's error ``[B]``: the eye's (default the left) defocus as its blur
-        disc's signed angular diameter, degrees (:attr:`defocus_dioptres` times ``aperture_m`` in
-        degrees; positive: focused nearer than the object)."""
-        return self.defocus_dioptres[:, eye] * self.eye_optics.degrees_per_dioptre
 
     # -- the head ----------------------------------------------------------------------------------
     def clamp_pan_deg(self, pan_deg: Tensor) -> Tensor:
@@ -549,13 +524,8 @@ class ActiveDepthEnv:
         return self.pan_deg[:, 1] - self.pan_deg[:, 0]
 
     def proprioception(self, names) -> Tensor:
-        """What the eyes sense of themselves now, ``[B, len(names)]``, one column per name of
-        `aectorch.choices.Proprioception`: ``vergence`` (:attr:`vergence_deg`, the commanded
-        vergence angle, degrees), ``pan`` (the left eye's commanded pan, degrees), ``focus``
-        (the left eye's focus, dioptres; only where the eyes accommodate, ``accommodation_start_D``
-        or :meth:`set_focus`: an eye that follows the object would sense its distance) and
-        ``shift`` (the body's sideways shift since the fixation's start, :attr:`body_shift_m`,
-        metres). Efference copies of the commands, not ground truth: a squint's offset is not in them.
+        """What the eyes sense of themselves now, ``[B, len(names)]``: efference copies of the
+        commands, one column per name of `aectorch.choices.Proprioception` (`aectorch.sim.proprioception`).
 
         Example:
             >>> env = ActiveDepthEnv(2, protocol=TrialProtocol(accommodation_start_D=0.0),
@@ -563,22 +533,12 @@ class ActiveDepthEnv:
             >>> env.proprioception(["vergence", "focus"]).shape
             torch.Size([2, 2])
         """
-        names = [check_choice(n, "proprioception", Proprioception) for n in names]
-        if Proprioception.focus in names and self.focus_dioptres is None:
-            raise ValueError("proprioception 'focus' needs an environment whose eyes accommodate "
-                             "(the protocol's accommodation_start_D, env.accommodation_start_D; or set_focus): "
-                             "these eyes follow the object")
-        columns = {Proprioception.vergence: lambda: self.vergence_deg, Proprioception.pan: lambda: self.pan_deg[:, 0],
-                   Proprioception.focus: lambda: self.focus_dioptres[:, 0], Proprioception.shift: lambda: self.body_shift_m}
-        if not names:
-            return self.pan_deg.new_zeros(self.num_envs, 0)
-        return torch.stack([columns[n]() for n in names], -1)
+        return proprioception(self, names)
 
     # -- the object and the eyes' optics -----------------------------------------------------------
     @property
     def moving(self) -> bool:
-        """Whether the object moves in this fixation: speed ranges other than ``(0, 0)``, or
-        speeds pinned by :meth:`set_object_speed`, when it began."""
+        """Whether the object moves in this fixation (drawn or pinned speeds when it began)."""
         return self.motion.speed is not None
 
     @property
@@ -587,12 +547,7 @@ class ActiveDepthEnv:
         return self.plane_x_m - float(self.head.eye_x_m) if self.moving else self.distance_m
 
     def set_object_speed(self, speed_deg=None, depth_speed_m=None) -> None:
-        """Pin the moving object's speeds from the next fixation on (an evaluation's speeds):
-        sideways ``speed_deg`` (degrees per iteration) and ``depth_speed_m`` (metres per
-        iteration), each ``[B]`` or a number (``None``: 0). ``set_object_speed()`` with neither
-        unpins them (the configured ranges are drawn again). The motion's limits are those of
-        the constructor's ranges (`aectorch.sim.motion.check_object_motion`).
-        """
+        """Pin the moving object's speeds from the next fixation on (`MovingObject.pin`)."""
         self.motion.pin(speed_deg, depth_speed_m)
 
     @property
@@ -607,88 +562,35 @@ class ActiveDepthEnv:
 
     @property
     def defocus_dioptres(self) -> Tensor:
-        """Each eye's defocus ``[B, 2]``: its focus minus the object's vergence 1 / d (dioptres;
-        positive: focused nearer than the object; 0 while the eyes follow the object), its
-        refractive error (`Optics.refraction_D`, after accommodation's stop at 0 D) included."""
+        """Each eye's defocus ``[B, 2]``, dioptres (`EyeOptics.defocus`)."""
         return self.eye_optics.defocus()
 
     def set_focus(self, dioptres=None) -> None:
-        """Focus each eye at ``dioptres`` (1 / metres; ``[B, 2]``, ``[2]`` or a number, each >= 0:
-        0 is infinity) from now on; ``None`` (the default state): each eye focused on the object,
-        wherever it is. The image of an eye out of focus is blurred by a disc of angular diameter
-        ``aperture_m * |1 / d - dioptres|`` radians (d: the object's distance), in both renderers.
-        """
+        """Focus each eye at ``dioptres`` from now on (`EyeOptics.set_focus`; ``None``: on the object)."""
         self.eye_optics.set_focus(dioptres)
         self.images.moved()
 
     def set_optics(self, optics: Optics) -> None:
-        """Perturb the eyes and the world (`aectorch.sim.perturbations.Optics`): from now on the
-        eyes are rolled, offset, moved, blurred, dimmed and magnified as ``optics`` says, and the
-        world's textures filtered to its orientation bands. The fixation's first image keeps the
-        optics it was taken with (unless the world changed: it is rendered again in the new one).
-        ``set_optics(NEUTRAL)`` is the unperturbed robot; every environment gets the same optics.
-        """
+        """Perturb the eyes and the world as ``optics`` says (`EyeOptics.set_optics`); the world's
+        textures filtered to its orientation bands (`EyeImages.rebuild_world`)."""
         world_changed = isinstance(optics, Optics) and optics.orientation_bands != self.optics.orientation_bands
         self.eye_optics.set_optics(optics)
         self.roll_deg = torch.tensor(optics.roll_deg, dtype=self.dtype, device=self.device).expand(self.num_envs, 2).clone()
-        if world_changed:  # the world's textures filtered to the bands (none: as built); the renderers rebuilt
-            world = self._world
-            if optics.orientation_bands:
-                world = replace(world, textures=orientation_filter(world.textures, optics.orientation_bands),
-                                background=orientation_filter(world.background, optics.orientation_bands))
-            self.close()
-            self.scene = world
-            self.renderer = make_renderer(self.renderer_name, world, self.camera, device=self.device,
-                                          dtype=self.dtype, **self.renderer_options)
-            self.images.world_changed()
+        if world_changed:
+            self.images.rebuild_world(optics.orientation_bands)
         self.images.moved()
 
     # -- ground truth ------------------------------------------------------------------------------
-    def _fixation_target(self, left_pan_deg: Tensor, plane_x_m: Tensor) -> Tensor:
-        """The fixation target ``[N, 3]``: where the left axis meets the plane at the start position."""
-        start = self.head.eye_centres(torch.zeros_like(plane_x_m))[:, 0]  # [N, 3]
-        shift = self.eye_optics.eye_shift()
-        if shift is not None:  # the left camera's own place (camera_shift)
-            start = start + shift[0]
-        slant = self.layout_draws.slant_rad()
-        if slant is not None and slant.shape == plane_x_m.shape:  # the slanted object's plane (its pivot)
-            return axis_point(start, left_pan_deg, plane_x_m, slant, self.scene.object_center_yz_m[0])
-        along = torch.tan(torch.deg2rad(left_pan_deg)) * (plane_x_m - start[:, 0])
-        return torch.stack((plane_x_m, start[:, 1] + along, start[:, 2]), dim=-1)
-
     def ideal_q_deg(self, distance_m: Tensor | None = None, *, start_pan_deg: float = 0.0) -> Tensor:
-        """The final eye movements ``q`` ``[N, 4]`` of a perfectly fixating trial, degrees.
-
-        What :attr:`IterationInfo.q_deg` holds at the end of a trial whose pursuit and vergence
-        errors are zero at both fixation ends (q1 left pan and q2 vergence after the leftward
-        shift, q3 and q4 after the rightward one): the geometry the depth MLP has to invert.
-
-        Args:
-            distance_m: object distances ``[N]`` (metres, > 0); default the current trials'.
-            start_pan_deg: the left pan each fixation starts from, which sets its target (the
-                evaluation's standard start state: 0).
-        """
-        d = self.distance_m if distance_m is None else torch.as_tensor(distance_m, dtype=self.dtype, device=self.device)
-        if d.dim() != 1 or not bool((d > 0).all()):
-            raise ValueError(f"distance_m must be a [N] tensor of distances > 0 (metres), got {d!r}")
-        plane_x = d + float(self.head.eye_x_m)
-        target = self._fixation_target(torch.full_like(d, float(start_pan_deg)), plane_x)
-        columns = []
-        for direction in (1.0, -1.0):
-            shift = torch.full_like(d, direction * self.shift_m)
-            left = self.head.pursuit_pan_deg(target, shift)
-            columns += [left, self.head.vergence_pan_deg(left, plane_x, shift) - left]
-        return torch.stack(columns, dim=-1)
+        """The final eye movements ``q`` ``[N, 4]`` (degrees) of a perfectly fixating trial at
+        ``distance_m`` ``[N]`` (default the current trials'), its fixations starting from the left
+        pan ``start_pan_deg`` (`aectorch.sim.ground_truth`)."""
+        return ideal_q_deg(self, distance_m, start_pan_deg)
 
     # -- checkpoints (`aectorch.sim.batch_state`) --------------------------------------------------
     def state_dict(self) -> dict:
-        """Everything that determines the environments' future: resume with :meth:`load_state_dict`.
-
-        The configuration (textures, renderer, geometry) is not included: build the environment
-        with the same arguments, then load the state. The cached first image of the current
-        fixation is not stored; it is rendered again, identically (with the roll of the moment
-        it was first taken), when next needed.
-        """
+        """Everything that determines the environments' future (not the configuration: build the
+        environment with the same arguments, then :meth:`load_state_dict`; `aectorch.sim.batch_state`)."""
         return batch_state.state_dict(self)
 
     def load_state_dict(self, state: dict) -> None:
@@ -696,28 +598,18 @@ class ActiveDepthEnv:
         batch_state.load_state_dict(self, state)
 
     def state_parts(self) -> list:
-        """The parts of the batch state beyond the head's and the trial's tensors, in the state's
-        order: the moving object, the eyes' focus, the movements' own, the scene's layout."""
+        """The parts of the batch state with their own tensors, in the state's order."""
         return [self.motion, self.eye_optics, *self._cues.values(), self.layout_draws]
 
     @classmethod
     def join_states(cls, states: list[dict]) -> dict:
-        """The :meth:`state_dict` of the whole batch from those of its parts, in order (the
-        processes of a run, which draw for the whole batch and so share the generator's state).
-        Per-environment tensors are joined along the batch; everything else must agree."""
-        return batch_state.join_states(states, cls._batch_keys())
+        """The :meth:`state_dict` of the whole batch from those of its parts (`batch_state.join_states`)."""
+        return batch_state.join_states(states, _batch_keys(cls))
 
     @classmethod
     def state_rows(cls, state: dict, start: int, stop: int) -> dict:
-        """The :meth:`state_dict` of the environments ``start .. stop - 1`` of a whole batch's state
-        (:meth:`join_states`): a process's share when another number of processes resumes it."""
-        return batch_state.state_rows(state, start, stop, cls._batch_keys())
-
-    @classmethod
-    def _batch_keys(cls) -> tuple[str, ...]:
-        """The keys of a state's per-environment tensors, those of every movement this class may hold."""
-        movements = (*cls.CUES.values(), *OPTIONAL_CUES.values())
-        return batch_state.batch_keys(MovingObject, EyeOptics, *movements, LayoutDraws)
+        """The :meth:`state_dict` of environments ``start .. stop - 1`` (`batch_state.state_rows`)."""
+        return batch_state.state_rows(state, start, stop, _batch_keys(cls))
 
     def close(self) -> None:
         """Free the renderers' resources (pyrender's OpenGL contexts); the environment cannot
@@ -732,9 +624,8 @@ class ActiveDepthEnv:
         self.close()
 
     def __repr__(self) -> str:
-        return (f"ActiveDepthEnv(num_envs={self.num_envs}, renderer={self.renderer_name!r}, "
-                f"textures={len(self.textures)}, h={self.fixation_iterations}, shift_m={self.shift_m}, "
-                f"shift_iterations={self.shift_iterations}, yoked_pursuit={self.yoked_pursuit}, "
-                f"q_iterations={self.q_iterations}, pan_range_deg={self.pan_range_deg}, "
-                f"vergence_range_deg={self.vergence_range_deg}, "
-                f"window={tuple(self.window)}, device={self.device}, dtype={self.dtype})")
+        return (f"ActiveDepthEnv(num_envs={self.num_envs}, renderer={self.renderer_name!r}, textures={len(self.textures)}, "
+                f"h={self.fixation_iterations}, shift_m={self.shift_m}, shift_iterations={self.shift_iterations}, "
+                f"yoked_pursuit={self.yoked_pursuit}, q_iterations={self.q_iterations}, pan_range_deg="
+                f"{self.pan_range_deg}, vergence_range_deg={self.vergence_range_deg}, window={tuple(self.window)}, "
+                f"device={self.device}, dtype={self.dtype})")

@@ -149,10 +149,11 @@ class MovingObject:
     def at(self, iteration: int) -> tuple[Tensor, Tensor, Tensor]:
         """Where the moving object is during ``iteration`` of the fixation: its plane's world x and
         sideways offset ``[B]``, and the fixation target on it ``[B, 3]``."""
-        env = self.env
-        distance, y = object_place(env.distance_m, self.speed, iteration + 1)
+        env, speed, start = self.env, self.speed, self.start_target_m
+        if speed is None or start is None:
+            raise RuntimeError("the object does not move in this fixation")
+        distance, y = object_place(env.distance_m, speed, iteration + 1)
         plane_x = distance + float(env.head.eye_x_m)
-        start = self.start_target_m
         return plane_x, y, torch.stack((plane_x, start[:, 1] + y, start[:, 2]), -1)
 
     def loaded(self) -> None:

@@ -19,7 +19,8 @@ from torch import Tensor
 from aectorch.choices import RendererName
 from aectorch.ops.backend import fused_kernels_apply
 from aectorch.sim.camera import PinholeCamera, PixelWindow
-from aectorch.sim.perturbations import NEUTRAL, Optics, blur_margin, defocus, defocus_each, scale_contrast
+from aectorch.sim.perturbations import (NEUTRAL, Optics, blur_margin, defocus, defocus_each, orientation_filter,
+                                        scale_contrast)
 from aectorch.sim.scene import PlaneScene
 
 if TYPE_CHECKING:
@@ -172,8 +173,18 @@ class EyeImages:
         """The left eye's view changed (pan, roll or body): a stereo frame can no longer be reused."""
         self.view += 1
 
-    def world_changed(self) -> None:
-        """The world was built anew (`ActiveDepthEnv.set_optics`): every kept frame is rendered again."""
+    def rebuild_world(self, bands) -> None:
+        """The world's textures filtered to the orientation ``bands`` (none: as built;
+        `ActiveDepthEnv.set_optics`): the renderers are built anew, every kept frame rendered again."""
+        env = self.env
+        world = env.built_scene
+        if bands:
+            world = replace(world, textures=orientation_filter(world.textures, bands),
+                            background=orientation_filter(world.background, bands))
+        env.close()
+        env.scene = world
+        env.renderer = make_renderer(env.renderer_name, world, env.camera, device=env.device, dtype=env.dtype,
+                                     **env.renderer_options)
         self.scale_renderer = None
         self.first_image = {}  # what the eye saw of the old world is rendered again in the new one
         self.last_left = None
@@ -240,7 +251,7 @@ class EyeImages:
         for j, eye in enumerate(eyes):
             camera = env.camera.magnified(optics.magnification[eye])
             arcmin_per_px = 60.0 * camera.degrees_per_pixel
-            radius = optics.blur_arcmin[eye] / 2.0 / arcmin_per_px  # full-resolution pixels of this eye
+            radius: float | Tensor = optics.blur_arcmin[eye] / 2.0 / arcmin_per_px  # full-resolution px of this eye
             if world_arcmin is not None:  # the world's defocus too: a disc per environment
                 radius = (optics.blur_arcmin[eye] + world_arcmin[:, eye]) / 2.0 / arcmin_per_px
             largest = float(radius.max()) if isinstance(radius, Tensor) else radius

@@ -91,13 +91,13 @@ class EyeOptics:
     def defocus(self, optics: Optics | None = None) -> Tensor:
         """Each eye's defocus ``[B, 2]`` (dioptres) with the refractive errors of ``optics`` (default the eyes')."""
         env, optics = self.env, self.optics if optics is None else optics
-        refracted = optics.refraction_D != NEUTRAL.refraction_D
-        refraction = torch.tensor(optics.refraction_D, dtype=env.dtype, device=env.device) if refracted else None
+        refraction = None if optics.refraction_D == NEUTRAL.refraction_D else \
+            torch.tensor(optics.refraction_D, dtype=env.dtype, device=env.device)
         if self.focus_dioptres is None:
-            zero = torch.zeros(env.num_envs, 2, dtype=env.dtype, device=env.device)
-            return zero + refraction if refracted else zero
-        defocus = self.focus_dioptres - 1.0 / env.object_distance_m[:, None]
-        return defocus + refraction if refracted else defocus
+            defocus = torch.zeros(env.num_envs, 2, dtype=env.dtype, device=env.device)
+        else:
+            defocus = self.focus_dioptres - 1.0 / env.object_distance_m[:, None]
+        return defocus if refraction is None else defocus + refraction
 
     def world_blur_arcmin(self, optics: Optics) -> Tensor | None:
         """Each eye's defocus blur disc ``[B, 2]`` (diameter, arcmin) with the refractive errors of

@@ -339,6 +339,16 @@ class LayoutDraws:
         self.env, self.layout = env, layout
         self.draws: Tensor | None = None
 
+    def check(self, protocol) -> None:
+        """``ValueError`` where the layout cannot be drawn: for a moving object (the protocol's
+        speeds), or a background texture of the bank with fewer than 2 textures."""
+        if self.layout.draws and (protocol.object_speed_deg != (0.0, 0.0) or protocol.object_depth_speed_m != (0.0, 0.0)):
+            raise ValueError("layout (scene.object_offset_m, slant_deg, background_depth_m, background_texture) cannot "
+                             "be drawn for a moving object (object_speed_deg, object_depth_speed_m): use one of them")
+        if self.layout.background_texture == "bank" and len(self.env.textures) < 2:
+            raise ValueError("scene.background_texture='bank' draws a texture other than the object's: it needs at "
+                             f"least 2 textures, got {len(self.env.textures)}")
+
     def scene_arguments(self) -> dict:
         """The `PlaneScene` arguments of the layout: none for the plain world; else the object cut
         to its side, its pivot straight ahead of the left eye's start, the background's width."""

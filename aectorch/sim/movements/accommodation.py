@@ -35,11 +35,11 @@ class Accommodation(Movement):
     def act(self, delta_deg: Tensor) -> None:
         env = self.env
         optics = env.eye_optics
-        optics.focus_by(env.check_increment(delta_deg, "delta_deg") / optics.degrees_per_dioptre, self.focused())
+        optics.focus_by(self.increments(delta_deg) / optics.degrees_per_dioptre, self.focused())
         env.images.moved()
 
     def error_deg(self) -> Tensor:
-        """`ActiveDepthEnv.accommodation_error_deg` of its eye."""
+        """The defocus of its eye as its blur disc's signed angular diameter, degrees."""
         optics = self.env.eye_optics
         return optics.defocus()[:, self.eye] * optics.degrees_per_dioptre
 
@@ -48,8 +48,9 @@ class Accommodation(Movement):
 
     def start_fixation(self, fixation: int) -> None:
         env = self.env  # both eyes at the start focus, as vergence starts parallel
-        env.eye_optics.focus_dioptres = torch.full((env.num_envs, 2), float(env.accommodation_start_D),
-                                                   dtype=env.dtype, device=env.device)
+        if env.accommodation_start_D is not None:
+            env.eye_optics.focus_dioptres = torch.full((env.num_envs, 2), float(env.accommodation_start_D),
+                                                       dtype=env.dtype, device=env.device)
 
 
 class AccommodationRight(Accommodation):

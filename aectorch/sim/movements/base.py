@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, ClassVar
 
+import torch
 from torch import Tensor
 
 if TYPE_CHECKING:
@@ -36,6 +37,16 @@ class Movement:
 
     def __init__(self, env: ActiveDepthEnv) -> None:
         self.env = env
+
+    def increments(self, delta_deg) -> Tensor:
+        """``delta_deg`` as a ``[B]`` tensor of the environment's dtype and device, checked."""
+        env = self.env
+        delta = torch.as_tensor(delta_deg, device=env.device)
+        if not delta.is_floating_point():
+            delta = delta.to(env.dtype)
+        if delta.shape != (env.num_envs,):
+            raise ValueError(f"delta_deg must have shape [B] = [{env.num_envs}] (num_envs), got {tuple(delta.shape)}")
+        return delta.to(env.dtype)
 
     def observe(self, scales=None, *, window: bool = False) -> dict[str, Tensor]:
         """Its image pair: ``{scale name: [B, 2, side, side]}`` for the foveal ``scales`` asked for

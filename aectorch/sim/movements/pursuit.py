@@ -8,10 +8,15 @@ on the left eye's axis.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, cast
+
 import torch
 from torch import Tensor
 
 from aectorch.sim.movements.base import Movement
+
+if TYPE_CHECKING:
+    from aectorch.sim.movements.slip import Slip
 
 __all__ = ["Pursuit"]
 
@@ -31,10 +36,10 @@ class Pursuit(Movement):
 
     def act(self, delta_deg: Tensor) -> None:
         env = self.env
-        delta = env.check_increment(delta_deg, "delta_deg")
+        delta = self.increments(delta_deg)
         if env.velocity_memory:  # the step also goes on as velocity
-            slip = env.movements["pursuit_velocity"]
-            slip.velocity_deg = slip.velocity_deg + delta
+            slip = cast("Slip", env.movements["pursuit_velocity"])
+            slip.velocity_deg = slip.velocity() + delta
         env.pan_deg = env.clamp_pan_deg(env.pan_deg + self.step(delta))
         env.images.moved()
 

@@ -12,10 +12,15 @@ fixation starts with the eyes still.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, cast
+
 import torch
 from torch import Tensor
 
 from aectorch.sim.movements.base import Movement
+
+if TYPE_CHECKING:
+    from aectorch.sim.movements.pursuit import Pursuit
 
 __all__ = ["Slip"]
 
@@ -48,18 +53,24 @@ class Slip(Movement):
         return {name: torch.cat((first[name], second[name]), dim=1) for name in first}
 
     def act(self, delta_deg: Tensor) -> None:
-        self.velocity_deg = self.velocity_deg + self.env.check_increment(delta_deg, "delta_deg")
+        self.velocity_deg = self.velocity() + self.increments(delta_deg)
+
+    def velocity(self) -> Tensor:
+        """The pursuit velocity ``[B]`` of this fixation (``RuntimeError`` before one began)."""
+        if self.velocity_deg is None:
+            raise RuntimeError("the pursuit velocity is set at a fixation's start")
+        return self.velocity_deg
 
     def optimal_velocity_deg(self) -> Tensor:
         """`ActiveDepthEnv.optimal_velocity_deg`."""
         env = self.env
-        pursuit = env.movements["pursuit"]
+        pursuit = cast("Pursuit", env.movements["pursuit"])
         # the target where the object will be
         target = env.motion.at(env.iteration + 1)[2] if env.moving else env.target_m
         return pursuit.optimal_pan_deg(target, env.body_shift(env.iteration + 1)) - pursuit.optimal_pan_deg()
 
     def to_optimum(self) -> Tensor:
-        return self.optimal_velocity_deg() - self.velocity_deg
+        return self.optimal_velocity_deg() - self.velocity()
 
     def start_fixation(self, fixation: int) -> None:
         env = self.env  # the eyes start still
@@ -69,5 +80,5 @@ class Slip(Movement):
     def between_iterations(self) -> None:
         env = self.env  # the eyes move on at their pursuit velocity
         self.previous_pans = env.pan_deg
-        env.pan_deg = env.clamp_pan_deg(env.pan_deg + env.movements["pursuit"].step(self.velocity_deg))
+        env.pan_deg = env.clamp_pan_deg(env.pan_deg + cast("Pursuit", env.movements["pursuit"]).step(self.velocity()))
         env.images.moved()

@@ -27,7 +27,7 @@ class Vergence(Movement):
 
     def act(self, delta_deg: Tensor) -> None:
         env = self.env
-        delta = env.check_increment(delta_deg, "delta_deg")
+        delta = self.increments(delta_deg)
         step = torch.stack((torch.zeros_like(delta), delta), dim=-1)
         env.pan_deg = env.clamp_pan_deg(env.pan_deg + step)
 
