@@ -6,19 +6,27 @@ trial clock, the generator's state, the optics, the roll and optics of the fixat
 and the parts' own tensors (the moving object's, the eyes' focus, each movement's, the layout's
 draws: each part's ``STATE``, the key -> its attribute, stored while not ``None``). The keys are
 those of every earlier version: an old checkpoint loads as it did.
+
+Example:
+    >>> from aectorch.sim import ActiveDepthEnv, TrialProtocol
+    >>> env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2), textures=torch.rand(3, 64, 64),
+    ...                      seed=0)
+    >>> keys = batch_keys()
+    >>> state = state_dict(env)
+    >>> whole = join_states([state_rows(state, 0, 1, keys), state_rows(state, 1, 2, keys)], keys)
+    >>> torch.equal(whole["pan_deg"], state["pan_deg"]), whole["num_envs"]
+    (True, 2)
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import Any
 
 import torch
 
 from aectorch.sim.perturbations import NEUTRAL, Optics
 
-if TYPE_CHECKING:
-    from aectorch.sim.env import ActiveDepthEnv
 
 __all__ = ["STATE_TENSORS", "batch_keys", "join_states", "load_state_dict", "state_dict", "state_rows"]
 
@@ -32,7 +40,7 @@ def batch_keys(*parts) -> tuple[str, ...]:
     return (*STATE_TENSORS, "first_roll", *(key for part in parts for key in part.STATE))
 
 
-def state_dict(env: ActiveDepthEnv) -> dict:
+def state_dict(env: Any) -> dict:
     """`ActiveDepthEnv.state_dict`."""
     images = env.images
     state = {name: getattr(env, name).clone() for name in STATE_TENSORS}
@@ -84,7 +92,7 @@ def state_rows(state: dict, start: int, stop: int, keys: tuple[str, ...]) -> dic
     return rows
 
 
-def load_state_dict(env: ActiveDepthEnv, state: dict) -> None:
+def load_state_dict(env: Any, state: dict) -> None:
     """`ActiveDepthEnv.load_state_dict`."""
     for key, expected in (("num_envs", env.num_envs), ("num_textures", len(env.textures))):
         if state.get(key) != expected:

@@ -11,24 +11,29 @@ on the object's plane (slanted, extended past its edges), and the optimal vergen
 eye's axis through the point where the left axis meets that plane now
 (`aectorch.sim.movements.vergence`), even where the left axis has slipped past the edge onto the
 background. The trial's distance (the depth's ground truth) is the pivot's.
+
+Example:
+    >>> from aectorch.sim import ActiveDepthEnv, TrialProtocol
+    >>> env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2), textures=torch.rand(3, 64, 64),
+    ...                      seed=0)
+    >>> ideal_q_deg(env, torch.tensor([1.0, 2.0, 3.0])).shape
+    torch.Size([3, 4])
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any
 
 import torch
 from torch import Tensor
 
 from aectorch.sim.scene import axis_point
 
-if TYPE_CHECKING:
-    from aectorch.sim.env import ActiveDepthEnv
 
 __all__ = ["fixation_target", "ideal_q_deg"]
 
 
-def fixation_target(env: ActiveDepthEnv, left_pan_deg: Tensor, plane_x_m: Tensor) -> Tensor:
+def fixation_target(env: Any, left_pan_deg: Tensor, plane_x_m: Tensor) -> Tensor:
     """The fixation target ``[N, 3]``: where the left axis meets the plane at the start position."""
     start = env.head.eye_centres(torch.zeros_like(plane_x_m))[:, 0]  # [N, 3]
     shift = env.eye_optics.eye_shift()
@@ -41,7 +46,7 @@ def fixation_target(env: ActiveDepthEnv, left_pan_deg: Tensor, plane_x_m: Tensor
     return torch.stack((plane_x_m, start[:, 1] + along, start[:, 2]), dim=-1)
 
 
-def ideal_q_deg(env: ActiveDepthEnv, distance_m: Tensor | None = None, start_pan_deg: float = 0.0) -> Tensor:
+def ideal_q_deg(env: Any, distance_m: Tensor | None = None, start_pan_deg: float = 0.0) -> Tensor:
     """`ActiveDepthEnv.ideal_q_deg`: the final eye movements ``q`` ``[N, 4]`` of a perfectly
     fixating trial at ``distance_m`` ``[N]`` (default the current trials'), degrees."""
     d = env.distance_m if distance_m is None else torch.as_tensor(distance_m, dtype=env.dtype, device=env.device)

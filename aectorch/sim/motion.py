@@ -16,13 +16,11 @@ it moves with the object, and the eye movements' ground truth follows it.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Sequence
+from typing import Any, Sequence
 
 import torch
 from torch import Tensor
 
-if TYPE_CHECKING:
-    from aectorch.sim.env import ActiveDepthEnv
 
 __all__ = ["MIN_OBJECT_DISTANCE_M", "MAX_OBJECT_TURN_DEG", "MovingObject", "check_object_motion", "object_place"]
 
@@ -82,7 +80,7 @@ class MovingObject:
     STATE = {"object_speed": "speed", "object_pinned_speed": "pinned_speed",
              "object_trial_depth_speed": "trial_depth_speed", "object_start_target_m": "start_target_m"}
 
-    def __init__(self, env: ActiveDepthEnv, speed_deg: tuple[float, float], depth_speed_m: tuple[float, float]) -> None:
+    def __init__(self, env: Any, speed_deg: tuple[float, float], depth_speed_m: tuple[float, float]) -> None:
         self.env, self.speed_deg, self.depth_speed_m = env, speed_deg, depth_speed_m
         # The speeds [B, 2] (sideways deg, depth m per iteration; None: it stands still), those
         # pinned by pin(), the trial's depth speed, the target it started from, and its sideways

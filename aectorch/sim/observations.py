@@ -6,12 +6,16 @@ of the whole window or of each foveal scale at its own resolution (:data:`SCALE_
 :func:`pyramid_blur`). It keeps the fixation's first image of the left eye (with the roll and the
 optics it was taken with) and the left eye's last frame, reused while the left eye's view has not
 changed (:meth:`EyeImages.moved`).
+
+Example:
+    >>> pyramid_blur(torch.ones(1, 6, 6), 1).shape  # one pixel of margin on every side used
+    torch.Size([1, 4, 4])
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -23,8 +27,6 @@ from aectorch.sim.perturbations import (NEUTRAL, Optics, blur_margin, defocus, d
                                         scale_contrast)
 from aectorch.sim.scene import PlaneScene
 
-if TYPE_CHECKING:
-    from aectorch.sim.env import ActiveDepthEnv
 
 __all__ = ["EyeImages", "RENDERERS", "SCALE_FILTER", "WINDOW", "check_window", "make_renderer", "pyramid_blur"]
 
@@ -156,7 +158,7 @@ class EyeImages:
     """The eyes' images of ``env`` (an `ActiveDepthEnv`, whose renderer, head, optics and object
     it reads), and the frames it keeps: the fixation's first left image and the left eye's last."""
 
-    def __init__(self, env: ActiveDepthEnv) -> None:
+    def __init__(self, env: Any) -> None:
         self.env = env
         self.scale_renderer = None  # built on the first request for foveal scales
         self.last_left: tuple | None = None  # (view version, scales, left image) of the last stereo frame

@@ -5,20 +5,28 @@ blurred, dimmed, magnified), the pupil's ``aperture_m`` and each eye's focus (``
 focused on the object, wherever it is). The defocus it derives blurs the renderers' images
 (`aectorch.sim.observations`) and is the accommodation movement's error
 (`aectorch.sim.movements.accommodation`).
+
+Example:
+    >>> from aectorch.sim import ActiveDepthEnv, TrialProtocol
+    >>> env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2), textures=torch.rand(3, 64, 64),
+    ...                      seed=0)
+    >>> env.eye_optics.focus_dioptres is None  # each eye focused on the object
+    True
+    >>> env.set_focus(0.0)  # both at infinity
+    >>> bool((env.eye_optics.defocus() < 0).all())
+    True
 """
 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Any
 
 import torch
 from torch import Tensor
 
 from aectorch.sim.perturbations import NEUTRAL, Optics
 
-if TYPE_CHECKING:
-    from aectorch.sim.env import ActiveDepthEnv
 
 __all__ = ["EyeOptics"]
 
@@ -30,7 +38,7 @@ class EyeOptics:
     #: attribute, a tensor ``[B, ...]`` stored while it is not ``None``.
     STATE = {"focus_dioptres": "focus_dioptres"}
 
-    def __init__(self, env: ActiveDepthEnv) -> None:
+    def __init__(self, env: Any) -> None:
         self.env = env
         self.optics: Optics = NEUTRAL
         self.focus_dioptres: Tensor | None = None  # [B, 2]; None: each eye focused on the object

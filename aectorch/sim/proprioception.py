@@ -5,11 +5,18 @@ angle, degrees), ``pan`` (the left eye's commanded pan, degrees), ``focus`` (the
 dioptres; only where the eyes accommodate, ``accommodation_start_D`` or ``set_focus``: an eye that
 follows the object would sense its distance) and ``shift`` (the body's sideways shift since the
 fixation's start, metres). Not ground truth: a squint's offset is not in them.
+
+Example:
+    >>> from aectorch.sim import ActiveDepthEnv, TrialProtocol
+    >>> env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2), textures=torch.rand(3, 64, 64),
+    ...                      seed=0)
+    >>> proprioception(env, ["vergence", "shift"]).shape
+    torch.Size([2, 2])
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -17,13 +24,11 @@ from torch import Tensor
 from aectorch._checks import check_choice
 from aectorch.choices import Proprioception
 
-if TYPE_CHECKING:
-    from aectorch.sim.env import ActiveDepthEnv
 
 __all__ = ["proprioception"]
 
 
-def proprioception(env: ActiveDepthEnv, names) -> Tensor:
+def proprioception(env: Any, names) -> Tensor:
     """`ActiveDepthEnv.proprioception`: the senses ``names`` now, ``[B, len(names)]``."""
     names = [check_choice(n, "proprioception", Proprioception) for n in names]
     focus = env.eye_optics.focus_dioptres

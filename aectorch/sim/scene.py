@@ -17,13 +17,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, NamedTuple, Optional
+from typing import Any, NamedTuple, Optional
 
 import torch
 from torch import Tensor
 
-if TYPE_CHECKING:
-    from aectorch.sim.env import ActiveDepthEnv
 
 __all__ = ["BACKGROUND_TEXTURES", "DEFAULT_EYE_HEIGHT_M", "LayoutDraws", "Placement", "PlaneScene", "SceneLayout",
            "axis_point"]
@@ -335,7 +333,7 @@ class LayoutDraws:
     #: attribute, a tensor ``[B, ...]`` stored while it is not ``None``.
     STATE = {"scene_layout": "draws"}
 
-    def __init__(self, env: ActiveDepthEnv, layout: SceneLayout) -> None:
+    def __init__(self, env: Any, layout: SceneLayout) -> None:
         self.env, self.layout = env, layout
         self.draws: Tensor | None = None
 

@@ -5,6 +5,16 @@ It sees the stereo pair after vergence; it changes the focus by increments in de
 disc's diameter (``delta_deg / degrees_per_dioptre`` dioptres; positive: nearer), at least 0 D
 (infinity); its error is the eye's defocus as its blur disc's signed angular diameter (positive:
 focused nearer than the object). Each fixation starts with both eyes at ``accommodation_start_D``.
+
+Example:
+    >>> from aectorch.sim import ActiveDepthEnv, TrialProtocol
+    >>> env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2, accommodation_start_D=0.0), textures=torch.rand(3, 64, 64),
+    ...                      seed=0)
+    >>> float(env.cue("accommodation").error_deg()[0]) < 0  # focused at infinity: farther than the object
+    True
+    >>> env.hold("accommodation")
+    >>> float(env.cue("accommodation").error_deg().abs().max()) < 1e-4
+    True
 """
 
 from __future__ import annotations

@@ -5,17 +5,22 @@ object, the renderers, the protocol and the trial clock; a movement is what one 
 to them: what it observes (an image pair), how it acts (an increment ``[B]``), its optimum (the
 increment that reaches it) and its error, and its part of the batch state. A cue of the
 environment (`ActiveDepthEnv.CUES`) names the movement class it drives.
+
+Example:
+    >>> from aectorch.sim import ActiveDepthEnv, TrialProtocol
+    >>> env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2), textures=torch.rand(3, 64, 64),
+    ...                      seed=0)
+    >>> [(cue, env.cue(cue).name) for cue in env.CUES]
+    [('parallax', 'pursuit'), ('stereo', 'vergence')]
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar
+from typing import Any, ClassVar
 
 import torch
 from torch import Tensor
 
-if TYPE_CHECKING:
-    from aectorch.sim.env import ActiveDepthEnv
 
 __all__ = ["Movement"]
 
@@ -35,7 +40,9 @@ class Movement:
     images: ClassVar[tuple[str, str]]
     STATE: ClassVar[dict[str, str]] = {}
 
-    def __init__(self, env: ActiveDepthEnv) -> None:
+    def __init__(self, env: Any) -> None:
+        # the `ActiveDepthEnv` (typed Any: env.py imports this module, and no module imports
+        # itself through others, not even for its types)
         self.env = env
 
     def increments(self, delta_deg) -> Tensor:

@@ -8,19 +8,23 @@ follow. It adds its increments to the velocity (degrees per iteration), which mo
 between iterations (both with ``yoked_pursuit``, else the left) within the oculomotor range; its
 error is that velocity against the optimal left pan's change over the next iteration. Each
 fixation starts with the eyes still.
+
+Example:
+    >>> from aectorch.sim import ActiveDepthEnv, TrialProtocol
+    >>> env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2, pursuit_velocity=True), textures=torch.rand(3, 64, 64),
+    ...                      seed=0)
+    >>> list(env.CUES), env.cue("slip").velocity_deg.tolist()  # it sees the eyes before any step
+    (['slip', 'parallax', 'stereo'], [0.0, 0.0])
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, cast
 
 import torch
 from torch import Tensor
 
 from aectorch.sim.movements.base import Movement
 
-if TYPE_CHECKING:
-    from aectorch.sim.movements.pursuit import Pursuit
 
 __all__ = ["Slip"]
 
@@ -64,7 +68,7 @@ class Slip(Movement):
     def optimal_velocity_deg(self) -> Tensor:
         """`ActiveDepthEnv.optimal_velocity_deg`."""
         env = self.env
-        pursuit = cast("Pursuit", env.movements["pursuit"])
+        pursuit = env.movements["pursuit"]
         # the target where the object will be
         target = env.motion.at(env.iteration + 1)[2] if env.moving else env.target_m
         return pursuit.optimal_pan_deg(target, env.body_shift(env.iteration + 1)) - pursuit.optimal_pan_deg()
@@ -80,5 +84,5 @@ class Slip(Movement):
     def between_iterations(self) -> None:
         env = self.env  # the eyes move on at their pursuit velocity
         self.previous_pans = env.pan_deg
-        env.pan_deg = env.clamp_pan_deg(env.pan_deg + cast("Pursuit", env.movements["pursuit"]).step(self.velocity()))
+        env.pan_deg = env.clamp_pan_deg(env.pan_deg + env.movements["pursuit"].step(self.velocity()))
         env.images.moved()

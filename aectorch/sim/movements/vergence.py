@@ -3,6 +3,16 @@
 It sees both eyes' images at the shifted position; it adds its increments to the right eye's pan
 (the vergence angle, right pan minus left pan, stays within the oculomotor range); its optimum
 puts the right eye's axis through the point where the left eye's axis meets the object's plane.
+
+Example:
+    >>> from aectorch.sim import ActiveDepthEnv, TrialProtocol
+    >>> env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2), textures=torch.rand(3, 64, 64),
+    ...                      seed=0)
+    >>> env.cue("stereo").observe()["window"].shape  # the left and the right eye
+    torch.Size([2, 2, 128, 128])
+    >>> env.hold("stereo")
+    >>> float(env.cue("stereo").error_deg().abs().max()) < 1e-4
+    True
 """
 
 from __future__ import annotations
