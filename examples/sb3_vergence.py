@@ -38,7 +38,7 @@ def evaluate(model, train_env, textures, episodes: int, seed: int, num_envs: int
     eval_env = envs.make_sb3_vec_env(ENV_IDS[task.config.task], num_envs=num_envs, seed=seed + 1000,
                                      textures=textures, reward=task.config.reward, learn_encoder=False)
     eval_env.task.load_encoders(task.encoders)  # the features the policy learned on, frozen
-    movements = [eval_env.task.env.cue(cue).movement for cue in eval_env.task.cues]
+    movements = [eval_env.task.env.cue(cue).name for cue in eval_env.task.cues]
     per_fixation = eval_env.task.config.fixation_iterations
     space = eval_env.action_space  # Discrete(n), or MultiDiscrete (pursuit, vergence)
     nvec = np.asarray(space.nvec if hasattr(space, "nvec") else space.n)

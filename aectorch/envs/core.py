@@ -297,7 +297,7 @@ class EyeTask:
             observation, coding = self._observe(learn=True)
             first = coding
         if self.config.reward == Reward.error:
-            reward = -sum(errors[self.env.cue(cue).movement].abs() for cue in self.cues)
+            reward = -sum(errors[self.env.cue(cue).name].abs() for cue in self.cues)
         else:
             reward = learned_reward(self.config.reward.value, coding, self._previous, self.reward_scale)
         self._previous = first

@@ -107,7 +107,7 @@ def offset_sweep(
         for start in range(0, index.numel(), batch_size):
             stop = min(start + batch_size, index.numel())
             env = env_for(stop - start, protocol.fixation_iterations, instant=True)
-            movement = env.cue(cue).movement
+            movement = env.cue(cue).name
             rows: dict[str, list[Tensor]] = {key: [] for key in out}
             keep = "features" in out
             for offset in offsets.tolist():

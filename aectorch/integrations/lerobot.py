@@ -8,7 +8,7 @@ which pins torch < 2.11, so it lives in its own virtual environment (``.venv-ler
 per fixation (``env.fixation_iterations`` frames, 30 by default), so a trial is two episodes.
 Frame t of an episode is iteration t of that fixation, taken when the recorded cue (by default
 the learner's last: stereo, step k2, after the pursuit movement and before the vergence
-movement) observes; its image pair is the two cameras (`aectorch.sim.CueSpec.images`):
+movement) observes; its image pair is the two cameras (`aectorch.sim.Movement.images`):
 
 ==============================  =========  ======================================================
 key                             shape      content
@@ -78,7 +78,7 @@ def features(height: int, width: int, cues: dict[str, str] | None = None,
     two, `ActiveDepthEnv.CUES`)."""
     from aectorch.sim import ActiveDepthEnv
 
-    cues = {name: spec.movement for name, spec in ActiveDepthEnv.CUES.items()} if cues is None else cues
+    cues = {name: movement.name for name, movement in ActiveDepthEnv.CUES.items()} if cues is None else cues
     image = {"dtype": "image", "shape": (height, width, 3), "names": ["height", "width", "channel"]}
     return {
         **{f"observation.images.{camera}": dict(image) for camera in cameras},
@@ -130,7 +130,7 @@ class LeRobotRecorder:
         self.cameras = env.cue(self.camera_cue).images
         self.env, self.envs = env, envs
         h, w = env.window.height, env.window.width
-        movements = {c: env.cue(c).movement for c in self.cues}
+        movements = {c: env.cue(c).name for c in self.cues}
         self.dataset = LeRobotDataset.create(repo_id, fps, features(h, w, movements, self.cameras), root=root,
                                              robot_type="hoap3-sim", use_videos=False)
         self._frames: list[list[dict]] = [[] for _ in range(envs)]

@@ -376,7 +376,7 @@ class TrainingRun:
         self.schedule = Schedule(cfg.events())
         self.metrics = TrainingMetrics.for_learner(
             self.learner, shard.total, window_fixations=cfg.train.metrics_window, window_trials=cfg.train.metrics_window,
-            movements=[spec.movement for spec in self.env.CUES.values()],
+            movements=[movement.name for movement in self.env.CUES.values()],
             recent=cfg.train.recent_window if self.schedule else None)
         self.watchdog = Watchdog(cfg.watchdog)
         self.best: dict = {"iteration": None, "score": None}

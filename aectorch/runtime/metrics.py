@@ -105,7 +105,7 @@ class TrainingMetrics:
         cues = {name: cue.scales for name, cue in default_cues().items()} if cues is None else cues
         self.cues = {str(name): tuple(scales) for name, scales in cues.items()}
         if movements is None:
-            movements = [spec.movement for spec in ActiveDepthEnv.CUES.values()]
+            movements = [movement.name for movement in ActiveDepthEnv.CUES.values()]
         # |error| at the last fixation ends per movement, oldest first
         self.errors = {str(m): torch.zeros(0, dtype=torch.float64) for m in movements}
         self.depth = torch.zeros(0, dtype=torch.float64)  # |prediction - distance| of the last predicted trials

@@ -6,9 +6,10 @@ pyrender (and with it PyOpenGL) is imported only when a :class:`PyrenderRenderer
 
 from aectorch.sim.camera import PinholeCamera, PixelWindow
 from aectorch.sim.env import (
-    DEFAULT_DISTANCES_M, RENDERERS, WINDOW, ActiveDepthEnv, CueSpec, IterationInfo, make_renderer,
+    DEFAULT_DISTANCES_M, RENDERERS, WINDOW, ActiveDepthEnv, IterationInfo, make_renderer,
 )
 from aectorch.sim.hoap3 import HOAP3Head
+from aectorch.sim.movements import Movement
 from aectorch.sim.oculomotor import PAN_RANGE_DEG, VERGENCE_RANGE_DEG, check_oculomotor_range, clamp_eyes
 from aectorch.sim.protocol import (
     DEFAULT_PROTOCOL, START_PURSUIT_DEG, START_VERGENCE_DEG, Renderer, TrialProtocol, resolve_protocol,
@@ -31,7 +32,7 @@ def __getattr__(name: str):
 
 __all__ = [
     "ActiveDepthEnv",
-    "CueSpec",
+    "Movement",
     "WINDOW",
     "DEFAULT_PROTOCOL",
     "START_PURSUIT_DEG",

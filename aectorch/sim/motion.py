@@ -16,12 +16,13 @@ it moves with the object, and the eye movements' ground truth follows it.
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Any, Sequence
 
 import torch
 from torch import Tensor
 
-__all__ = ["MIN_OBJECT_DISTANCE_M", "MAX_OBJECT_TURN_DEG", "check_object_motion", "object_place"]
+
+__all__ = ["MIN_OBJECT_DISTANCE_M", "MAX_OBJECT_TURN_DEG", "MovingObject", "check_object_motion", "object_place"]
 
 #: The nearest the object may come to the eyes (metres).
 MIN_OBJECT_DISTANCE_M = 0.2
@@ -67,3 +68,96 @@ def check_object_motion(speed_deg: tuple[float, float], depth_speed_m: tuple[flo
                          f"{min(distances_m):g}..{max(distances_m):g} m to {near:g}..{far:g} m in a fixation of "
                          f"{iterations} iterations; it must stay within [{MIN_OBJECT_DISTANCE_M:g}, "
                          f"{farthest_m:g}) m")
+
+
+class MovingObject:
+    """The moving object of ``env`` (an `ActiveDepthEnv`): its speeds, drawn per fixation from the
+    ranges ``speed_deg`` and ``depth_speed_m`` or pinned (:meth:`pin`), and where it is. It moves
+    the environment's object plane (``env.plane_x_m``) and fixation target (``env.target_m``)."""
+
+    #: Its part of the environment's batch state (`ActiveDepthEnv.state_dict`): the state's key -> its
+    #: attribute, a tensor ``[B, ...]`` stored while it is not ``None``.
+    STATE = {"object_speed": "speed", "object_pinned_speed": "pinned_speed",
+             "object_trial_depth_speed": "trial_depth_speed", "object_start_target_m": "start_target_m"}
+
+    def __init__(self, env: Any, speed_deg: tuple[float, float], depth_speed_m: tuple[float, float]) -> None:
+        self.env, self.speed_deg, self.depth_speed_m = env, speed_deg, depth_speed_m
+        # The speeds [B, 2] (sideways deg, depth m per iteration; None: it stands still), those
+        # pinned by pin(), the trial's depth speed, the target it started from, and its sideways
+        # offsets [B] (None: not moved).
+        self.speed: Tensor | None = None
+        self.pinned_speed: Tensor | None = None
+        self.trial_depth_speed: Tensor | None = None
+        self.start_target_m: Tensor | None = None
+        self.plane_y_m: Tensor | None = None
+        self.start_plane: tuple[Tensor, Tensor] | None = None
+
+    @property
+    def moves(self) -> bool:
+        """Whether the next fixation moves the object: speeds pinned, or ranges other than ``(0, 0)``."""
+        return self.pinned_speed is not None or self.speed_deg != (0.0, 0.0) or self.depth_speed_m != (0.0, 0.0)
+
+    def pin(self, speed_deg=None, depth_speed_m=None) -> None:
+        """`ActiveDepthEnv.set_object_speed`: the speeds of the next fixations, checked (neither: unpinned)."""
+        if speed_deg is None and depth_speed_m is None:
+            self.pinned_speed = None
+            return
+        env = self.env
+        b = env.num_envs
+        columns = []
+        for value, name in ((speed_deg, "speed_deg"), (depth_speed_m, "depth_speed_m")):
+            column = torch.as_tensor(0.0 if value is None else value, dtype=env.dtype, device=env.device)
+            if column.shape not in ((), (b,)) or not bool(torch.isfinite(column).all()):
+                raise ValueError(f"{name} must be a finite number or a [B] = [{b}] tensor, got {value!r}")
+            columns.append(column.expand(b))
+        speed = torch.stack(columns, -1)
+        check_object_motion((float(speed[:, 0].min()), float(speed[:, 0].max())),
+                            (float(speed[:, 1].min()), float(speed[:, 1].max())),
+                            env.distances_m.tolist(), env.fixation_iterations,
+                            env.scene.background_x_m - float(env.head.eye_x_m))
+        self.pinned_speed = speed
+
+    def stop(self) -> None:
+        """The object back at its start (the trial's distance, straight ahead), still."""
+        env = self.env
+        env.plane_x_m = env.distance_m + float(env.head.eye_x_m)
+        self.speed = self.plane_y_m = None
+
+    def start(self, fixation: int) -> None:
+        """A fixation's object motion: its speeds (pinned, or drawn: sideways per fixation, in
+        depth per trial), the target it starts from, and its place in the first iteration."""
+        env = self.env
+        if self.pinned_speed is not None:
+            self.speed = self.pinned_speed.clone()
+        else:
+            sideways = env.uniform(self.speed_deg)
+            depth = env.uniform(self.depth_speed_m) if fixation == 0 or self.trial_depth_speed is None \
+                else self.trial_depth_speed
+            self.trial_depth_speed = depth
+            self.speed = torch.stack((sideways, depth), -1)
+        self.start_target_m = env.target_m
+        self.start_plane = (env.plane_x_m, torch.zeros_like(env.plane_x_m))
+        self.place(0)
+
+    def place(self, iteration: int) -> None:
+        """The object where it is during ``iteration`` of the fixation; the fixation target moves with it."""
+        env = self.env
+        env.plane_x_m, self.plane_y_m, env.target_m = self.at(iteration)
+
+    def at(self, iteration: int) -> tuple[Tensor, Tensor, Tensor]:
+        """Where the moving object is during ``iteration`` of the fixation: its plane's world x and
+        sideways offset ``[B]``, and the fixation target on it ``[B, 3]``."""
+        env, speed, start = self.env, self.speed, self.start_target_m
+        if speed is None or start is None:
+            raise RuntimeError("the object does not move in this fixation")
+        distance, y = object_place(env.distance_m, speed, iteration + 1)
+        plane_x = distance + float(env.head.eye_x_m)
+        return plane_x, y, torch.stack((plane_x, start[:, 1] + y, start[:, 2]), -1)
+
+    def loaded(self) -> None:
+        """After `ActiveDepthEnv.load_state_dict`: the object where the state's fixation had it."""
+        env = self.env
+        self.plane_y_m = None
+        if self.speed is not None:
+            self.start_plane = (env.distance_m + float(env.head.eye_x_m), torch.zeros_like(env.distance_m))
+            self.place(env.iteration)

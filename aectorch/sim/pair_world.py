@@ -29,7 +29,7 @@ from torch import Tensor
 from aectorch._checks import check_choice, check_int
 from aectorch.choices import Proprioception
 from aectorch.sim.camera import PinholeCamera
-from aectorch.sim.env import pyramid_blur
+from aectorch.sim.observations import pyramid_blur
 from aectorch.sim.oculomotor import VERGENCE_RANGE_DEG
 from aectorch.sim.stereo_pairs import StereoPair, corner_disparity
 

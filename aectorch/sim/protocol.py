@@ -77,7 +77,7 @@ class TrialProtocol:
             parallel to a near point of 8 cm.
         pursuit_velocity: the eyes keep a pursuit velocity that moves them on between iterations,
             learned by the ``slip`` cue from the retinal slip (the left eye's previous frame
-            against its current one; `ActiveDepthEnv.slip_observation`). ``False`` (default): the
+            against its current one; `aectorch.sim.movements.slip`). ``False`` (default): the
             eyes move only by the cues' increments, the paper's.
         velocity_memory: with ``pursuit_velocity``, each pursuit step (the parallax cue's) also
             adds to the pursuit velocity, so that a lag pursuit keeps catching up on raises the

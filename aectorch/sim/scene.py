@@ -17,12 +17,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import NamedTuple, Optional
+from typing import Any, NamedTuple, Optional
 
 import torch
 from torch import Tensor
 
-__all__ = ["BACKGROUND_TEXTURES", "DEFAULT_EYE_HEIGHT_M", "Placement", "PlaneScene", "SceneLayout", "axis_point"]
+
+__all__ = ["BACKGROUND_TEXTURES", "DEFAULT_EYE_HEIGHT_M", "LayoutDraws", "Placement", "PlaneScene", "SceneLayout",
+           "axis_point"]
 
 #: Height of HOAP-3's eye centres above the soles at zero pose (see robots/hoap3/README.md).
 DEFAULT_EYE_HEIGHT_M = 0.529
@@ -320,3 +322,67 @@ class SceneLayout:
         """Whether trials draw anything (a placement per trial)."""
         return (self.object_offset_m != [0.0, 0.0] or self.slant_deg != [0.0, 0.0]
                 or self.background_depth_m is not None or self.background_texture != "fixed")
+
+
+class LayoutDraws:
+    """A :class:`SceneLayout` in ``env`` (an `ActiveDepthEnv`): the scene it cuts, each trial's
+    draws ``[B, 4]`` (offset, slant, background depth, background texture; ``None``: nothing drawn)
+    and the renderers' placement of them."""
+
+    #: Its part of the environment's batch state (`ActiveDepthEnv.state_dict`): the state's key -> its
+    #: attribute, a tensor ``[B, ...]`` stored while it is not ``None``.
+    STATE = {"scene_layout": "draws"}
+
+    def __init__(self, env: Any, layout: SceneLayout) -> None:
+        self.env, self.layout = env, layout
+        self.draws: Tensor | None = None
+
+    def check(self, protocol) -> None:
+        """``ValueError`` where the layout cannot be drawn: for a moving object (the protocol's
+        speeds), or a background texture of the bank with fewer than 2 textures."""
+        if self.layout.draws and (protocol.object_speed_deg != (0.0, 0.0) or protocol.object_depth_speed_m != (0.0, 0.0)):
+            raise ValueError("layout (scene.object_offset_m, slant_deg, background_depth_m, background_texture) cannot "
+                             "be drawn for a moving object (object_speed_deg, object_depth_speed_m): use one of them")
+        if self.layout.background_texture == "bank" and len(self.env.textures) < 2:
+            raise ValueError("scene.background_texture='bank' draws a texture other than the object's: it needs at "
+                             f"least 2 textures, got {len(self.env.textures)}")
+
+    def scene_arguments(self) -> dict:
+        """The `PlaneScene` arguments of the layout: none for the plain world; else the object cut
+        to its side, its pivot straight ahead of the left eye's start, the background's width."""
+        layout, env = self.layout, self.env
+        if layout.plain:
+            return {}
+        eye = env.head.eye_centres(torch.zeros(1, dtype=env.dtype, device=env.device))[0, 0]
+        return dict(object_extent_m=None if layout.object_width_m >= 3.0 else layout.object_width_m,
+                    object_center_yz_m=(float(eye[1]), float(eye[2])),
+                    background_width_m=layout.background_width_m)
+
+    def draw(self, index: Tensor) -> None:
+        """Each environment's placement for a trial of object textures ``index``."""
+        layout, env = self.layout, self.env
+        offset, slant = env.uniform(tuple(layout.object_offset_m)), env.uniform(tuple(layout.slant_deg))
+        depth = env.uniform(tuple(layout.background_depth_m)) if layout.background_depth_m is not None \
+            else torch.full_like(offset, math.nan)
+        behind = torch.full_like(offset, -1.0)
+        if layout.background_texture == "bank":  # any texture but the object's
+            other = env.randint(len(env.textures) - 1)
+            behind = (other + (other >= index).long()).to(offset)
+        self.draws = torch.stack((offset, slant, depth, behind), dim=-1)
+
+    def placement(self) -> dict:
+        """The renderers' ``plane_y_m`` and ``placement`` of this trial's layout (none: plain)."""
+        if self.draws is None:
+            return {}
+        offset, slant, depth, behind = self.draws.unbind(-1)
+        layout = self.layout
+        return dict(plane_y_m=offset, placement=Placement(
+            slant_rad=torch.deg2rad(slant) if layout.slant_deg != [0.0, 0.0] else None,
+            background_x_m=self.env.plane_x_m + depth if layout.background_depth_m is not None else None,
+            background_index=behind.long() if layout.background_texture == "bank" else None))
+
+    def slant_rad(self) -> Tensor | None:
+        """The object plane's slant ``[B]`` (radians), or ``None`` where the layout does not slant it."""
+        if self.draws is None or self.layout.slant_deg == [0.0, 0.0]:
+            return None
+        return torch.deg2rad(self.draws[:, 1])

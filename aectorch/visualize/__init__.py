@@ -55,7 +55,7 @@ class TrialFrames:
         texture_name: the texture's name, for titles.
         degrees_per_pixel: the camera's angular pixel size (one pixel of error, for the plot).
         cue: the cue whose pair ``first`` and ``second`` are.
-        names: the two images' names (`aectorch.sim.CueSpec.images`), for titles.
+        names: the two images' names (`aectorch.sim.Movement.images`), for titles.
     """
 
     first: Tensor

@@ -58,7 +58,7 @@ def train_focus_coder(steps: int, spread: float, aperture_m: float, batch: int, 
         index = torch.randint(len(env.textures), (batch,), generator=g)
         distance = 1.0 + 2.0 * torch.rand(batch, generator=g)
         env.set_trial(index, distance)
-        env.apply_vergence(env.vergence_to_optimum())
+        env.hold("stereo")
         focus = (1.0 / distance + spread * (2 * torch.rand(batch, generator=g) - 1)).clamp_min(0.0)
         env.set_focus(focus[:, None].expand(batch, 2))
         encoder.learn_(encoder.encode(env.stereo_observation(encoder.scales)))
@@ -73,7 +73,7 @@ def _curve(encoder, textures: TextureBank, grid: Sequence[float], aperture_m: fl
     env = ActiveDepthEnv(len(index), protocol=TrialProtocol(aperture_m=aperture_m), textures=textures,
                          distances_m=DISTANCES_M, seed=0)
     env.set_trial(index, distance)
-    env.apply_vergence(env.vergence_to_optimum())
+    env.hold("stereo")
     rows: dict[str, list[float]] = {"defocus_D": list(grid), "coding": [], "energy": [], "focus": []}
     with torch.no_grad():
         for d in grid:

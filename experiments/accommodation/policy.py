@@ -43,7 +43,7 @@ def policy_table(learner, textures: int = 8) -> list[str]:
     with torch.no_grad():
         for distance in (1.0, 2.0, 3.0):
             env.set_trial(torch.arange(n), torch.full((n,), distance))
-            env.apply_vergence(env.vergence_to_optimum())
+            env.hold("stereo")
             cells = []
             for defocus in DEFOCUS_D:
                 env.set_focus(torch.full((n, 2), 1.0 / distance + defocus).clamp_min(0.0))

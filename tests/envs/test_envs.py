@@ -16,7 +16,7 @@ import torch
 gym = pytest.importorskip("gymnasium")
 
 import aectorch.envs as envs  # noqa: E402
-from aectorch.sim import ActiveDepthEnv  # noqa: E402
+from aectorch.sim.observations import EyeImages  # noqa: E402
 
 torch.set_num_threads(1)
 SMALL = dict(fixation_iterations=4, textures=torch.rand(3, 64, 64, generator=torch.Generator().manual_seed(0)),
@@ -118,8 +118,8 @@ def test_the_same_seed_gives_the_same_episodes_and_another_seed_does_not():
 
 def test_one_render_call_per_step(monkeypatch):
     calls = []
-    render = ActiveDepthEnv._render
-    monkeypatch.setattr(ActiveDepthEnv, "_render", lambda self, *a, **k: calls.append(1) or render(self, *a, **k))
+    render = EyeImages.render
+    monkeypatch.setattr(EyeImages, "render", lambda self, *a, **k: calls.append(1) or render(self, *a, **k))
     vec = gym.make_vec("aectorch/Vergence-v0", num_envs=16, vectorization_mode="vector_entry_point", **SMALL)
     vec.reset(seed=0)
     counts = []

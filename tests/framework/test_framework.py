@@ -11,7 +11,8 @@ import torch
 from aectorch.coding import EncoderConfig
 from aectorch.control import PPO, ActorCriticConfig, NaturalActorCritic
 from aectorch.framework import CueConfig, JointLearner, LearnerConfig, default_cues
-from aectorch.sim import ActiveDepthEnv, CueSpec, TrialProtocol
+from aectorch.sim import ActiveDepthEnv, TrialProtocol
+from tests.framework.torsion import Torsion
 
 torch.set_num_threads(1)
 
@@ -512,32 +513,12 @@ def test_proprioception_is_checked_where_it_is_configured_and_sensed():
     assert max(shifts) == pytest.approx(env.shift_m) and min(shifts) == pytest.approx(-env.shift_m)
 
 
-# -- adding a cue: its config, its environment methods, its tests (docs/architecture.md) ------------
+# -- adding a cue: its movement, its config, its tests (docs/architecture.md) ------------------------
 class TorsionEnv(ActiveDepthEnv):
-    """An environment with a third, toy cue: a torsion of the right eye that brightens its image;
-    the cue's observation is the stereo pair so changed, its action turns the torsion, and its
-    optimum is 0."""
+    """An environment with a third, toy cue: its movement is one new file (tests/framework/torsion.py),
+    registered by naming it in `CUES`."""
 
-    CUES = {**ActiveDepthEnv.CUES,
-            "torsion": CueSpec("torsion", "torsion_observation", "apply_torsion", "torsion_to_optimum", ("left", "right"))}
-
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
-        self.torsion_deg = torch.full((self.num_envs,), 1.0)
-
-    def torsion_observation(self, scales=None, *, window=False):
-        pair = self.stereo_observation(scales, window=window)
-        return {k: torch.cat((p[:, :1], p[:, 1:] + 0.05 * self.torsion_deg[:, None, None, None]), 1)
-                for k, p in pair.items()}
-
-    def apply_torsion(self, delta_deg):
-        self.torsion_deg = self.torsion_deg + delta_deg
-
-    def torsion_to_optimum(self):
-        return -self.torsion_deg
-
-    def end_iteration(self):
-        return super().end_iteration()._replace(extra_errors_deg={"torsion": self.torsion_deg.clone()})
+    CUES = {**ActiveDepthEnv.CUES, "torsion": Torsion}
 
 
 def test_a_cue_added_by_its_config_and_its_environment_runs_through_learner_metrics_watchdog_and_figures(tmp_path):
@@ -551,7 +532,7 @@ def test_a_cue_added_by_its_config_and_its_environment_runs_through_learner_metr
     cues = {**default_cues(encoder=small), "torsion": CueConfig(encoder=small, agent="ppo")}
     learner = JointLearner(LearnerConfig(cues=cues), generator=torch.Generator().manual_seed(0))
     metrics = TrainingMetrics.for_learner(learner, 2, window_fixations=4, window_trials=4,
-                                          movements=[spec.movement for spec in env.CUES.values()])
+                                          movements=[movement.name for movement in env.CUES.values()])
     dog, lines = Watchdog(WatchdogConfig()), []
     for done in range(1, 13):
         record = learner.iteration(env)
@@ -560,7 +541,8 @@ def test_a_cue_added_by_its_config_and_its_environment_runs_through_learner_metr
         lines.append({"iteration": done, **metrics.summary()})
     assert list(record.cues) == ["parallax", "stereo", "torsion"] and record.torsion.td_error is not None
     assert {"torsion_mae_deg", "torsion/reward", "torsion/fine/atom_usage"} <= set(lines[-1])
-    assert not torch.equal(env.torsion_deg, torch.ones(2))  # the cue's agent moved it
+    assert not torch.equal(env.cue("torsion").torsion_deg, torch.ones(2))  # the cue's agent moved it
+    assert "torsion_deg" in env.state_dict()  # its state is the batch's
     assert any(key.startswith("cues.torsion.agent.policy") for key in learner.state_dict())
     assert plot_training(lines, tmp_path / "training.png").stat().st_size > 0
     # a learner without the new cue has the environment hold it at its optimum

@@ -132,11 +132,11 @@ def test_the_accommodation_cue_is_served_only_when_asked_and_moves_both_eyes_foc
     assert list(env.CUES) == ["parallax", "stereo", "accommodation"]
     assert torch.equal(env.focus_dioptres, torch.zeros(2, 2))  # each fixation starts at infinity
     per_dioptre = math.degrees(env.aperture_m)  # 16 mm: 0.917 deg of blur per dioptre
-    torch.testing.assert_close(env.accommodation_error_deg(), -per_dioptre / env.distance_m)
+    torch.testing.assert_close(env.cue("accommodation").error_deg(), -per_dioptre / env.distance_m)
     env.act("accommodation", torch.tensor([per_dioptre * 0.25, 0.0]))
     torch.testing.assert_close(env.focus_dioptres, torch.tensor([[0.25, 0.25], [0.0, 0.0]]))
     env.hold("accommodation")
-    assert float(env.accommodation_error_deg().abs().max()) < 1e-5
+    assert float(env.cue("accommodation").error_deg().abs().max()) < 1e-5
     assert float(env.defocus_dioptres.abs().max()) < 1e-5
     info = env.end_iteration()
     assert float(info.errors_deg["accommodation"].abs().max()) < 1e-5

@@ -135,10 +135,10 @@ def test_draws_are_within_the_ranges_and_the_state_resumes(bank):
     kwargs = dict(textures=bank, seed=3, protocol=TrialProtocol(fixation_iterations=3, object_speed_deg=(0.5, 1.0),
                                                                 object_depth_speed_m=(-0.02, -0.01)))
     env = ActiveDepthEnv(4, **kwargs)
-    speeds = [env.object_speed.clone()]  # fixations 0 and 1 of two trials
+    speeds = [env.motion.speed.clone()]  # fixations 0 and 1 of two trials
     for _ in range(3):
         pursue(env, 3)
-        speeds.append(env.object_speed.clone())
+        speeds.append(env.motion.speed.clone())
     speeds = torch.stack(speeds)
     assert (speeds[..., 0] >= 0.5).all() and (speeds[..., 0] <= 1.0).all()
     assert (speeds[..., 1] >= -0.02).all() and (speeds[..., 1] <= -0.01).all()
@@ -150,7 +150,7 @@ def test_draws_are_within_the_ranges_and_the_state_resumes(bank):
     copy = ActiveDepthEnv(4, **kwargs)
     copy.load_state_dict(ActiveDepthEnv.join_states([ActiveDepthEnv.state_rows(state, 0, 2),
                                                      ActiveDepthEnv.state_rows(state, 2, 4)]))
-    torch.testing.assert_close(copy.plane_y_m, env.plane_y_m)
+    torch.testing.assert_close(copy.motion.plane_y_m, env.motion.plane_y_m)
     a, b = pursue(env, 5), pursue(copy, 5)
     for x, y in zip(a, b):
         torch.testing.assert_close(x.optimal_left_pan_deg, y.optimal_left_pan_deg)
@@ -161,7 +161,7 @@ def test_the_still_object_is_untouched(bank):
     """The default draws nothing more and renders as it always did: no sideways offset at all."""
     env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2), textures=bank, seed=0)
     pursue(env, 3)
-    assert env.object_speed is None and env.plane_y_m is None and "object_speed" not in env.state_dict()
+    assert env.motion.speed is None and env.motion.plane_y_m is None and "object_speed" not in env.state_dict()
     torch.testing.assert_close(env.object_distance_m, env.distance_m, rtol=0, atol=0)
 
 
@@ -229,11 +229,11 @@ def test_the_environments_of_both_renderers_see_the_moving_object_alike(bank):
                 pairs.append((first, env.stereo_observation(scales)))
                 env.hold("stereo")
                 env.end_iteration()
-            torch.testing.assert_close(envs[0].plane_y_m, envs[1].plane_y_m)
+            torch.testing.assert_close(envs[0].motion.plane_y_m, envs[1].motion.plane_y_m)
             for ours, theirs in zip(*pairs):
                 for name in ours:
                     assert (ours[name] - theirs[name]).abs().mean() < 0.01, name
-        assert envs[0].plane_y_m.abs().min() > 0  # it moved
+        assert envs[0].motion.plane_y_m.abs().min() > 0  # it moved
     finally:
         for env in envs:
             env.close()

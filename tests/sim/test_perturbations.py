@@ -94,9 +94,9 @@ def test_strabismus_offsets_the_eye_and_the_vergence_it_needs(textures, renderer
     for name in obs:
         assert (obs[name] - expected[name]).abs().max() <= TOLERANCE[renderer], name
     torch.testing.assert_close(env.eye_pan_deg, env.pan_deg + torch.tensor([0.0, 2.0]))
-    torch.testing.assert_close(env.vergence_to_optimum(), base_optimum - env.pan_deg[:, 1] - 2.0)
+    torch.testing.assert_close(env.cue("stereo").to_optimum(), base_optimum - env.pan_deg[:, 1] - 2.0)
     env.apply_pursuit(torch.zeros(2))
-    env.apply_vergence(env.vergence_to_optimum())  # the command that puts the squinting eye on target
+    env.apply_vergence(env.cue("stereo").to_optimum())  # the command that puts the squinting eye on target
     assert float(env.end_iteration().vergence_error_deg.abs().max()) < 1e-4
     assert make_perturbation("strabismus", {"deg": 2.0}).apply(NEUTRAL, 0).pan_offset_deg == (-2.0, 0.0)
     env.close(), twin.close()

@@ -93,7 +93,7 @@ def test_a_point_on_the_slanted_plane_projects_with_the_pinhole_disparity():
     env = ActiveDepthEnv(3, layout=DEPTH, textures=torch.rand(4, 16, 16), dtype=torch.float64, seed=3)
     env.set_pan_deg(torch.tensor([[1.0, 4.0], [-2.0, 0.0], [0.5, 3.0]], dtype=torch.float64))
     right = env.optimal_right_pan_deg()
-    slant = torch.deg2rad(env._layout_draws[:, 1]).numpy()
+    slant = torch.deg2rad(env.layout_draws.draws[:, 1]).numpy()
     eyes = env.head.eye_centres(env.body_shift_m).numpy()
     for b in range(3):
         normal = np.array([math.cos(slant[b]), math.sin(slant[b]), 0.0])
@@ -161,7 +161,7 @@ def test_the_plain_layout_is_the_plain_world_bit_for_bit():
             out.append((first, second, env.end_iteration().optimal_right_pan_deg, env._generator.get_state()))
         for a, b in zip(*out):
             assert torch.equal(a, b)
-    assert envs[1]._layout_draws is None and "scene_layout" not in envs[1].state_dict()
+    assert envs[1].layout_draws.draws is None and "scene_layout" not in envs[1].state_dict()
     for name in ("object_width_m", "object_center_yz_m", "background_x_m", "background_width_m", "object_extent_m"):
         assert getattr(envs[1].scene, name) == getattr(envs[0].scene, name)
 
@@ -184,7 +184,7 @@ def test_the_draws_are_in_range_and_resume():
     bank = TextureBank.procedural(5, size=(32, 32), seed=7)
     kwargs = dict(protocol=TrialProtocol(fixation_iterations=2), textures=bank, layout=DEPTH, seed=1)
     env = ActiveDepthEnv(64, **kwargs)
-    offset, slant, depth, behind = env._layout_draws.unbind(-1)
+    offset, slant, depth, behind = env.layout_draws.draws.unbind(-1)
     assert offset.abs().max() <= 0.2 and slant.abs().max() <= 30 and slant.std() > 5
     assert depth.min() >= 0.5 and depth.max() <= 3.0
     assert bool((behind != env.texture_index).all()) and behind.min() >= 0 and behind.max() < 5
@@ -192,7 +192,7 @@ def test_the_draws_are_in_range_and_resume():
     state = env.state_dict()
     copy = ActiveDepthEnv(64, **{**kwargs, "seed": 9})
     copy.load_state_dict(state)
-    torch.testing.assert_close(copy._layout_draws, env._layout_draws)
+    torch.testing.assert_close(copy.layout_draws.draws, env.layout_draws.draws)
     torch.testing.assert_close(copy.stereo_observation()["window"], env.stereo_observation()["window"])
 
 

@@ -451,7 +451,7 @@ def test_env_spread_shift_moves_the_body_linearly_then_holds(bank):
     first = env.parallax_observation()["window"][:, 0]
     run_iteration(env, torch.zeros(3), torch.zeros(3))
     torch.testing.assert_close(env.parallax_observation()["window"][:, 0], first, rtol=0, atol=0)
-    zero = env._render(torch.zeros(3, dtype=torch.float64), torch.zeros(3, 2, dtype=torch.float64), slice(0, 1))["window"][:, 0]
+    zero = env.images.render(torch.zeros(3, dtype=torch.float64), torch.zeros(3, 2, dtype=torch.float64), slice(0, 1))["window"][:, 0]
     torch.testing.assert_close(first, zero, rtol=0, atol=0)
 
 
@@ -677,7 +677,7 @@ def _photographs():
 def test_scale_rendering_is_within_half_a_percent_of_the_exact_area_average(head, source):
     """Each default scale rendered at its resolution (SCALE_FILTER) against 4 x 4 supersampling."""
     from aectorch.coding.patches import COARSE, FINE, WIDE
-    from aectorch.sim.env import _block_mean, _finer
+    from aectorch.sim.observations import _block_mean, _finer
     textures = TextureBank.default("test").textures[:4] if source == "textures" else _photographs()
     scene = PlaneScene(textures, TextureBank.procedural(1, size=(256, 256), seed=8).textures[0])
     n = len(textures)
@@ -692,7 +692,7 @@ def test_scale_rendering_is_within_half_a_percent_of_the_exact_area_average(head
         env.stereo_observation(scales=(FINE,))  # builds the scale renderer
         windows = [(CAMERA.central_window(s.crop), s.downsample) for s in (WIDE, COARSE, FINE)]
         finer = [_finer(d) for _, d in windows]
-        rendered = env._scale_renderer.render_windows(poses, plane_x, index, [(w, d // k) for (w, d), k in zip(windows, finer)])
+        rendered = env.images.scale_renderer.render_windows(poses, plane_x, index, [(w, d // k) for (w, d), k in zip(windows, finer)])
         rendered = [_block_mean(image, k) for image, k in zip(rendered, finer)]
         for (window, downsample), ours in zip(windows, rendered):
             exact = _supersampled(poses, plane_x, index, env.scene, window, downsample)
@@ -838,9 +838,9 @@ def test_scale_observations_reuse_the_stereo_frame_exactly(bank):
     reused = 0
     for it in range(8):
         for e in (env, fresh):
-            e._last_left = None if e is fresh else e._last_left
+            e.images.last_left = None if e is fresh else e.images.last_left
         a, b = env.parallax_observation(scales=scales), fresh.parallax_observation(scales=scales)
-        if env._last_left is not None and env._last_left[0] == env._left_view:
+        if env.images.last_left is not None and env.images.last_left[0] == env.images.view:
             reused += 1
         for name in a:
             torch.testing.assert_close(a[name], b[name], rtol=0, atol=0)
@@ -874,7 +874,7 @@ def test_scale_observations_have_the_pyramids_smoothness(head):
         old = pyramid_down(crops[..., top:top + s.crop, top:top + s.crop].flatten(0, 1), s.levels, centred=True)
         new = ours[s.name].flatten(0, 1)
         windows = [(CAMERA.central_window(s.crop), s.downsample)]
-        raw = env._scale_renderer.render_windows(env.head.camera_poses(env.body_shift_m, env.pan_deg, env.roll_deg,
+        raw = env.images.scale_renderer.render_windows(env.head.camera_poses(env.body_shift_m, env.pan_deg, env.roll_deg,
                                                                        convention="opengl"),
                                                  env.plane_x_m, env.texture_index, windows)[0].flatten(0, 1)
         assert new.shape == old.shape
@@ -936,8 +936,8 @@ def test_both_renderers_satisfy_the_renderer_protocol_and_close_closes_both(bank
         with small_env(bank, renderer=name) as env:
             env.stereo_observation()["window"]
             env.stereo_observation(scales=scales)  # builds the scale renderer
-            assert isinstance(env.renderer, Renderer) and isinstance(env._scale_renderer, Renderer)
-            renderers = (env.renderer, env._scale_renderer)
+            assert isinstance(env.renderer, Renderer) and isinstance(env.images.scale_renderer, Renderer)
+            renderers = (env.renderer, env.images.scale_renderer)
             if name == "pyrender":
                 assert all(r._gl_renderer is not None for r in renderers)
         if name == "pyrender":

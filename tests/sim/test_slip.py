@@ -32,7 +32,7 @@ def test_the_slip_pair_is_the_last_iterations_frame_against_now_and_the_velocity
     g = torch.Generator().manual_seed(0)
     ended = None
     for i in range(6):  # past a fixation's end
-        slip = env.slip_observation()["window"]
+        slip = env.observe("slip")["window"]
         parallax = env.parallax_observation()["window"]
         torch.testing.assert_close(slip[:, 1], parallax[:, 1], rtol=0, atol=0)  # "now" is the same image
         if env.iteration == 0:  # a fixation's first: the fixation's first image
@@ -40,7 +40,7 @@ def test_the_slip_pair_is_the_last_iterations_frame_against_now_and_the_velocity
         else:  # the left image the last iteration ended with (its stereo frame after every step)
             torch.testing.assert_close(slip[:, 0], ended, rtol=1e-6, atol=1e-6)
         velocity = torch.rand(3, generator=g) - 0.5
-        env.apply_slip(velocity - env.velocity_deg)
+        env.act("slip", velocity - env.cue("slip").velocity_deg)
         env.apply_pursuit(torch.rand(3, generator=g) - 0.5)
         ended = env.stereo_observation()["window"][:, 0]
         env.apply_vergence(torch.zeros(3))
@@ -48,7 +48,7 @@ def test_the_slip_pair_is_the_last_iterations_frame_against_now_and_the_velocity
         last = env.iteration == env.fixation_iterations - 1
         env.end_iteration()
         if last:  # a new fixation: the eyes start still, where fixations start
-            torch.testing.assert_close(env.velocity_deg, torch.zeros(3), rtol=0, atol=0)
+            torch.testing.assert_close(env.cue("slip").velocity_deg, torch.zeros(3), rtol=0, atol=0)
         else:  # both eyes (yoked pursuit) moved on by the velocity
             torch.testing.assert_close(env.pan_deg, pans + velocity[:, None], rtol=0, atol=1e-6)
 
@@ -60,9 +60,9 @@ def test_the_optimal_velocity_is_the_ground_truths_change(bank):
     env = moving_env(bank, seed=1)
     infos, velocities, slips = [], [], []
     for _ in range(4):
-        slips.append(env.slip_observation()["window"])
+        slips.append(env.observe("slip")["window"])
         env.hold("slip")
-        velocities.append(env.velocity_deg.clone())
+        velocities.append(env.cue("slip").velocity_deg.clone())
         for cue in ("parallax", "stereo"):
             env.observe(cue)
             env.hold(cue)
@@ -81,25 +81,25 @@ def test_the_optimal_velocity_is_the_ground_truths_change(bank):
 def test_the_velocity_resumes_and_the_default_has_none(bank):
     env = moving_env(bank, seed=2)
     for _ in range(2):
-        env.slip_observation()
-        env.apply_slip(torch.tensor([0.3, -0.2, 0.1]))
+        env.observe("slip")
+        env.act("slip", torch.tensor([0.3, -0.2, 0.1]))
         env.end_iteration()
     state = env.state_dict()
     copy = moving_env(bank, seed=2)
     copy.load_state_dict(ActiveDepthEnv.join_states([ActiveDepthEnv.state_rows(state, 0, 1),
                                                      ActiveDepthEnv.state_rows(state, 1, 3)]))
-    torch.testing.assert_close(copy.velocity_deg, env.velocity_deg, rtol=0, atol=0)
-    torch.testing.assert_close(copy.slip_observation()["window"], env.slip_observation()["window"])
+    torch.testing.assert_close(copy.cue("slip").velocity_deg, env.cue("slip").velocity_deg, rtol=0, atol=0)
+    torch.testing.assert_close(copy.observe("slip")["window"], env.observe("slip")["window"])
     plain = ActiveDepthEnv(1, protocol=TrialProtocol(fixation_iterations=2), textures=bank, seed=0)
-    assert "slip" not in plain.CUES and plain.velocity_deg is None
+    assert "slip" not in plain.CUES and "pursuit_velocity" not in plain.movements
     plain.parallax_observation()
     plain.end_iteration()
     assert not {"pursuit_velocity_deg", "previous_pans_deg"} & set(plain.state_dict())
     assert "pursuit_velocity" not in plain.end_iteration().errors_deg
-    with pytest.raises(ValueError, match="pursuit_velocity"):
-        plain.slip_observation()
-    with pytest.raises(ValueError, match="pursuit_velocity"):
-        plain.apply_slip(torch.zeros(1))
+    with pytest.raises(ValueError, match="cue must be one of .* got 'slip'"):
+        plain.observe("slip")
+    with pytest.raises(ValueError, match="cue must be one of .* got 'slip'"):
+        plain.act("slip", torch.zeros(1))
 
 
 def test_the_learner_learns_the_slip_cue_from_its_config(bank):
@@ -131,9 +131,9 @@ def test_velocity_memory_keeps_the_pursuit_steps_as_velocity(bank):
         env.set_object_speed(torch.tensor([1.0]), None)
         env.set_trial(torch.tensor([0]), torch.tensor([2.0]))
         for _ in range(25):
-            env.apply_pursuit(0.5 * env.pursuit_to_optimum())  # half the seen offset
+            env.apply_pursuit(0.5 * env.cue("parallax").to_optimum())  # half the seen offset
             info = env.end_iteration()
         lags[memory] = float(info.pursuit_error_deg)
         if memory:
-            assert abs(float(env.velocity_deg) - 1.0) < 0.02
+            assert abs(float(env.cue("slip").velocity_deg) - 1.0) < 0.02
     assert lags[False] < -0.9 and abs(lags[True]) < 0.02
