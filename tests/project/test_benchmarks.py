@@ -38,7 +38,8 @@ def test_the_performance_page_shows_the_generated_tables_and_stays_short():
     text = page.read_text()
     assert text.count("<!-- table: ") == len(report.TABLES)
     assert report.write(page) == text, "python -m benchmarks.report --write docs/performance.md"
-    assert len(text.splitlines()) <= 250
+    # 250 lines when its prose ran to 120 columns; wrapped at 100 (test_docs.py) the same text took 257
+    assert len(text.splitlines()) <= 260
 
 
 def test_interleaved_rounds_run_every_workload_in_turn():
