@@ -152,3 +152,11 @@ def test_the_docs_keep_within_their_budget_in_words():
     words = sum(len(page.read_text().split()) for page in sorted((ROOT / "docs").glob("*.md")))
     assert words <= WORD_BUDGET, (f"docs/*.md hold {words:,} words, over their budget of {WORD_BUDGET:,}: "
                                   f"cut, link or move to git's history")
+
+
+def test_results_lists_every_study():
+    """docs/results.md's "The studies" names every folder of experiments/, and no other."""
+    text = (ROOT / "docs" / "results.md").read_text()
+    listed = set(re.findall(r"^\| `experiments/([a-z_]+)/` \|", text, re.M))
+    folders = {p.name for p in (ROOT / "experiments").iterdir() if (p / "README.md").is_file()}
+    assert listed == folders, f"docs/results.md's studies: missing {folders - listed}, extra {listed - folders}"
