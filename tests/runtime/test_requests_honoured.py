@@ -305,7 +305,7 @@ def test_the_help_texts_and_the_readme_say_the_defaults():
     root = Path(__file__).resolve().parents[2]
     readme = (root / "README.md").read_text()
     assert all(name.split("/")[-1] in readme for name in IDS), [n for n in IDS if n.split("/")[-1] not in readme]
-    doc = (root / "train.py").read_text().split('"""')[1]
+    doc = (root / "aectorch" / "cli" / "train.py").read_text().split('"""')[1]  # (what train.py runs)
     assert "PPO by default" in doc and not re.search(r"eye movements \(natural actor-critic\)", doc)
     text = " ".join(usage(EvaluateConfig, "aectorch.evaluate").split())
     assert "greedy (argmax actions" not in text and "whose own default is mean" in text
