@@ -19,7 +19,8 @@ from aectorch.runtime.presets import LIFELONG, PAPER_PRESET, ROBUST_VERGENCE, RO
 from aectorch.runtime.resources import validate_resources
 from aectorch.runtime import CHECKPOINT_FORMAT, load_checkpoint, load_learner, run_experiment, save_checkpoint
 from aectorch.runs import Run
-from aectorch.sim import ActiveDepthEnv, TrialProtocol
+from aectorch.sim import TrialProtocol
+from aectorch.sim.movements.vergence import Vergence
 from aectorch.coding.readouts import code_summary
 from aectorch.control import PAPER_ACTIONS_DEG
 
@@ -157,7 +158,7 @@ def test_interruption_leaves_a_checkpoint_and_resume_completes(tmp_path, texture
     train.checkpoint_every=4). Either resumes to the uninterrupted run's state."""
     straight = tmp_path / "straight"
     run_experiment(_cfg(textures), straight)
-    original = ActiveDepthEnv.apply_vergence
+    original = Vergence.act  # the stereo cue's movement: what the learner's step calls
     calls = {"n": 0}
 
     def failing(self, delta):
@@ -170,10 +171,10 @@ def test_interruption_leaves_a_checkpoint_and_resume_completes(tmp_path, texture
         return original(self, delta)
 
     run = tmp_path / "run"
-    monkeypatch.setattr(ActiveDepthEnv, "apply_vergence", failing)
+    monkeypatch.setattr(Vergence, "act", failing)
     with pytest.raises(KeyboardInterrupt if fault == "ctrl-c" else RuntimeError):
         run_experiment(_cfg(textures), run)
-    monkeypatch.setattr(ActiveDepthEnv, "apply_vergence", original)
+    monkeypatch.setattr(Vergence, "act", original)
     assert load_checkpoint(run / "checkpoint.pt")["iteration"] == (8 if fault == "ctrl-c" else 4)
     run_experiment(_cfg(textures, f"train.resume={run}"), run)
     _assert_same_state(load_checkpoint(straight / "checkpoint.pt")["learner"],

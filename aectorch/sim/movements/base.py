@@ -10,8 +10,8 @@ Example:
     >>> from aectorch.sim import ActiveDepthEnv, TrialProtocol
     >>> env = ActiveDepthEnv(2, protocol=TrialProtocol(fixation_iterations=2), textures=torch.rand(3, 64, 64),
     ...                      seed=0)
-    >>> [(cue, env.cue(cue).name) for cue in env.CUES]
-    [('parallax', 'pursuit'), ('stereo', 'vergence')]
+    >>> {cue: env.cue(cue).name for cue in env.CUES}
+    {'parallax': 'pursuit', 'stereo': 'vergence'}
 """
 
 from __future__ import annotations
