@@ -5,6 +5,7 @@ studies' own report scripts (``experiments/<study>/report.py``) share it."""
 from __future__ import annotations
 
 import argparse
+import inspect
 import os
 import sys
 from typing import Sequence
@@ -33,6 +34,16 @@ def pairs(items: Sequence[str], what: str) -> list[tuple[str, str]]:
 def run_groups(items: Sequence[str]) -> dict[str, list[Run]]:
     """``name=run,run,...`` arguments as groups of runs, by name (a study's or ``compare``'s)."""
     return {name: [Run(r) for r in runs.split(",")] for name, runs in pairs(items, "groups are name=run,run,...")}
+
+
+def study_parser(prog: str, documented, run) -> argparse.ArgumentParser:
+    """The parser of a study's command (``experiments/<study>/<name>.py``): ``prog``, its help the
+    docstring of ``documented`` (the function it runs) kept as written, and ``run(args)`` the
+    function `run_command` calls with the parsed arguments. Its scripts add their own arguments."""
+    out = argparse.ArgumentParser(prog=prog, description=inspect.cleandoc(documented.__doc__ or ""),
+                                  formatter_class=argparse.RawDescriptionHelpFormatter)
+    out.set_defaults(run=run)
+    return out
 
 
 def run_command(parser: argparse.ArgumentParser, argv: Sequence[str] | None = None) -> int:

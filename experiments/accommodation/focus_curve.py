@@ -12,7 +12,6 @@ prints one ``error:`` line and exits with status 2 (`aectorch.report.command.run
 from __future__ import annotations
 
 import argparse
-import inspect
 import json
 import os
 import sys
@@ -26,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run as a script 
 from aectorch.coding.focus import focus_reward, input_energy  # noqa: E402
 from aectorch.figures import COLORS, EVENT_STYLE, save_figure  # noqa: E402
 from aectorch.framework import CueConfig, CueLearner  # noqa: E402
-from aectorch.report.command import run_command  # noqa: E402
+from aectorch.report.command import run_command, study_parser  # noqa: E402
 from aectorch.sim import ActiveDepthEnv, TextureBank, TrialProtocol  # noqa: E402
 
 __all__ = ["DISTANCES_M", "focus_curve", "focus_measures", "main", "parser", "plot_focus_curve", "train_focus_coder"]
@@ -160,10 +159,7 @@ def _report(args) -> list[str]:
 
 def parser() -> argparse.ArgumentParser:
     """The command line: its help is `focus_curve`'s docstring."""
-    out = argparse.ArgumentParser(prog="experiments/accommodation/focus_curve.py",
-                                  description=inspect.cleandoc(focus_curve.__doc__),
-                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    out.set_defaults(run=_report)
+    out = study_parser("experiments/accommodation/focus_curve.py", focus_curve, _report)
     out.add_argument("--photos", required=True, help="a folder of photographs (the choosing photographs)")
     out.add_argument("--out", type=Path, default=HERE / "focus_curve.png", help="the figure (PNG; default: here)")
     out.add_argument("--steps", type=int, default=300, help="steps the coder learns for")

@@ -10,7 +10,6 @@ accommodation cue, or a bad argument prints one ``error:`` line and exits with s
 from __future__ import annotations
 
 import argparse
-import inspect
 import sys
 from pathlib import Path
 from typing import Sequence
@@ -19,7 +18,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run as a script from a checkout
 
-from aectorch.report.command import run_command  # noqa: E402
+from aectorch.report.command import run_command, study_parser  # noqa: E402
 from aectorch.sim import ActiveDepthEnv, TextureBank, TrialProtocol  # noqa: E402
 
 __all__ = ["DEFOCUS_D", "main", "parser", "policy_table"]
@@ -68,10 +67,7 @@ def _report(args) -> list[str]:
 
 def parser() -> argparse.ArgumentParser:
     """The command line: its help is `policy_table`'s docstring."""
-    out = argparse.ArgumentParser(prog="experiments/accommodation/policy.py",
-                                  description=inspect.cleandoc(policy_table.__doc__),
-                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    out.set_defaults(run=_report)
+    out = study_parser("experiments/accommodation/policy.py", policy_table, _report)
     out.add_argument("checkpoint", type=Path, help="a run's checkpoint.pt trained with the accommodation cue")
     out.add_argument("--textures", type=int, default=8, help="the first this many test textures")
     return out

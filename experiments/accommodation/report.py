@@ -11,7 +11,6 @@ accommodation cue's errors or a bad argument prints one ``error:`` line and exit
 from __future__ import annotations
 
 import argparse
-import inspect
 import statistics
 import sys
 from pathlib import Path
@@ -19,7 +18,7 @@ from typing import Mapping, Sequence
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run as a script from a checkout
 
-from aectorch.report.command import run_command, run_groups  # noqa: E402
+from aectorch.report.command import run_command, study_parser, run_groups  # noqa: E402
 from aectorch.runs import EVALUATION, Run  # noqa: E402
 from aectorch.sim import PinholeCamera  # noqa: E402
 
@@ -92,10 +91,7 @@ def _report(args) -> list[str]:
 
 def parser() -> argparse.ArgumentParser:
     """The command line: its help is `accommodation_table`'s docstring."""
-    out = argparse.ArgumentParser(prog="experiments/accommodation/report.py",
-                                  description=inspect.cleandoc(accommodation_table.__doc__),
-                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    out.set_defaults(run=_report)
+    out = study_parser("experiments/accommodation/report.py", accommodation_table, _report)
     out.add_argument("groups", nargs="+", help="name=run,run,...")
     out.add_argument("--eval", default=EVALUATION, help=f"evaluation file in each run folder (default: {EVALUATION})")
     out.add_argument("--per-distance", action="store_true",

@@ -12,7 +12,6 @@ checkpoint, or a bad argument prints one ``error:`` line and exits with status 2
 from __future__ import annotations
 
 import argparse
-import inspect
 import math
 import sys
 from pathlib import Path
@@ -20,7 +19,7 @@ from typing import Sequence
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run as a script from a checkout
 
-from aectorch.report.command import run_command  # noqa: E402
+from aectorch.report.command import run_command, study_parser  # noqa: E402
 from aectorch.runs import Run  # noqa: E402
 
 __all__ = ["main", "parser", "tracking_table"]
@@ -101,10 +100,7 @@ def _report(args) -> list[str]:
 
 def parser() -> argparse.ArgumentParser:
     """The command line: its help is `tracking_table`'s docstring."""
-    out = argparse.ArgumentParser(prog="experiments/moving_objects/report.py",
-                                  description=inspect.cleandoc(tracking_table.__doc__),
-                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    out.set_defaults(run=_report)
+    out = study_parser("experiments/moving_objects/report.py", tracking_table, _report)
     out.add_argument("runs", nargs="+", type=Path, help="run folders")
     out.add_argument("--eval", default="tracking.json", help="the tracking test's file in each run folder")
     out.add_argument("--plot", type=Path, default=None, help="also draw the error against speed into this PNG")

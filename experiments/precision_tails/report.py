@@ -16,7 +16,6 @@ does).
 from __future__ import annotations
 
 import argparse
-import inspect
 import json
 import math
 import statistics
@@ -28,7 +27,7 @@ from typing import Mapping, Sequence
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run as a script from a checkout
 
 from aectorch.evaluation.summary import WITHIN_DEG  # noqa: E402
-from aectorch.report.command import run_command, run_groups  # noqa: E402
+from aectorch.report.command import run_command, study_parser, run_groups  # noqa: E402
 from aectorch.runs import EVALUATION, Run  # noqa: E402
 
 __all__ = ["FAR_FROM_M", "THRESHOLDS_DEG", "kind", "main", "parser", "tails", "tails_lines"]
@@ -191,10 +190,7 @@ def _report(args) -> list[str]:
 
 def parser() -> argparse.ArgumentParser:
     """The command line: its help is `tails`' docstring."""
-    out = argparse.ArgumentParser(prog="experiments/precision_tails/report.py",
-                                  description=inspect.cleandoc(tails.__doc__),
-                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    out.set_defaults(run=_report)
+    out = study_parser("experiments/precision_tails/report.py", tails, _report)
     out.add_argument("groups", nargs="+", help="name=run,run,...")
     out.add_argument("--eval", default=EVALUATION, help=f"evaluation file in each run folder (default: {EVALUATION})")
     out.add_argument("--worst", type=int, default=10, help="list this many of the worst fixation ends (default 10)")

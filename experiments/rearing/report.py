@@ -18,7 +18,6 @@ file, an unfinished run or a bad argument prints one ``error:`` line and exits w
 from __future__ import annotations
 
 import argparse
-import inspect
 import math
 import os
 import statistics
@@ -29,7 +28,7 @@ from typing import Mapping, Sequence
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run as a script from a checkout
 
 from aectorch.figures import save_figure  # noqa: E402
-from aectorch.report.command import run_command  # noqa: E402
+from aectorch.report.command import run_command, study_parser  # noqa: E402
 from aectorch.runs import Run  # noqa: E402
 from aectorch.runtime.presets import REARING  # noqa: E402
 
@@ -549,9 +548,7 @@ def _report(args) -> list[str]:
 
 def parser() -> argparse.ArgumentParser:
     """The command line: its help is `rearing_table`'s docstring."""
-    out = argparse.ArgumentParser(prog="experiments/rearing/report.py", description=inspect.cleandoc(rearing_table.__doc__),
-                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    out.set_defaults(run=_report)
+    out = study_parser("experiments/rearing/report.py", rearing_table, _report)
     out.add_argument("folder", type=Path, nargs="+",
                      help="the suite's sweep folders (python train.py -m ... hydra.sweep.dir=...)")
     out.add_argument("--cue", default="stereo", help="the cue whose dictionaries are read out (default: stereo)")

@@ -12,7 +12,6 @@ with status 2 (`aectorch.report.command.run_command`, as ``python -m aectorch.re
 from __future__ import annotations
 
 import argparse
-import inspect
 import math
 import re
 import statistics
@@ -24,7 +23,7 @@ from typing import Sequence
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run as a script from a checkout
 
 from aectorch.evaluation.summary import WITHIN_DEG  # noqa: E402
-from aectorch.report.command import run_command  # noqa: E402
+from aectorch.report.command import run_command, study_parser  # noqa: E402
 from aectorch.runs import Run, read_json  # noqa: E402
 
 __all__ = ["main", "parser", "rl_table"]
@@ -113,9 +112,7 @@ def _report(args) -> list[str]:
 
 def parser() -> argparse.ArgumentParser:
     """The command line: its help is `rl_table`'s docstring."""
-    out = argparse.ArgumentParser(prog="experiments/rl_clients/report.py", description=inspect.cleandoc(rl_table.__doc__),
-                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    out.set_defaults(run=_report)
+    out = study_parser("experiments/rl_clients/report.py", rl_table, _report)
     out.add_argument("folder", type=Path, help="the examples' result files")
     out.add_argument("--own", type=Path, nargs="*", default=[], help="the project's own runs")
     out.add_argument("--default-set", default="data/choose-photos",

@@ -10,7 +10,6 @@ or a bad argument prints one ``error:`` line and exits with status 2
 from __future__ import annotations
 
 import argparse
-import inspect
 import sys
 from pathlib import Path
 from typing import Sequence
@@ -21,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run as a script 
 
 from aectorch.evaluation import adaptation  # noqa: E402
 from aectorch.evaluation.summary import WITHIN_DEG  # noqa: E402
-from aectorch.report.command import run_command  # noqa: E402
+from aectorch.report.command import run_command, study_parser  # noqa: E402
 from aectorch.runs import Run  # noqa: E402
 
 __all__ = ["adaptation_table", "before_line", "main"]
@@ -94,10 +93,7 @@ def _report(args) -> list[str]:
 
 def parser() -> argparse.ArgumentParser:
     """The command line: its help is `adaptation_table`'s docstring."""
-    out = argparse.ArgumentParser(prog="experiments/roll_adaptation/report.py",
-                                  description=inspect.cleandoc(adaptation_table.__doc__),
-                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    out.set_defaults(run=_report)
+    out = study_parser("experiments/roll_adaptation/report.py", adaptation_table, _report)
     out.add_argument("runs", nargs="+", type=Path, help="run folders")
     out.add_argument("--change", type=int, required=True, help="the iteration the first event acts from")
     out.add_argument("--before", type=Path, default=None,
